@@ -1,0 +1,35 @@
+# citylod — `make demo` and `make test` work on a fresh Debian machine with Python 3.11 and no display.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test bench lint sysdeps venv clean
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+venv: $(STAMP)
+
+sysdeps:
+	@./scripts/sysdeps.sh
+
+demo: $(STAMP) sysdeps
+	$(VENV)/bin/citylod demo demo_out
+
+test: $(STAMP) sysdeps
+	xvfb-run -a -s "-screen 0 1600x1200x24" $(PY) -m pytest -n 2 --dist loadfile -q
+
+bench: $(STAMP) sysdeps
+	$(VENV)/bin/citylod bench-suite bench_out
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check src tests
+	$(VENV)/bin/lint-imports
+	$(VENV)/bin/mypy
+
+clean:
+	rm -rf $(VENV) demo_out bench_out

@@ -1,0 +1,1 @@
+"""Speed-against-error benchmark harness and report."""

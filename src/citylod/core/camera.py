@@ -1,0 +1,195 @@
+"""Camera, view and the one screen-space-error function.
+
+The camera file that ``citylod render`` reads is this JSON (coordinates in the source CRS of the data,
+angles in degrees)::
+
+    {"position": [x, y, z], "focal_point": [x, y, z], "view_up": [0, 0, 1], "fovy_deg": 45.0}
+
+A camera path is a JSON list of such objects, or ``{"cameras": [...]}``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.core.errors import InputError
+from citylod.core.geometry import F64, Box, Sphere
+
+
+def screen_space_error(geometric_error: float, distance: float, height_px: int, fovy_rad: float) -> float:
+    """The screen-space error in pixels of a tile seen at ``distance``.
+
+    ``sse_px = geometricError · H_px / (2 · d · tan(fovy/2))`` (Wahl et al. 2004 with the isotropic
+    bound; the same formula as CesiumJS). A viewer inside the bounding volume (d = 0) sees an infinite
+    error, so the tile always refines.
+    """
+    if distance <= 0.0:
+        return math.inf if geometric_error > 0 else 0.0
+    return geometric_error * height_px / (2.0 * distance * math.tan(fovy_rad / 2.0))
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A perspective camera in the source CRS (metres unless the CRS says otherwise)."""
+
+    position: tuple[float, float, float]
+    focal_point: tuple[float, float, float]
+    view_up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    fovy_deg: float = 45.0
+
+    def __post_init__(self) -> None:
+        pos = np.asarray(self.position, dtype=np.float64)
+        foc = np.asarray(self.focal_point, dtype=np.float64)
+        if pos.shape != (3,) or foc.shape != (3,) or not (np.all(np.isfinite(pos)) and np.all(np.isfinite(foc))):
+            raise ValueError("camera position and focal_point must be three finite numbers each")
+        if np.allclose(pos, foc):
+            raise ValueError("camera position and focal_point coincide")
+        if not 0.0 < self.fovy_deg < 180.0:
+            raise ValueError(f"fovy_deg must be in (0, 180), got {self.fovy_deg}")
+
+    @property
+    def direction(self) -> F64:
+        """Unit view direction (3,)."""
+        d = np.subtract(self.focal_point, self.position, dtype=np.float64)
+        return d / np.linalg.norm(d)
+
+    def basis(self) -> tuple[F64, F64, F64]:
+        """Orthonormal (right, up, forward) of the camera; ``up`` is ``view_up`` made orthogonal."""
+        fwd = self.direction
+        up = np.asarray(self.view_up, dtype=np.float64)
+        right = np.cross(fwd, up)
+        if np.linalg.norm(right) < 1e-9:  # looking along view_up: pick any perpendicular
+            right = np.cross(fwd, [1.0, 0.0, 0.0] if abs(fwd[0]) < 0.9 else [0.0, 1.0, 0.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        return right, up, fwd
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "position": [float(v) for v in self.position],
+            "focal_point": [float(v) for v in self.focal_point],
+            "view_up": [float(v) for v in self.view_up],
+            "fovy_deg": float(self.fovy_deg),
+        }
+
+    @staticmethod
+    def from_dict(d: dict[str, Any], source: str | None = None) -> Camera:
+        try:
+            return Camera(
+                position=tuple(float(v) for v in d["position"]),  # type: ignore[arg-type]
+                focal_point=tuple(float(v) for v in d["focal_point"]),  # type: ignore[arg-type]
+                view_up=tuple(float(v) for v in d.get("view_up", (0.0, 0.0, 1.0))),  # type: ignore[arg-type]
+                fovy_deg=float(d.get("fovy_deg", 45.0)),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"not a camera ({exc})", source) from exc
+
+    def save(self, path: str | PathLike[str]) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+
+def load_cameras(path: str | PathLike[str]) -> list[Camera]:
+    """Read a camera file: one camera object, a list of them, or ``{"cameras": [...]}``."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise InputError(f"cannot read camera file ({exc.strerror})", path) from exc
+    except json.JSONDecodeError as exc:
+        raise InputError(f"camera file is not JSON ({exc})", path) from exc
+    if isinstance(data, dict) and "cameras" in data:
+        data = data["cameras"]
+    items = data if isinstance(data, list) else [data]
+    if not items:
+        raise InputError("camera path is empty", path)
+    return [Camera.from_dict(item, str(path)) if isinstance(item, dict) else _bad(path) for item in items]
+
+
+def _bad(path: str | PathLike[str]) -> Camera:
+    raise InputError("camera entries must be JSON objects", path)
+
+
+@dataclass(frozen=True)
+class View:
+    """A camera with a viewport: what selection needs to know about a frame.
+
+    ``planes`` are the six frustum planes (6, 4) as ``n·x + d >= 0`` inside, near and far included.
+    """
+
+    camera: Camera
+    width_px: int
+    height_px: int
+    near: float = 0.1
+    far: float = 1e7
+    planes: F64 = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.width_px <= 0 or self.height_px <= 0:
+            raise ValueError("viewport must be at least 1×1 pixels")
+        object.__setattr__(self, "planes", _frustum_planes(self))
+
+    @property
+    def fovy_rad(self) -> float:
+        return math.radians(self.camera.fovy_deg)
+
+    @property
+    def eye(self) -> F64:
+        return np.asarray(self.camera.position, dtype=np.float64)
+
+    def sse(self, geometric_error: float, distance: float) -> float:
+        """Screen-space error of ``geometric_error`` at ``distance`` in this view, pixels."""
+        return screen_space_error(geometric_error, distance, self.height_px, self.fovy_rad)
+
+    def pixel_footprint(self, distance: float) -> float:
+        """Object-space size of one pixel at ``distance`` along the view axis."""
+        return 2.0 * distance * math.tan(self.fovy_rad / 2.0) / self.height_px
+
+    def cull_box(self, box: Box) -> bool:
+        """True if ``box`` lies entirely outside the frustum (conservative: False when unsure)."""
+        # Projected radius of an oriented box on a plane normal: sum |n · half_axis_i|.
+        n = self.planes[:, :3]
+        dist = n @ box.center + self.planes[:, 3]
+        radius = np.abs(n @ box.half_axes).sum(axis=1)
+        return bool(np.any(dist < -radius))
+
+    def cull_sphere(self, sphere: Sphere) -> bool:
+        """True if ``sphere`` lies entirely outside the frustum."""
+        dist = self.planes[:, :3] @ sphere.center + self.planes[:, 3]
+        return bool(np.any(dist < -sphere.radius))
+
+    def depth_of(self, points: npt.ArrayLike) -> F64:
+        """Distance along the view axis of ``points`` (N, 3)."""
+        return (np.asarray(points, dtype=np.float64) - self.eye) @ self.camera.direction
+
+
+def _frustum_planes(view: View) -> F64:
+    right, up, fwd = view.camera.basis()
+    eye = view.eye
+    ty = math.tan(view.fovy_rad / 2.0)
+    tx = ty * view.width_px / view.height_px
+    normals = [
+        fwd,  # near
+        -fwd,  # far
+        _unit(fwd * tx + right),  # left: inward normal
+        _unit(fwd * tx - right),  # right
+        _unit(fwd * ty + up),  # bottom
+        _unit(fwd * ty - up),  # top
+    ]
+    planes = np.empty((6, 4))
+    for i, nrm in enumerate(normals):
+        planes[i, :3] = nrm
+        planes[i, 3] = -float(nrm @ eye)
+    planes[0, 3] = -float(fwd @ eye) - view.near
+    planes[1, 3] = float(fwd @ eye) + view.far
+    return planes
+
+
+def _unit(v: F64) -> F64:
+    return v / np.linalg.norm(v)

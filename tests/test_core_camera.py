@@ -1,0 +1,54 @@
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from citylod.core.camera import Camera, View, load_cameras, screen_space_error
+from citylod.core.errors import InputError
+from citylod.core.geometry import Box, Sphere
+
+
+def test_sse_formula_matches_hand_computation() -> None:
+    # 1 m error at 100 m, 1000 px high, 90° fov: 1000 / (2·100·tan 45°) = 5 px
+    assert screen_space_error(1.0, 100.0, 1000, math.pi / 2) == pytest.approx(5.0)
+    assert screen_space_error(1.0, 0.0, 1000, 1.0) == math.inf
+
+
+def test_frustum_culls_behind_and_keeps_in_front() -> None:
+    cam = Camera((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), 60.0)
+    view = View(cam, 800, 600)
+    assert not view.cull_box(Box.from_bounds([-1, 9, -1], [1, 11, 1]))
+    assert view.cull_box(Box.from_bounds([-1, -11, -1], [1, -9, 1]))
+    assert view.cull_box(Box.from_bounds([100, 9, -1], [102, 11, 1]))  # far off to the right
+    assert not view.cull_sphere(Sphere(np.array([0.0, 5.0, 0.0]), 1.0))
+    assert view.cull_sphere(Sphere(np.array([0.0, -5.0, 0.0]), 1.0))
+
+
+def test_box_3dtiles_roundtrip_and_distance() -> None:
+    box = Box.from_bounds([0, 0, 0], [2, 4, 6])
+    again = Box.from_3dtiles(box.to_3dtiles())
+    np.testing.assert_allclose(again.center, box.center)
+    np.testing.assert_allclose(again.half_axes, box.half_axes)
+    assert box.distance([1, 2, 3]) == 0.0
+    assert box.distance([5, 2, 3]) == pytest.approx(3.0)
+    lo, hi = box.bounds()
+    np.testing.assert_allclose(lo, [0, 0, 0])
+    np.testing.assert_allclose(hi, [2, 4, 6])
+
+
+def test_camera_file_roundtrip_and_errors(tmp_path) -> None:
+    cam = Camera((500000.0, 5.4e6, 300.0), (500100.0, 5.4e6 + 100, 0.0), fovy_deg=40)
+    p = tmp_path / "cam.json"
+    cam.save(p)
+    assert load_cameras(p) == [cam]
+    (tmp_path / "path.json").write_text(json.dumps({"cameras": [cam.to_dict(), cam.to_dict()]}))
+    assert len(load_cameras(tmp_path / "path.json")) == 2
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(InputError, match="bad.json"):
+        load_cameras(tmp_path / "bad.json")
+    (tmp_path / "bad2.json").write_text('{"position": [1, 2]}')
+    with pytest.raises(InputError, match="bad2.json"):
+        load_cameras(tmp_path / "bad2.json")
