@@ -1,0 +1,81 @@
+"""CRS helpers: parsing user input, the tileset's ECEF placement, geographic detection.
+
+The tileset's root transform places the data on the globe (EPSG:4978) so that any 3D Tiles client shows it
+in the right place. citylod itself works in the source CRS (recorded in the tileset), so this placement is
+only for other clients; it is an affine approximation (local tangent frame at the data's origin, with the
+projection's grid convergence and scale factor), whose error grows with the square of the distance from the
+origin (Earth curvature: about 2 m at 5 km). citylod never reads positions through it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pyproj
+
+from citylod.core.errors import GeoreferenceError
+from citylod.core.frames import enu_to_ecef_matrix
+from citylod.core.geometry import F64
+
+
+def parse_crs(value: Any, source: str | None = None) -> pyproj.CRS:
+    """A pyproj CRS from EPSG codes, WKT, PROJ strings or an existing CRS; GeoreferenceError otherwise."""
+    if isinstance(value, pyproj.CRS):
+        return value
+    try:
+        return pyproj.CRS.from_user_input(value)
+    except (pyproj.exceptions.CRSError, TypeError) as exc:
+        raise GeoreferenceError(f"not a coordinate reference system: {value!r} ({exc})", source) from exc
+
+
+def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
+    """The horizontal part of a compound CRS (e.g. EPSG:7415 → EPSG:28992); the CRS itself otherwise."""
+    if crs.is_compound:
+        for sub in crs.sub_crs_list:
+            if sub.is_projected or sub.is_geographic:
+                return sub
+    return crs
+
+
+def is_geographic(crs: pyproj.CRS) -> bool:
+    """True when horizontal coordinates are angles (degrees), not metres."""
+    return bool(horizontal_crs(crs).is_geographic)
+
+
+def utm_crs_for(lon_deg: float, lat_deg: float) -> pyproj.CRS:
+    """The WGS84 UTM zone CRS containing a point."""
+    zone = int(np.floor((lon_deg + 180.0) / 6.0)) % 60 + 1
+    epsg = (32600 if lat_deg >= 0 else 32700) + zone
+    return pyproj.CRS.from_epsg(epsg)
+
+
+def ecef_from_local(crs: pyproj.CRS, origin: F64) -> F64:
+    """4×4 matrix from the local frame (source CRS coordinates minus ``origin``) to ECEF.
+
+    The horizontal axes are mapped with the Jacobian of the projection at the origin (grid convergence and
+    scale factor, from a central difference of ±100 m), heights go to the local up axis. For a geographic CRS
+    the local frame is already metric only after projection, so ``crs`` must be metric here.
+    """
+    h = horizontal_crs(crs)
+    to_geo = pyproj.Transformer.from_crs(h, "EPSG:4326", always_xy=True)
+    x0, y0, z0 = (float(v) for v in origin)
+    lon0, lat0 = to_geo.transform(x0, y0)
+    if not (np.isfinite(lon0) and np.isfinite(lat0)):
+        raise GeoreferenceError(f"cannot place origin {origin} of {h.name} on the globe")
+    enu = enu_to_ecef_matrix(lon0, lat0, z0)
+    # Jacobian of (x, y) -> (east, north) in metres, by central differences on the ellipsoid's tangent plane.
+    d = 100.0
+    pts_x = np.array([x0 - d, x0 + d, x0, x0])
+    pts_y = np.array([y0, y0, y0 - d, y0 + d])
+    lon, lat = to_geo.transform(pts_x, pts_y)
+    geod = pyproj.Geod(ellps="WGS84")
+    az, _, dist = geod.inv(np.full(4, lon0), np.full(4, lat0), lon, lat)
+    az_r = np.radians(az)
+    east = dist * np.sin(az_r)
+    north = dist * np.cos(az_r)
+    jac = np.array([[(east[1] - east[0]) / (2 * d), (east[3] - east[2]) / (2 * d)],
+                    [(north[1] - north[0]) / (2 * d), (north[3] - north[2]) / (2 * d)]])
+    local_to_enu = np.eye(4)
+    local_to_enu[:2, :2] = jac
+    return enu @ local_to_enu

@@ -1,0 +1,884 @@
+"""OGC 3D Tiles 1.x: glb content and ``tileset.json``, written atomically and read safely.
+
+What citylod writes (decision 1 of the design): 3D Tiles 1.1, glb content, ``geometricError`` equal to the
+tile's guaranteed object-space error in metres, float32 positions relative to the tile centre with the centre
+in the tile ``transform`` (float64). The root transform places the data on the globe (ECEF) so any client
+shows it; the source CRS and the local origin are recorded in ``extras.citylod`` so citylod works in the
+source CRS.
+
+What citylod reads: any 3D Tiles 1.x tileset — glb, b3dm and pnts content, box / region / sphere bounding
+volumes, tile transforms, external tilesets. URIs that leave the tileset's folder (``../``, absolute paths,
+URLs) are refused with :class:`~citylod.core.errors.UnsafePathError`.
+
+glTF is y-up and 3D Tiles turns it z-up when it places content; this module does that turn both ways, so
+callers only see z-up coordinates. Skirt triangles are stored as a separate primitive marked
+``extras.citylod_skirt`` so standard clients draw them and citylod can tell them apart.
+
+No VTK and no Qt here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import urllib.parse
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pyproj
+
+from citylod import __version__
+from citylod.core.errors import InputError, UnsafePathError
+from citylod.core.frames import geodetic_to_ecef
+from citylod.core.geometry import F64, Box, translation
+from citylod.io.crs import ecef_from_local, parse_crs
+
+# glTF y-up -> 3D Tiles z-up: (x, y, z)_gltf = (x, z, -y)_zup (3D Tiles spec, "y-up to z-up").
+_Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+_Z_UP_TO_Y_UP = np.linalg.inv(_Y_UP_TO_Z_UP)
+
+_COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+_NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+_POINT_ATTRS = {"_INTENSITY": "intensity", "_CLASSIFICATION": "classification", "_RETURN_NUMBER": "return_number"}
+
+
+# --------------------------------------------------------------------------------------------- content model
+@dataclass
+class MeshData:
+    """One triangle mesh of a tile. ``positions`` (N, 3) float32 relative to the tile centre, z up;
+    ``faces`` (M, 3) uint32; ``skirt`` (M,) bool or None; ``uv`` (N, 2) float32 (origin top-left);
+    ``texture`` encoded JPEG/PNG bytes; ``colors`` (N, 4) uint8."""
+
+    positions: npt.NDArray[np.float32]
+    faces: npt.NDArray[np.uint32]
+    skirt: npt.NDArray[np.bool_] | None = None
+    uv: npt.NDArray[np.float32] | None = None
+    texture: bytes | None = None
+    colors: npt.NDArray[np.uint8] | None = None
+    name: str = "surface"
+
+    @property
+    def nbytes(self) -> int:
+        n = self.positions.nbytes + self.faces.nbytes
+        for a in (self.uv, self.colors, self.skirt):
+            n += 0 if a is None else a.nbytes
+        return n + (len(self.texture) if self.texture else 0)
+
+
+@dataclass
+class PointData:
+    """Points of a tile: ``positions`` (N, 3) float32 relative to the tile centre and per-point attributes."""
+
+    positions: npt.NDArray[np.float32]
+    rgb: npt.NDArray[np.uint8] | None = None
+    intensity: npt.NDArray[np.uint16] | None = None
+    classification: npt.NDArray[np.uint8] | None = None
+    return_number: npt.NDArray[np.uint8] | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def nbytes(self) -> int:
+        n = self.positions.nbytes
+        for a in (self.rgb, self.intensity, self.classification, self.return_number, *self.extra.values()):
+            n += 0 if a is None else a.nbytes
+        return n
+
+
+@dataclass
+class TileContent:
+    """What one content file holds: meshes (surfaces, quads) and/or points."""
+
+    meshes: list[MeshData] = field(default_factory=list)
+    points: PointData | None = None
+
+    @property
+    def nbytes(self) -> int:
+        return sum(m.nbytes for m in self.meshes) + (self.points.nbytes if self.points is not None else 0)
+
+    @property
+    def triangle_count(self) -> int:
+        return sum(len(m.faces) for m in self.meshes)
+
+    @property
+    def point_count(self) -> int:
+        return 0 if self.points is None else len(self.points.positions)
+
+
+# ----------------------------------------------------------------------------------------------- glb writer
+class _GlbBuilder:
+    def __init__(self) -> None:
+        self.bin = bytearray()
+        self.gltf: dict[str, Any] = {
+            "asset": {"version": "2.0", "generator": f"citylod {__version__}"},
+            "buffers": [], "bufferViews": [], "accessors": [], "meshes": [], "nodes": [], "scenes": [],
+        }
+
+    def view(self, data: bytes, target: int | None = None) -> int:
+        while len(self.bin) % 4:
+            self.bin.append(0)
+        bv: dict[str, Any] = {"buffer": 0, "byteOffset": len(self.bin), "byteLength": len(data)}
+        if target is not None:
+            bv["target"] = target
+        self.bin.extend(data)
+        self.gltf["bufferViews"].append(bv)
+        return len(self.gltf["bufferViews"]) - 1
+
+    def accessor(self, array: np.ndarray, kind: str, *, normalized: bool = False, target: int | None = 34962,
+                 minmax: bool = False) -> int:
+        ctype = {np.dtype(v): k for k, v in _COMPONENT.items()}[array.dtype]
+        arr = np.ascontiguousarray(array)
+        acc: dict[str, Any] = {
+            "bufferView": self.view(arr.tobytes(), target), "componentType": ctype,
+            "count": int(arr.shape[0]), "type": kind,
+        }
+        if normalized:
+            acc["normalized"] = True
+        if minmax and len(arr):
+            flat = arr.reshape(len(arr), -1)
+            acc["min"] = [float(v) for v in flat.min(axis=0)]
+            acc["max"] = [float(v) for v in flat.max(axis=0)]
+        self.gltf["accessors"].append(acc)
+        return len(self.gltf["accessors"]) - 1
+
+    def add(self, key: str, item: dict[str, Any]) -> int:
+        self.gltf.setdefault(key, []).append(item)
+        return len(self.gltf[key]) - 1
+
+    def encode(self) -> bytes:
+        while len(self.bin) % 4:
+            self.bin.append(0)
+        self.gltf["buffers"] = [{"byteLength": len(self.bin)}]
+        for k in [k for k, v in self.gltf.items() if isinstance(v, list) and not v]:
+            del self.gltf[k]
+        js = json.dumps(self.gltf, separators=(",", ":")).encode()
+        js += b" " * (-len(js) % 4)
+        total = 12 + 8 + len(js) + (8 + len(self.bin) if self.bin else 0)
+        out = bytearray(struct.pack("<4sII", b"glTF", 2, total))
+        out += struct.pack("<I4s", len(js), b"JSON") + js
+        if self.bin:
+            out += struct.pack("<I4s", len(self.bin), b"BIN\x00") + self.bin
+        return bytes(out)
+
+
+def _to_gltf_axes(p: np.ndarray) -> np.ndarray:
+    out = np.empty_like(p, dtype=np.float32)
+    out[:, 0], out[:, 1], out[:, 2] = p[:, 0], p[:, 2], -p[:, 1]
+    return out
+
+
+def _from_gltf_axes(p: np.ndarray) -> np.ndarray:
+    out = np.empty_like(p, dtype=np.float32)
+    out[:, 0], out[:, 1], out[:, 2] = p[:, 0], -p[:, 2], p[:, 1]
+    return out
+
+
+def encode_glb(content: TileContent) -> bytes:
+    """Encode ``content`` as a binary glTF 2.0 (glb) with y-up positions, as 3D Tiles expects."""
+    b = _GlbBuilder()
+    primitives: list[dict[str, Any]] = []
+    unlit = False
+    for mesh in content.meshes:
+        pos = np.asarray(mesh.positions, dtype=np.float32).reshape(-1, 3)
+        faces = np.asarray(mesh.faces, dtype=np.uint32).reshape(-1, 3)
+        if len(pos) == 0 or len(faces) == 0:
+            continue
+        attrs = {"POSITION": b.accessor(_to_gltf_axes(pos), "VEC3", minmax=True)}
+        material: dict[str, Any] = {"name": mesh.name, "doubleSided": True,
+                                    "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}}
+        if mesh.uv is not None and mesh.texture:
+            attrs["TEXCOORD_0"] = b.accessor(np.asarray(mesh.uv, dtype=np.float32), "VEC2")
+            mime = "image/png" if mesh.texture[:8] == b"\x89PNG\r\n\x1a\n" else "image/jpeg"
+            img = b.add("images", {"bufferView": b.view(mesh.texture), "mimeType": mime})
+            smp = b.add("samplers", {"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071})
+            tex = b.add("textures", {"source": img, "sampler": smp})
+            material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": tex}
+            if mime == "image/png":
+                material["alphaMode"] = "MASK"
+            material["extensions"] = {"KHR_materials_unlit": {}}
+            unlit = True
+        if mesh.colors is not None:
+            attrs["COLOR_0"] = b.accessor(np.asarray(mesh.colors, dtype=np.uint8), "VEC4", normalized=True)
+        mat = b.add("materials", material)
+        skirt = np.zeros(len(faces), bool) if mesh.skirt is None else np.asarray(mesh.skirt, bool)
+        for is_skirt in (False, True):
+            sel = faces[skirt == is_skirt]
+            if len(sel) == 0:
+                continue
+            prim: dict[str, Any] = {"attributes": attrs, "mode": 4, "material": mat,
+                                    "indices": b.accessor(sel.reshape(-1), "SCALAR", target=34963)}
+            prim["extras"] = {"citylod_name": mesh.name, "citylod_skirt": is_skirt}
+            primitives.append(prim)
+    if content.points is not None and len(content.points.positions):
+        pts = content.points
+        attrs = {"POSITION": b.accessor(_to_gltf_axes(np.asarray(pts.positions, np.float32)), "VEC3", minmax=True)}
+        if pts.rgb is not None:
+            attrs["COLOR_0"] = b.accessor(np.asarray(pts.rgb, np.uint8), "VEC3", normalized=True)
+        for gl_name, attr in _POINT_ATTRS.items():
+            arr = getattr(pts, attr)
+            if arr is not None:
+                dt = np.uint16 if attr == "intensity" else np.uint8
+                attrs[gl_name] = b.accessor(np.asarray(arr, dt), "SCALAR")
+        dtypes = {}
+        for name, arr in pts.extra.items():
+            a = np.asarray(arr)
+            dtypes[name] = a.dtype.str
+            stored = a if a.dtype in (np.uint8, np.uint16, np.float32) else a.astype(np.float32)
+            attrs["_" + name.upper()] = b.accessor(stored, "SCALAR")
+        mat = b.add("materials", {"name": "points", "extensions": {"KHR_materials_unlit": {}},
+                                  "pbrMetallicRoughness": {"metallicFactor": 0.0}})
+        unlit = True
+        primitives.append({"attributes": attrs, "mode": 0, "material": mat,
+                           "extras": {"citylod_name": "points", "citylod_extra_dtypes": dtypes}})
+    if primitives:
+        b.gltf["meshes"] = [{"primitives": primitives}]
+        b.gltf["nodes"] = [{"mesh": 0}]
+        b.gltf["scenes"] = [{"nodes": [0]}]
+        b.gltf["scene"] = 0
+    if unlit:
+        b.gltf["extensionsUsed"] = ["KHR_materials_unlit"]
+    return b.encode()
+
+
+# ----------------------------------------------------------------------------------------------- glb reader
+def _parse_glb(data: bytes, source: str) -> tuple[dict[str, Any], bytes]:
+    if len(data) < 20:
+        raise InputError("content is truncated (shorter than a glb header)", source)
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    if magic != b"glTF":
+        raise InputError(f"not a glb file (magic {magic!r})", source)
+    if version != 2:
+        raise InputError(f"glTF version {version} is not supported (only 2)", source)
+    if length > len(data):
+        raise InputError(f"glb is truncated ({len(data)} of {length} bytes)", source)
+    off, gltf, binary = 12, None, b""
+    while off + 8 <= length:
+        clen, ctype = struct.unpack_from("<I4s", data, off)
+        chunk = data[off + 8: off + 8 + clen]
+        if len(chunk) != clen:
+            raise InputError("glb chunk is truncated", source)
+        if ctype == b"JSON":
+            try:
+                gltf = json.loads(chunk.decode("utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise InputError(f"glb JSON chunk is corrupt ({exc})", source) from exc
+        elif ctype == b"BIN\x00" and not binary:
+            binary = chunk
+        off += 8 + clen + (-clen % 4)
+    if not isinstance(gltf, dict):
+        raise InputError("glb has no JSON chunk", source)
+    return gltf, binary
+
+
+def _read_accessor(gltf: dict[str, Any], binary: bytes, index: int, source: str) -> np.ndarray:
+    try:
+        acc = gltf["accessors"][index]
+        dtype = np.dtype(_COMPONENT[acc["componentType"]])
+        ncomp = _NCOMP[acc["type"]]
+        count = int(acc["count"])
+        if "sparse" in acc:
+            raise InputError("sparse accessors are not supported", source)
+        if "bufferView" not in acc:
+            return np.zeros((count, ncomp), dtype).squeeze()
+        bv = gltf["bufferViews"][acc["bufferView"]]
+        if bv.get("buffer", 0) != 0:
+            raise InputError("external glTF buffers are not supported", source)
+        start = int(bv.get("byteOffset", 0)) + int(acc.get("byteOffset", 0))
+        stride = int(bv.get("byteStride", 0)) or dtype.itemsize * ncomp
+        end = start + stride * (count - 1) + dtype.itemsize * ncomp if count else start
+        if end > len(binary) or start < 0:
+            raise InputError("accessor reaches past the end of the binary chunk", source)
+        raw = np.frombuffer(binary, np.uint8, count=end - start, offset=start)
+        if stride == dtype.itemsize * ncomp:
+            arr = raw.view(dtype).reshape(count, ncomp)
+        else:
+            rows = np.lib.stride_tricks.as_strided(raw, (count, dtype.itemsize * ncomp), (stride, 1))
+            arr = np.ascontiguousarray(rows).view(dtype).reshape(count, ncomp)
+        if acc.get("normalized") and dtype.kind in "ui" and acc["type"] != "SCALAR" and dtype != np.uint8:
+            arr = arr.astype(np.float32) / np.iinfo(dtype).max
+        return arr[:, 0] if ncomp == 1 else arr
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        raise InputError(f"glTF accessor {index} is invalid ({exc})", source) from exc
+
+
+def _node_matrices(gltf: dict[str, Any]) -> list[tuple[int, F64]]:
+    """(mesh index, 4×4 node-to-scene matrix in glTF axes) for every mesh instance of the default scene."""
+    nodes = gltf.get("nodes", [])
+    scenes = gltf.get("scenes") or [{"nodes": list(range(len(nodes)))}]
+    roots = scenes[gltf.get("scene", 0)].get("nodes", [])
+    out: list[tuple[int, F64]] = []
+    stack = [(int(i), np.eye(4)) for i in roots]
+    seen = 0
+    while stack:
+        i, parent = stack.pop()
+        seen += 1
+        if seen > 100000:
+            break
+        node = nodes[i]
+        m = np.eye(4)
+        if "matrix" in node:
+            m = np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T
+        else:
+            t = np.asarray(node.get("translation", [0, 0, 0]), float)
+            x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+            r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                          [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                          [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+            s = np.asarray(node.get("scale", [1, 1, 1]), float)
+            m[:3, :3] = r * s
+            m[:3, 3] = t
+        world = parent @ m
+        if "mesh" in node:
+            out.append((int(node["mesh"]), world))
+        stack.extend((int(c), world) for c in node.get("children", []))
+    return out
+
+
+def decode_glb(data: bytes, source: str = "", *, rtc_center: F64 | None = None,
+               y_up: bool = True) -> TileContent:
+    """Decode a glb into :class:`TileContent` with z-up positions relative to the content's origin.
+
+    Node transforms are applied. Draco or meshopt compressed content is refused with a clear error.
+    """
+    gltf, binary = _parse_glb(data, source)
+    required = set(gltf.get("extensionsRequired", []))
+    unsupported = required & {"KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_mesh_quantization"}
+    if unsupported:
+        raise InputError(f"glTF extension {sorted(unsupported)} is not supported", source)
+    if rtc_center is None and "CESIUM_RTC" in gltf.get("extensions", {}):
+        rtc_center = np.asarray(gltf["extensions"]["CESIUM_RTC"]["center"], float)
+    content = TileContent()
+    images = _images(gltf, binary)
+    for mesh_index, node_m in _node_matrices(gltf):
+        try:
+            prims = gltf["meshes"][mesh_index]["primitives"]
+        except (KeyError, IndexError) as exc:
+            raise InputError(f"glTF mesh {mesh_index} is missing", source) from exc
+        # Group primitives sharing a POSITION accessor (our surface + skirt pair) into one MeshData.
+        groups: dict[tuple[int, int], list[dict[str, Any]]] = {}
+        for prim in prims:
+            if "POSITION" not in prim.get("attributes", {}):
+                continue
+            groups.setdefault((prim["attributes"]["POSITION"], prim.get("mode", 4)), []).append(prim)
+        for (pos_idx, mode), group in groups.items():
+            pos = _read_accessor(gltf, binary, pos_idx, source).astype(np.float64)
+            pos = pos @ node_m[:3, :3].T + node_m[:3, 3]
+            if rtc_center is not None:
+                pos = pos + (_Z_UP_TO_Y_UP[:3, :3] @ rtc_center if y_up else rtc_center)
+            pos32 = _from_gltf_axes(pos) if y_up else pos.astype(np.float32)
+            attrs = group[0]["attributes"]
+            if mode == 0:
+                content.points = _decode_points(gltf, binary, attrs, group[0], pos32, source)
+                continue
+            if mode not in (4, 5, 6):
+                continue  # lines are not drawn by citylod
+            faces_list, skirt_list = [], []
+            for prim in group:
+                if "indices" in prim:
+                    idx = _read_accessor(gltf, binary, prim["indices"], source).astype(np.uint32)
+                else:
+                    idx = np.arange(len(pos32), dtype=np.uint32)
+                tri = _triangles(idx, prim.get("mode", 4))
+                if len(tri) and int(tri.max()) >= len(pos32):
+                    raise InputError("triangle indices point past the vertices", source)
+                faces_list.append(tri)
+                skirt_list.append(np.full(len(tri), bool(prim.get("extras", {}).get("citylod_skirt", False))))
+            uv = texture = colors = None
+            if "TEXCOORD_0" in attrs:
+                uv = _read_accessor(gltf, binary, attrs["TEXCOORD_0"], source).astype(np.float32)
+                texture = _material_texture(gltf, group[0], images)
+                if texture is None:
+                    uv = None
+            if "COLOR_0" in attrs:
+                colors = _colors_rgba(_read_accessor(gltf, binary, attrs["COLOR_0"], source))
+            content.meshes.append(MeshData(
+                positions=pos32, faces=np.concatenate(faces_list), skirt=np.concatenate(skirt_list),
+                uv=uv, texture=texture, colors=colors,
+                name=str(group[0].get("extras", {}).get("citylod_name", "surface")),
+            ))
+    return content
+
+
+def _triangles(idx: np.ndarray, mode: int) -> np.ndarray:
+    if mode == 4:
+        return idx[: len(idx) // 3 * 3].reshape(-1, 3)
+    n = len(idx) - 2
+    if n <= 0:
+        return np.zeros((0, 3), np.uint32)
+    k = np.arange(n)
+    if mode == 5:  # strip: alternate winding
+        a, b = np.where(k % 2 == 0, idx[k], idx[k + 1]), np.where(k % 2 == 0, idx[k + 1], idx[k])
+        return np.stack([a, b, idx[k + 2]], axis=1)
+    return np.stack([np.full(n, idx[0]), idx[k + 1], idx[k + 2]], axis=1)  # fan
+
+
+def _colors_rgba(c: np.ndarray) -> np.ndarray:
+    c = np.asarray(c)
+    if c.dtype.kind == "f":
+        c = np.clip(np.round(c * 255), 0, 255).astype(np.uint8)
+    elif c.dtype == np.uint16:
+        c = (c >> 8).astype(np.uint8)
+    if c.ndim == 1:
+        c = c[:, None].repeat(3, axis=1)
+    if c.shape[1] == 3:
+        c = np.concatenate([c, np.full((len(c), 1), 255, np.uint8)], axis=1)
+    return c.astype(np.uint8)
+
+
+def _images(gltf: dict[str, Any], binary: bytes) -> list[bytes | None]:
+    out: list[bytes | None] = []
+    for img in gltf.get("images", []):
+        if "bufferView" in img:
+            bv = gltf["bufferViews"][img["bufferView"]]
+            start = int(bv.get("byteOffset", 0))
+            out.append(bytes(binary[start: start + int(bv["byteLength"])]))
+        else:
+            out.append(None)  # external or data-URI images are not fetched
+    return out
+
+
+def _material_texture(gltf: dict[str, Any], prim: dict[str, Any], images: list[bytes | None]) -> bytes | None:
+    try:
+        mat = gltf["materials"][prim["material"]]
+        tex = gltf["textures"][mat["pbrMetallicRoughness"]["baseColorTexture"]["index"]]
+        return images[tex["source"]]
+    except (KeyError, IndexError, TypeError):
+        return None
+
+
+def _decode_points(gltf: dict[str, Any], binary: bytes, attrs: dict[str, int], prim: dict[str, Any],
+                   pos32: np.ndarray, source: str) -> PointData:
+    pts = PointData(positions=pos32)
+    if "COLOR_0" in attrs:
+        pts.rgb = _colors_rgba(_read_accessor(gltf, binary, attrs["COLOR_0"], source))[:, :3].copy()
+    for gl_name, attr in _POINT_ATTRS.items():
+        if gl_name in attrs:
+            setattr(pts, attr, _read_accessor(gltf, binary, attrs[gl_name], source).copy())
+    dtypes = prim.get("extras", {}).get("citylod_extra_dtypes", {})
+    for name, dt in dtypes.items():
+        key = "_" + name.upper()
+        if key in attrs:
+            pts.extra[name] = _read_accessor(gltf, binary, attrs[key], source).astype(np.dtype(dt))
+    return pts
+
+
+# ------------------------------------------------------------------------------------- legacy 1.0 content
+def decode_content(data: bytes, source: str, *, y_up: bool = True) -> TileContent:
+    """Decode glb, b3dm or pnts content by its magic bytes."""
+    magic = data[:4]
+    if magic == b"glTF":
+        return decode_glb(data, source, y_up=y_up)
+    if magic == b"b3dm":
+        if len(data) < 28:
+            raise InputError("b3dm header is truncated", source)
+        _, _, length, ftj, ftb, btj, btb = struct.unpack_from("<4sIIIIII", data, 0)
+        ft = _feature_json(data[28: 28 + ftj], source)
+        start = 28 + ftj + ftb + btj + btb
+        rtc = np.asarray(ft["RTC_CENTER"], float) if "RTC_CENTER" in ft else None
+        return decode_glb(data[start:length], source, rtc_center=rtc, y_up=y_up)
+    if magic == b"pnts":
+        return _decode_pnts(data, source)
+    raise InputError(f"unknown tile content (magic {magic!r}); expected glb, b3dm or pnts", source)
+
+
+def _feature_json(raw: bytes, source: str) -> dict[str, Any]:
+    try:
+        return json.loads(raw.decode("utf-8").rstrip(" \x00")) if raw.strip(b" \x00") else {}
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"feature table is corrupt ({exc})", source) from exc
+
+
+def _decode_pnts(data: bytes, source: str) -> TileContent:
+    if len(data) < 28:
+        raise InputError("pnts header is truncated", source)
+    _, _, _, ftj, ftb, _, _ = struct.unpack_from("<4sIIIIII", data, 0)
+    ft = _feature_json(data[28: 28 + ftj], source)
+    body = data[28 + ftj: 28 + ftj + ftb]
+    try:
+        n = int(ft["POINTS_LENGTH"])
+
+        def prop(name: str, dtype: Any, ncomp: int) -> np.ndarray | None:
+            if name not in ft:
+                return None
+            off = int(ft[name]["byteOffset"])
+            return np.frombuffer(body, dtype, count=n * ncomp, offset=off).reshape(n, ncomp)
+
+        pos = prop("POSITION", np.float32, 3)
+        if pos is None:
+            q = prop("POSITION_QUANTIZED", np.uint16, 3)
+            if q is None:
+                raise InputError("pnts has no POSITION", source)
+            scale = np.asarray(ft["QUANTIZED_VOLUME_SCALE"], float)
+            offset = np.asarray(ft["QUANTIZED_VOLUME_OFFSET"], float)
+            pos = (q.astype(np.float64) / 65535.0 * scale + offset).astype(np.float32)
+        rtc = np.asarray(ft.get("RTC_CENTER", [0, 0, 0]), float)
+        pos64 = pos.astype(np.float64) + rtc
+        rgb = prop("RGB", np.uint8, 3)
+        rgba = prop("RGBA", np.uint8, 4)
+    except (KeyError, ValueError, TypeError) as exc:
+        raise InputError(f"pnts feature table is invalid ({exc})", source) from exc
+    colours = rgb if rgb is not None else (rgba[:, :3] if rgba is not None else None)
+    return TileContent(points=PointData(positions=pos64.astype(np.float32),
+                                        rgb=None if colours is None else colours.copy()))
+
+
+# --------------------------------------------------------------------------------------- atomic writing
+def _atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def content_path(out_dir: str | os.PathLike[str], key: str) -> Path:
+    """Where :func:`write_content` puts the content of tile ``key``."""
+    return Path(out_dir) / "tiles" / f"{key}.glb"
+
+
+def write_content(out_dir: str | os.PathLike[str], key: str, content: TileContent) -> str:
+    """Write a tile's glb atomically; returns its URI relative to ``out_dir``."""
+    if ".." in key.split("/") or key.startswith("/"):
+        raise ValueError(f"tile key {key!r} must not leave the tileset folder")
+    path = content_path(out_dir, key)
+    _atomic_write(path, encode_glb(content))
+    return path.relative_to(Path(out_dir)).as_posix()
+
+
+@dataclass
+class TileSpec:
+    """A tile as a builder describes it (see docs/CONTRACTS.md). Coordinates in the source CRS."""
+
+    key: str
+    level: int
+    center: F64
+    lo: F64
+    hi: F64
+    geometric_error: float
+    content: str | None = None
+    children: list[TileSpec] = field(default_factory=list)
+    refine: str = "REPLACE"
+    extras: dict[str, Any] | None = None
+
+
+def write_tileset(out_dir: str | os.PathLike[str], root: TileSpec, crs: Any,
+                  extras: dict[str, Any] | None = None, origin: npt.ArrayLike | None = None) -> Path:
+    """Write ``tileset.json`` (3D Tiles 1.1) for the tree under ``root``, atomically.
+
+    The root transform is the ECEF placement of the local frame at ``origin`` (default: the root centre);
+    every other tile's transform is the translation from its parent's centre to its own.
+    """
+    out = Path(out_dir)
+    crs = parse_crs(crs)
+    org = np.asarray(root.center if origin is None else origin, dtype=np.float64)
+    ecef = ecef_from_local(crs, org)
+
+    def tile_json(spec: TileSpec, parent_center: F64 | None) -> dict[str, Any]:
+        center = np.asarray(spec.center, np.float64)
+        if parent_center is None:
+            m = ecef @ translation(center - org)
+        else:
+            m = translation(center - parent_center)
+        lo = np.asarray(spec.lo, np.float64) - center
+        hi = np.asarray(spec.hi, np.float64) - center
+        # A zero-thickness box (flat tile) is legal but degenerate for some clients: pad by a millimetre.
+        hi = np.maximum(hi, lo + 1e-3)
+        t: dict[str, Any] = {
+            "boundingVolume": {"box": Box.from_bounds(lo, hi).to_3dtiles()},
+            "geometricError": float(spec.geometric_error),
+            "refine": spec.refine,
+        }
+        if not np.allclose(m, np.eye(4), rtol=0, atol=0):
+            t["transform"] = [float(v) for v in m.T.reshape(16)]
+        if spec.content:
+            t["content"] = {"uri": spec.content}
+        if spec.extras:
+            t["extras"] = spec.extras
+        if spec.children:
+            t["children"] = [tile_json(c, center) for c in spec.children]
+        return t
+
+    cl_extras = {"crs": crs.to_wkt(), "origin": [float(v) for v in org], "generator": f"citylod {__version__}"}
+    epsg = crs.to_epsg()
+    if epsg:
+        cl_extras["epsg"] = epsg
+    cl_extras.update((extras or {}).get("citylod", {}))
+    doc = {
+        "asset": {"version": "1.1", "generator": f"citylod {__version__}"},
+        "geometricError": float(max(root.geometric_error * 2.0, float(np.linalg.norm(np.subtract(root.hi, root.lo))))),
+        "root": tile_json(root, None),
+        "extras": {**{k: v for k, v in (extras or {}).items() if k != "citylod"}, "citylod": cl_extras},
+    }
+    path = out / "tileset.json"
+    _atomic_write(path, (json.dumps(doc, indent=1) + "\n").encode())
+    return path
+
+
+# ----------------------------------------------------------------------------------------------- reading
+def safe_resolve(base_dir: Path, uri: str, root_dir: Path, source: str) -> Path:
+    """Resolve a content URI against ``base_dir``, refusing anything that leaves ``root_dir``."""
+    parsed = urllib.parse.urlsplit(uri)
+    if parsed.scheme or parsed.netloc:
+        raise UnsafePathError(f"content URI {uri!r} is a URL; only files inside the tileset folder are read", source)
+    rel = urllib.parse.unquote(parsed.path)
+    if not rel or rel.startswith(("/", "\\")) or (len(rel) > 1 and rel[1] == ":"):
+        raise UnsafePathError(f"content URI {uri!r} is an absolute path", source)
+    target = (base_dir / rel).resolve()
+    root = root_dir.resolve()
+    if not target.is_relative_to(root):
+        raise UnsafePathError(f"content URI {uri!r} points outside the tileset folder {root}", source)
+    return target
+
+
+@dataclass
+class TileMesh:
+    """A tile's content in the tileset's CRS: ``vertices`` (N, 3) float64, ``faces`` (M, 3) int64,
+    ``skirt`` (M,) bool, ``points`` (K, 3) float64 or None, and the raw ``content``."""
+
+    vertices: F64
+    faces: npt.NDArray[np.int64]
+    skirt: npt.NDArray[np.bool_]
+    points: F64 | None
+    content: TileContent
+
+
+class Tile:
+    """One tile of an opened tileset. See docs/CONTRACTS.md."""
+
+    __slots__ = ("_size", "box", "children", "content_path", "content_uri", "geometric_error", "key",
+                 "level", "matrix", "parent", "refine", "tileset")
+
+    def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
+                 geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None) -> None:
+        self.tileset = tileset
+        self.key = key
+        self.level = level
+        self.parent = parent
+        self.children: list[Tile] = []
+        self.matrix = matrix
+        self.box = box
+        self.geometric_error = geometric_error
+        self.refine = refine
+        self.content_uri = content_uri
+        self.content_path = content_path
+        self._size: int | None = None
+
+    def __repr__(self) -> str:
+        return f"Tile({self.key!r}, level={self.level}, error={self.geometric_error:.3g})"
+
+    @property
+    def bounds(self) -> tuple[F64, F64]:
+        return self.box.bounds()
+
+    @property
+    def content_bytes(self) -> int:
+        if self.content_path is None:
+            return 0
+        if self._size is None:
+            try:
+                self._size = self.content_path.stat().st_size
+            except OSError:
+                self._size = 0
+        return self._size
+
+    def load_content(self) -> TileContent:
+        """The content with float32 positions relative to the tile's origin (map them with ``matrix``)."""
+        if self.content_path is None:
+            return TileContent()
+        try:
+            data = self.content_path.read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read tile content ({exc.strerror})", self.content_path) from exc
+        return decode_content(data, str(self.content_path), y_up=self.tileset.y_up)
+
+    def load(self) -> TileMesh:
+        """The content in the tileset's CRS, float64."""
+        content = self.load_content()
+        verts, faces, skirt = [], [], []
+        offset = 0
+        for m in content.meshes:
+            verts.append(m.positions)
+            faces.append(m.faces.astype(np.int64) + offset)
+            skirt.append(np.zeros(len(m.faces), bool) if m.skirt is None else m.skirt)
+            offset += len(m.positions)
+        v = np.concatenate(verts) if verts else np.zeros((0, 3), np.float32)
+        mat = self.matrix
+        vertices = v.astype(np.float64) @ mat[:3, :3].T + mat[:3, 3]
+        pts = None
+        if content.points is not None:
+            pts = content.points.positions.astype(np.float64) @ mat[:3, :3].T + mat[:3, 3]
+        return TileMesh(
+            vertices=vertices,
+            faces=np.concatenate(faces) if faces else np.zeros((0, 3), np.int64),
+            skirt=np.concatenate(skirt) if skirt else np.zeros(0, bool),
+            points=pts, content=content,
+        )
+
+
+class Tileset:
+    """An opened 3D Tiles tileset (see :func:`open_tileset`)."""
+
+    def __init__(self, path: Path, doc: dict[str, Any]) -> None:
+        self.path = path
+        self.folder = path.parent
+        self.doc = doc
+        self.extras: dict[str, Any] = doc.get("extras", {}) or {}
+        cl = self.extras.get("citylod", {}) if isinstance(self.extras, dict) else {}
+        self.y_up = doc.get("asset", {}).get("gltfUpAxis", "Y").upper() != "Z"
+        self.citylod: dict[str, Any] = cl if isinstance(cl, dict) else {}
+        root_json = doc["root"]
+        root_m = _tile_transform(root_json, str(path))
+        if self.citylod.get("crs"):
+            self.crs = parse_crs(self.citylod["crs"], str(path))
+            self.origin = np.asarray(self.citylod.get("origin", [0, 0, 0]), np.float64)
+            # crs_from_ecef: undo the root's placement on the globe, then add the local origin.
+            ecef_from_root = root_m
+            root_center = self.origin
+            self._crs_from_world = translation(root_center) @ np.linalg.inv(ecef_from_root)
+        else:
+            self.crs = pyproj.CRS.from_epsg(4978)
+            self.origin = np.zeros(3)
+            self._crs_from_world = np.eye(4)
+        self.kind = str(self.citylod.get("kind", "unknown"))
+        self.root = self._build(root_json, root_m, None, "0", 0, self.folder, str(path), depth=0)
+
+    def _build(self, tj: dict[str, Any], world: F64, parent: Tile | None, key: str, level: int,
+               base: Path, source: str, depth: int) -> Tile:
+        # Explicit stack over the JSON tree (tilesets can be deep); external tilesets are spliced in.
+        root_tile: Tile | None = None
+        stack: list[tuple[dict[str, Any], F64, Tile | None, str, int, Path, str, int]] = [
+            (tj, world, parent, key, level, base, source, depth)]
+        while stack:
+            tj, world, parent, key, level, base, source, depth = stack.pop()
+            if not isinstance(tj, dict) or "boundingVolume" not in tj or "geometricError" not in tj:
+                raise InputError(f"tile {key} lacks boundingVolume or geometricError", source)
+            matrix = self._crs_from_world @ world
+            box = _bounding_box(tj["boundingVolume"], source, key).transformed(matrix) \
+                if "region" not in tj["boundingVolume"] else \
+                _bounding_box(tj["boundingVolume"], source, key).transformed(self._crs_from_world)
+            refine = str(tj.get("refine", parent.refine if parent else "REPLACE")).upper()
+            uri = None
+            cpath = None
+            content = tj.get("content") or (tj.get("contents") or [None])[0]
+            if isinstance(content, dict):
+                uri = content.get("uri", content.get("url"))
+            children_json = list(tj.get("children", []))
+            if uri and uri.lower().split("?")[0].endswith(".json"):
+                ext_path = safe_resolve(base, uri, self.folder, source)
+                if depth > 32:
+                    raise InputError("external tilesets nest deeper than 32 levels", source)
+                ext = _read_json(ext_path)
+                children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
+                                                    "_external_source": str(ext_path)})
+                uri = None
+            elif uri:
+                cpath = safe_resolve(base, uri, self.folder, source)
+            if "implicitTiling" in tj:
+                raise InputError(f"tile {key} uses implicit tiling, which citylod does not read yet", source)
+            tile = Tile(self, key, level, parent, matrix, box, float(tj["geometricError"]), refine, uri, cpath)
+            if parent is None:
+                root_tile = tile
+            else:
+                parent.children.append(tile)
+            for i, cj in enumerate(reversed(children_json)):
+                ci = len(children_json) - 1 - i
+                child_world = world @ _tile_transform(cj, source)
+                cbase = Path(cj.pop("_external_base")) if "_external_base" in cj else base
+                csource = cj.pop("_external_source", source)
+                stack.append((cj, child_world, tile, f"{key}/{ci}", level + 1, cbase, csource, depth + 1))
+        assert root_tile is not None
+        # children were pushed reversed and popped in order; restore document order
+        for t in self.walk_from(root_tile):
+            t.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
+        return root_tile
+
+    @staticmethod
+    def walk_from(root: Tile) -> Iterator[Tile]:
+        queue = [root]
+        i = 0
+        while i < len(queue):
+            t = queue[i]
+            i += 1
+            yield t
+            queue.extend(t.children)
+
+    def walk(self) -> Iterator[Tile]:
+        """Every tile, root first (breadth first)."""
+        return self.walk_from(self.root)
+
+    @property
+    def bounds(self) -> tuple[F64, F64]:
+        return self.root.bounds
+
+    def __repr__(self) -> str:
+        return f"Tileset({str(self.path)!r}, kind={self.kind!r}, crs={self.crs.name!r})"
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise InputError("tileset not found", path) from exc
+    except OSError as exc:
+        raise InputError(f"cannot read tileset ({exc.strerror})", path) from exc
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"tileset is not valid JSON ({exc})", path) from exc
+    if not isinstance(doc, dict) or "root" not in doc:
+        raise InputError("not a 3D Tiles tileset (no 'root')", path)
+    version = str(doc.get("asset", {}).get("version", ""))
+    if not version.startswith("1."):
+        raise InputError(f"3D Tiles version {version!r} is not supported (1.x only)", path)
+    return doc
+
+
+def _tile_transform(tj: dict[str, Any], source: str) -> F64:
+    if "transform" not in tj:
+        return np.eye(4)
+    try:
+        m = np.asarray(tj["transform"], dtype=np.float64).reshape(4, 4).T
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"tile transform is not 16 numbers ({exc})", source) from exc
+    if not np.all(np.isfinite(m)):
+        raise InputError("tile transform has non-finite numbers", source)
+    return m
+
+
+def _bounding_box(bv: dict[str, Any], source: str, key: str) -> Box:
+    try:
+        if "box" in bv:
+            return Box.from_3dtiles(bv["box"])
+        if "sphere" in bv:
+            x, y, z, r = (float(v) for v in bv["sphere"])
+            return Box(np.array([x, y, z]), np.eye(3) * r)
+        if "region" in bv:
+            w, s, e, n, h0, h1 = (float(v) for v in bv["region"])
+            # Region in radians on WGS84: enclose a grid of surface points at both heights (ECEF).
+            lons = np.linspace(w, e, 5)
+            lats = np.linspace(s, n, 5)
+            pts = np.array([geodetic_to_ecef(math.degrees(lo), math.degrees(la), h)
+                            for lo in lons for la in lats for h in (h0, h1)])
+            return Box.from_bounds(pts.min(axis=0), pts.max(axis=0))
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"tile {key} has an invalid bounding volume ({exc})", source) from exc
+    raise InputError(f"tile {key} has no box, region or sphere bounding volume", source)
+
+
+def open_tileset(path: str | os.PathLike[str]) -> Tileset:
+    """Open a 3D Tiles 1.x tileset: a ``tileset.json`` or the folder holding one."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "tileset.json"
+    doc = _read_json(p)
+    try:
+        return Tileset(p.resolve(), doc)
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"tileset structure is invalid ({exc})", p) from exc
