@@ -1,0 +1,200 @@
+"""Georeferenced height rasters and images through rasterio, read in windows.
+
+A :class:`RasterSource` opens lazily (metadata only) and reads windows on demand, so memory depends on the
+window, not on the raster. Windows that reach past the raster come back padded with invalid samples, which
+lets the quadtree address a regular grid of tiles over a raster of any size. No-data becomes ``valid=False``,
+never a height.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pyproj
+
+from citylod.core.errors import EmptyInputError, GeoreferenceError, InputError
+from citylod.io.crs import is_geographic, utm_crs_for
+
+
+@dataclass(frozen=True)
+class RasterInfo:
+    """What a raster's header says: size, georeferencing and the metric sample spacing."""
+
+    path: str
+    width: int
+    height: int
+    crs_wkt: str
+    transform: tuple[float, float, float, float, float, float]  # affine a, b, c, d, e, f (rasterio order)
+    nodata: float | None
+    dtype: str
+    geographic: bool
+    spacing_m: float  # mean sample spacing in metres (projected for geographic rasters)
+
+    @property
+    def crs(self) -> pyproj.CRS:
+        return pyproj.CRS.from_wkt(self.crs_wkt)
+
+    def sample_xy(self, rows: npt.ArrayLike, cols: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """CRS coordinates of sample centres at (fractional) ``rows``, ``cols``."""
+        a, b, c, d, e, f = self.transform
+        r = np.asarray(rows, dtype=np.float64) + 0.5
+        q = np.asarray(cols, dtype=np.float64) + 0.5
+        return a * q + b * r + c, d * q + e * r + f
+
+    def metric_crs(self) -> pyproj.CRS:
+        """The CRS citylod works in: the raster's own when projected, else the UTM zone of its centre."""
+        if not self.geographic:
+            return self.crs
+        x, y = self.sample_xy(self.height / 2.0, self.width / 2.0)
+        to_geo = pyproj.Transformer.from_crs(self.crs, "EPSG:4326", always_xy=True)
+        lon, lat = to_geo.transform(float(x), float(y))
+        return utm_crs_for(lon, lat)
+
+
+class RasterSource:
+    """A height raster opened for windowed reads. Picklable (reopens on the worker)."""
+
+    def __init__(self, path: str | os.PathLike[str], band: int = 1) -> None:
+        self.path = Path(path)
+        self.band = band
+        self.info = read_info(self.path)
+        self._ds = None
+
+    def __getstate__(self) -> dict[str, object]:
+        return {"path": self.path, "band": self.band, "info": self.info}
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
+        self._ds = None
+
+    def _dataset(self):  # noqa: ANN202 - rasterio dataset
+        if self._ds is None:
+            import rasterio
+
+            self._ds = rasterio.open(self.path)
+        return self._ds
+
+    def close(self) -> None:
+        if self._ds is not None:
+            self._ds.close()
+            self._ds = None
+
+    def read(self, row0: int, col0: int, nrows: int, ncols: int, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Samples ``row0 + i·stride``, ``col0 + j·stride`` for i < nrows, j < ncols.
+
+        Returns heights (nrows, ncols) float64 and valid (nrows, ncols) bool; positions outside the raster
+        or at no-data are invalid (their height is 0). Only the rows needed are read, in strips, so a
+        decimated read of a large footprint stays small.
+        """
+        from rasterio.windows import Window
+
+        info = self.info
+        heights = np.zeros((nrows, ncols), np.float64)
+        valid = np.zeros((nrows, ncols), bool)
+        rows = row0 + stride * np.arange(nrows)
+        cols = col0 + stride * np.arange(ncols)
+        rin = np.flatnonzero((rows >= 0) & (rows < info.height))
+        cin = np.flatnonzero((cols >= 0) & (cols < info.width))
+        if len(rin) == 0 or len(cin) == 0:
+            return heights, valid
+        c_lo, c_hi = int(cols[cin[0]]), int(cols[cin[-1]])
+        ds = self._dataset()
+        # Read strips of at most ~4 M samples so memory stays bounded whatever the stride.
+        strip = max(1, (4 << 20) // max(1, (c_hi - c_lo + 1)))
+        strip = max(1, strip // stride)
+        for s in range(0, len(rin), strip):
+            idx = rin[s: s + strip]
+            r_lo, r_hi = int(rows[idx[0]]), int(rows[idx[-1]])
+            try:
+                block = ds.read(self.band, window=Window(c_lo, r_lo, c_hi - c_lo + 1, r_hi - r_lo + 1),
+                                masked=True)
+            except Exception as exc:  # rasterio raises several types for corrupt blocks
+                raise InputError(f"cannot read raster window rows {r_lo}-{r_hi} ({exc})", self.path) from exc
+            sub = block[::stride, ::stride]
+            data = np.ma.getdata(sub).astype(np.float64)
+            mask = ~np.ma.getmaskarray(sub) & np.isfinite(data)
+            heights[np.ix_(idx, cin)] = np.where(mask, data, 0.0)
+            valid[np.ix_(idx, cin)] = mask
+        return heights, valid
+
+
+def read_info(path: str | os.PathLike[str]) -> RasterInfo:
+    """Open a raster's header and check it can be used as a DSM."""
+    import rasterio
+    from rasterio.errors import RasterioIOError
+
+    p = Path(path)
+    if not p.exists():
+        raise InputError("raster not found", p)
+    try:
+        with rasterio.open(p) as ds:
+            if ds.count < 1:
+                raise InputError("raster has no bands", p)
+            if ds.crs is None:
+                raise GeoreferenceError("raster has no coordinate reference system (CRS)", p)
+            t = ds.transform
+            if t.is_identity or (t.a == 1 and t.e == 1 and t.c == 0 and t.f == 0):
+                raise GeoreferenceError("raster has no georeferencing (identity geotransform)", p)
+            if abs(t.b) > 1e-12 or abs(t.d) > 1e-12:
+                raise InputError("rotated rasters are not supported", p)
+            crs = pyproj.CRS.from_wkt(ds.crs.to_wkt())
+            geo = is_geographic(crs)
+            if geo:
+                cy = t.f + t.e * ds.height / 2.0
+                m_per_deg = 111_320.0
+                spacing = 0.5 * (abs(t.a) * m_per_deg * math.cos(math.radians(cy)) + abs(t.e) * m_per_deg)
+            else:
+                unit = crs.axis_info[0].unit_conversion_factor if crs.axis_info else 1.0
+                spacing = 0.5 * (abs(t.a) + abs(t.e)) * unit
+            return RasterInfo(
+                path=str(p), width=ds.width, height=ds.height, crs_wkt=crs.to_wkt(),
+                transform=(t.a, t.b, t.c, t.d, t.e, t.f), nodata=ds.nodata, dtype=ds.dtypes[0],
+                geographic=geo, spacing_m=float(spacing),
+            )
+    except RasterioIOError as exc:
+        raise InputError(f"not a readable raster ({exc})", p) from exc
+
+
+def check_has_data(src: RasterSource) -> None:
+    """Raise :class:`EmptyInputError` when every sample is no-data (scans a decimated grid, then blocks)."""
+    info = src.info
+    block = 1024
+    for r in range(0, info.height, block):
+        h, v = src.read(r, 0, min(block, info.height - r), info.width)
+        if v.any():
+            return
+    raise EmptyInputError("raster holds no valid samples (all no-data)", src.path)
+
+
+def read_image_window(path: str | os.PathLike[str], bounds: tuple[float, float, float, float],
+                      crs: pyproj.CRS, size: int) -> np.ndarray | None:
+    """An RGB image window covering ``bounds`` (xmin, ymin, xmax, ymax in ``crs``) resampled by averaging
+    to ``size``×``size`` pixels, (size, size, 3) uint8, or None when the image does not overlap.
+
+    Averaging over power-of-two footprints equals repeated 2×2 averaging, the texture pyramid of Wahl 2004.
+    """
+    import rasterio
+    from rasterio.enums import Resampling
+    from rasterio.warp import transform_bounds
+    from rasterio.windows import from_bounds
+
+    with rasterio.open(path) as ds:
+        if ds.crs is None:
+            raise GeoreferenceError("orthophoto has no CRS", path)
+        b = bounds
+        img_crs = pyproj.CRS.from_wkt(ds.crs.to_wkt())
+        if not img_crs.equals(crs):
+            b = transform_bounds(crs.to_wkt(), ds.crs, *bounds)
+        win = from_bounds(*b, transform=ds.transform)
+        bands = [1, 2, 3] if ds.count >= 3 else [1, 1, 1]
+        data = ds.read(bands, window=win, out_shape=(3, size, size), resampling=Resampling.average,
+                       boundless=True, fill_value=0)
+    if data.dtype != np.uint8:
+        hi = float(np.nanmax(data)) if data.size else 1.0
+        data = np.clip(data.astype(np.float64) * (255.0 / max(hi, 1.0)), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(np.moveaxis(data, 0, -1))

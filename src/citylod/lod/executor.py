@@ -1,0 +1,128 @@
+"""Where build tasks run: a local process pool, the calling process, or a Dask cluster.
+
+Decision 5 of the design: a build is a graph of independent tile tasks submitted to a
+``concurrent.futures.Executor``. This module makes that executor and runs a batch of tasks through it
+with a progress bar; it knows nothing about tiles. Task functions must be importable module-level
+functions with picklable arguments, because they run in spawned processes or on Dask workers.
+
+It must not import VTK or Qt, and it imports ``distributed`` only when a scheduler address is given.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+class InlineExecutor(Executor):
+    """Runs each task at submit time in the calling process (``workers=0``).
+
+    For small builds, where starting worker processes (each imports numpy and numba) costs more than
+    the parallelism saves, and for debugging with a plain traceback.
+    """
+
+    def submit(self, fn: Callable[..., T], /, *args: Any, **kwargs: Any) -> Future[T]:  # type: ignore[override]
+        fut: Future[T] = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+
+@contextmanager
+def make_executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[Executor]:
+    """An executor for build tasks, shut down when the ``with`` block ends.
+
+    Parameters
+    ----------
+    workers
+        Local worker processes; None = CPU count; 0 = run in the calling process.
+        Ignored when ``scheduler`` is given.
+    scheduler
+        A Dask scheduler address (``tcp://HOST:PORT``), or a ``distributed.Client``; the tasks then run
+        on that cluster's workers, which need citylod importable and the build's files reachable at
+        the same paths.
+
+    Yields
+    ------
+    concurrent.futures.Executor
+    """
+    if scheduler is not None:
+        import distributed
+
+        own = not isinstance(scheduler, distributed.Client)
+        client = distributed.Client(scheduler, set_as_default=False) if own else scheduler
+        try:
+            yield client.get_executor()
+        finally:
+            if own:
+                client.close()
+        return
+    n = (os.cpu_count() or 1) if workers is None else int(workers)
+    if n <= 0:
+        yield InlineExecutor()
+        return
+    # spawn, not fork: the parent may hold threads (Dask, tqdm monitor, OpenMP) that fork would copy
+    # in a locked state, and spawn behaves the same on Linux, macOS and Windows.
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        yield pool
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def run_tasks(executor: Executor, fn: Callable[..., T], tasks: Iterable[Any], *, progress: bool = True,
+              desc: str = "", max_in_flight: int | None = None) -> Iterator[T]:
+    """Run ``fn(*task)`` for every task (a tuple of arguments) and yield the results as they complete.
+
+    Results come in completion order, not submission order; return something that identifies the task
+    when the caller needs to know which one finished. At most ``max_in_flight`` tasks are submitted at a
+    time (default 4096), so a long task list does not sit in the scheduler's memory at once. The first
+    task that raises cancels the tasks not yet started and re-raises in the caller.
+
+    Parameters
+    ----------
+    executor
+        From :func:`make_executor` (or any ``concurrent.futures.Executor``).
+    fn
+        A module-level function (it is pickled by reference).
+    tasks
+        Argument tuples; a non-tuple item is passed as the single argument.
+    progress
+        Show a tqdm progress bar on stderr.
+    desc
+        The progress bar's label.
+    """
+    from tqdm.auto import tqdm
+
+    items = [t if isinstance(t, tuple) else (t,) for t in tasks]
+    limit = max_in_flight or 4096
+    bar = tqdm(total=len(items), desc=desc, disable=not progress, unit="task", leave=False)
+    pending: set[Future[T]] = set()
+    it = iter(items)
+    try:
+        while True:
+            while len(pending) < limit:
+                args = next(it, None)
+                if args is None:
+                    break
+                pending.add(executor.submit(fn, *args))
+            if not pending:
+                break
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                bar.update(1)
+                yield fut.result()
+    finally:
+        for f in pending:
+            f.cancel()
+        bar.close()

@@ -1,0 +1,147 @@
+"""Decoding a tile into arrays ready for VTK, on a loader's worker thread.
+
+:func:`prepare_tile` is the ``load_fn`` of :class:`citylod.lod.loader.TileLoader` for rendering: it reads
+and decodes the tile content (:meth:`citylod.io.tiles3d.Tile.load_content`), splits surface from skirt
+triangles, turns glTF texture coordinates into VTK's (origin bottom-left) and decodes the texture image
+into a numpy array. The render thread then only wraps these arrays (no copy) in VTK objects. The texture
+decoder is a VTK image reader fed from memory; it is a transient, unshared object that never touches
+OpenGL, which VTK supports off the main thread.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.core.errors import InputError
+from citylod.io.tiles3d import PointData
+from citylod.render import _vtk
+
+
+@dataclass
+class PreparedMesh:
+    """One mesh, as arrays VTK takes without copying.
+
+    ``positions`` (N, 3) float32 relative to the tile origin; ``surface`` and ``skirt`` the flat
+    connectivity (3·M,) int64 of each triangle set; ``tcoords`` (N, 2) float32 with VTK's bottom-left
+    origin; ``texture`` (H, W, C) uint8, rows bottom-up as VTK stores images; ``colors`` (N, 4) uint8.
+    """
+
+    positions: npt.NDArray[np.float32]
+    surface: npt.NDArray[np.int64]
+    skirt: npt.NDArray[np.int64]
+    tcoords: npt.NDArray[np.float32] | None = None
+    texture: npt.NDArray[np.uint8] | None = None
+    colors: npt.NDArray[np.uint8] | None = None
+    name: str = "surface"
+
+    @property
+    def triangles(self) -> int:
+        return (len(self.surface) + len(self.skirt)) // 3
+
+    @property
+    def nbytes(self) -> int:
+        n = self.positions.nbytes + self.surface.nbytes + self.skirt.nbytes
+        for a in (self.tcoords, self.texture, self.colors):
+            n += 0 if a is None else a.nbytes
+        return n
+
+
+@dataclass
+class PreparedTile:
+    """A decoded tile: meshes and points (:class:`~citylod.io.tiles3d.PointData`), and their sizes."""
+
+    key: str
+    level: int
+    meshes: list[PreparedMesh] = field(default_factory=list)
+    points: PointData | None = None
+
+    @property
+    def triangles(self) -> int:
+        return sum(m.triangles for m in self.meshes)
+
+    @property
+    def point_count(self) -> int:
+        return 0 if self.points is None else len(self.points.positions)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(m.nbytes for m in self.meshes) + (0 if self.points is None else self.points.nbytes)
+
+
+def decode_image(data: bytes, source: str = "") -> npt.NDArray[np.uint8]:
+    """Decode JPEG or PNG bytes into (H, W, C) uint8 with rows bottom-up (VTK's image order).
+
+    Raises
+    ------
+    InputError
+        If the bytes are neither format or the decoder fails.
+    """
+    if data[:8] == b"\x89PNG\r\n\x1a\n":
+        reader: Any = _vtk.vtkPNGReader()
+    elif data[:3] == b"\xff\xd8\xff":
+        reader = _vtk.vtkJPEGReader()
+    else:
+        raise InputError("tile texture is neither JPEG nor PNG", source)
+    buf = bytes(data)  # the reader keeps a raw pointer: hold the bytes until Update() is done
+    reader.SetMemoryBuffer(buf)
+    reader.SetMemoryBufferLength(len(buf))
+    reader.Update()
+    image = reader.GetOutput()
+    scalars = image.GetPointData().GetScalars()
+    dims = image.GetDimensions()
+    if scalars is None or dims[0] * dims[1] == 0:
+        raise InputError("tile texture could not be decoded", source)
+    arr = _vtk.vtk_to_numpy(scalars).copy()
+    return arr.reshape(dims[1], dims[0], -1).astype(np.uint8, copy=False)
+
+
+def _flat(faces: np.ndarray) -> npt.NDArray[np.int64]:
+    return np.ascontiguousarray(faces, dtype=np.int64).reshape(-1)
+
+
+def prepare_content(content: Any, key: str, level: int, source: str = "") -> PreparedTile:
+    """Turn a :class:`~citylod.io.tiles3d.TileContent` into a :class:`PreparedTile` (vectorised)."""
+    out = PreparedTile(key=key, level=level, points=content.points)
+    for mesh in content.meshes:
+        faces = np.asarray(mesh.faces).reshape(-1, 3)
+        if mesh.skirt is not None and len(mesh.skirt) == len(faces):
+            skirt = np.asarray(mesh.skirt, bool)
+        else:
+            skirt = np.zeros(len(faces), bool)
+        tcoords = texture = None
+        if mesh.uv is not None and mesh.texture:
+            # glTF puts the uv origin at the image's top-left, VTK at its bottom-left: flip v.
+            uv = np.asarray(mesh.uv, np.float32)
+            tcoords = np.empty_like(uv)
+            tcoords[:, 0] = uv[:, 0]
+            tcoords[:, 1] = 1.0 - uv[:, 1]
+            texture = decode_image(mesh.texture, source)
+        out.meshes.append(PreparedMesh(
+            positions=np.ascontiguousarray(mesh.positions, dtype=np.float32),
+            surface=_flat(faces[~skirt]), skirt=_flat(faces[skirt]),
+            tcoords=tcoords, texture=texture,
+            colors=None if mesh.colors is None else np.ascontiguousarray(mesh.colors, np.uint8),
+            name=mesh.name,
+        ))
+    return out
+
+
+def prepare_tile(node: Any) -> tuple[PreparedTile, int]:
+    """``load_fn`` for :class:`~citylod.lod.loader.TileLoader`: read and decode one tile.
+
+    ``node`` is a render proxy (see :mod:`citylod.render.tileset_actor`) or a
+    :class:`~citylod.io.tiles3d.Tile`; a proxy's ``tile`` attribute is the tile.
+
+    Returns
+    -------
+    (PreparedTile, int)
+        The arrays and the memory they hold in bytes (what the cache budget counts).
+    """
+    tile = getattr(node, "tile", node)
+    content = tile.load_content()
+    prepared = prepare_content(content, node.key, tile.level, str(tile.content_path or tile.key))
+    return prepared, prepared.nbytes

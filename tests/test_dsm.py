@@ -1,0 +1,223 @@
+"""The DSM tile tree on hard cases, checked by an independent computation.
+
+The builder certifies its tiles with :mod:`citylod.lod.certify`; these tests do not use it. They load every
+tile through the public reader, interpolate its TIN at every valid full-resolution sample with matplotlib's
+triangle interpolator, and compare with the raster.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyproj
+import pytest
+import rasterio
+from matplotlib.tri import LinearTriInterpolator, Triangulation
+from rasterio.transform import from_origin
+
+from citylod.core.errors import EmptyInputError, GeoreferenceError, InputError
+from citylod.io.tiles3d import open_tileset
+from citylod.lod.dsm import build_dsm
+
+NODATA = -9999.0
+
+
+def write_raster(path, z, *, x0=500_000.0, y0=5_400_000.0, res=1.0, crs="EPSG:32632", nodata=NODATA):
+    z = np.asarray(z, np.float32)
+    with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1,
+                       dtype="float32", crs=crs, transform=from_origin(x0, y0, res, res), nodata=nodata) as ds:
+        ds.write(z, 1)
+    return path
+
+
+def city_like(n, m, seed=0):
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:n, 0:m].astype(float)
+    z = 40 + 5 * np.sin(xx / 17.0) * np.cos(yy / 23.0) + 0.02 * xx
+    for _ in range(max(3, n * m // 900)):  # buildings: façades are one-sample vertical steps
+        r, c = rng.integers(0, n), rng.integers(0, m)
+        h, w = rng.integers(4, 15), rng.integers(4, 15)
+        z[r:r + h, c:c + w] += rng.uniform(6, 25)
+    z[rng.integers(0, n, 5), rng.integers(0, m, 5)] += 3.0  # chimneys one sample wide
+    return z
+
+
+def check_tileset(out, z, valid, *, x0=500_000.0, y0=5_400_000.0, res=1.0, transform_xy=None):
+    """Independent checks: bound at every valid sample, leaf coverage, neighbour borders."""
+    ts = open_tileset(out)
+    rows, cols = np.nonzero(valid)
+    sx = x0 + (cols + 0.5) * res
+    sy = y0 - (rows + 0.5) * res
+    if transform_xy is not None:
+        sx, sy = transform_xy(sx, sy)
+    sz = z[rows, cols].astype(np.float64)
+    leaves, checked = [], 0
+    worst_ratio = 0.0
+    for tile in ts.walk():
+        if tile.content_uri is None:
+            continue
+        mesh = tile.load()
+        surf = mesh.faces[~mesh.skirt]
+        assert len(surf) > 0
+        v = mesh.vertices
+        tri = Triangulation(v[:, 0], v[:, 1], surf)
+        interp = LinearTriInterpolator(tri, v[:, 2])
+        lo, hi = tile.bounds
+        inside = (sx >= lo[0] - 1e-6) & (sx <= hi[0] + 1e-6) & (sy >= lo[1] - 1e-6) & (sy <= hi[1] + 1e-6)
+        zi = interp(sx[inside], sy[inside])
+        hit = ~np.ma.getmaskarray(zi)
+        if hit.any():
+            err = np.abs(np.ma.getdata(zi)[hit] - sz[inside][hit])
+            assert err.max() <= tile.geometric_error + 1e-6, (tile.key, err.max(), tile.geometric_error)
+            worst_ratio = max(worst_ratio, err.max() / max(tile.geometric_error, 1e-12))
+            checked += int(hit.sum())
+        if not tile.children:
+            leaves.append((tile, v, surf))
+    assert checked > 0
+    # Leaves: every valid sample is inside some leaf triangle, and the leaves' areas add up to the valid
+    # cells' area (so nothing is covered twice and nothing invalid is covered).
+    covered = np.zeros(len(sx), bool)
+    area = 0.0
+    for _tile, v, surf in leaves:
+        tri = Triangulation(v[:, 0], v[:, 1], surf)
+        finder = tri.get_trifinder()
+        covered |= finder(sx, sy) >= 0
+        p = v[surf]
+        a = 0.5 * ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (p[:, 1, 1] - p[:, 0, 1]))
+        assert np.all(a > -1e-9), "leaf triangles must be counter-clockwise seen from above"
+        area += a.sum()
+    assert covered.all(), f"{(~covered).sum()} valid samples not covered by any leaf"
+    if transform_xy is None:
+        cell_valid = valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]
+        assert area == pytest.approx(cell_valid.sum() * res * res, rel=1e-6)
+    return ts, worst_ratio
+
+
+def test_city_with_cliffs_holes_and_large_coordinates(tmp_path) -> None:
+    z = city_like(300, 270)  # not a power of two
+    z[100:130, 40:90] = NODATA  # an inner no-data hole
+    z[:, :7] = NODATA  # a no-data border
+    valid = z != NODATA
+    write_raster(tmp_path / "dsm.tif", z, y0=5_500_000.0)
+    rep = build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False)
+    assert rep.levels == 4
+    ts, _ = check_tileset(tmp_path / "out", z, valid, y0=5_500_000.0)
+    leaves = [t for t in ts.walk() if not t.children and t.content_uri]
+    assert all(t.geometric_error <= 0.5 + 1e-3 for t in leaves)  # the leaf target (half a 1 m spacing)
+    errors = {t.level: t.geometric_error for t in ts.walk()}
+    assert errors[0] > errors[max(errors)]  # coarser levels carry larger errors
+    # same-level neighbours share identical border vertices
+    by_key = {t.key: t for t in ts.walk()}
+    assert _borders_match(by_key, ts)
+    # nothing half-written is left next to the output
+    assert not (tmp_path / "out.partial").exists()
+    assert not list((tmp_path / "out").rglob("*.json"))[1:]
+
+
+def _borders_match(by_key, ts) -> bool:
+    level = max(t.level for t in ts.walk())
+    leaves = {tuple(int(v) for v in k.split("/")[1:]): t for k, t in by_key.items()
+              if t.level == level and t.content_uri}
+    pairs = 0
+    for (r, c), t in leaves.items():
+        right = leaves.get((r, c + 1))
+        if right is None:
+            continue
+        m1, m2 = t.load(), right.load()
+        x_edge = max(m1.vertices[:, 0].max(), 0)
+        a = m1.vertices[np.abs(m1.vertices[:, 0] - x_edge) < 1e-3]
+        b = m2.vertices[np.abs(m2.vertices[:, 0] - x_edge) < 1e-3]
+        a = np.unique(np.round(a, 3), axis=0)
+        b = np.unique(np.round(b, 3), axis=0)
+        np.testing.assert_array_equal(a, b)
+        pairs += 1
+    return pairs > 0
+
+
+def test_flat_constant_and_thin_rasters(tmp_path) -> None:
+    flat = np.full((130, 130), 12.5)
+    write_raster(tmp_path / "flat.tif", flat)
+    build_dsm(tmp_path / "flat.tif", tmp_path / "flat", tile_size=65, workers=1, progress=False)
+    ts, _ = check_tileset(tmp_path / "flat", flat, np.ones_like(flat, bool))
+    assert sum(len(t.load().faces[~t.load().skirt]) for t in ts.walk() if not t.children) <= 2 * 9
+    thin = np.linspace(0, 10, 40)[None, :].repeat(2, axis=0)  # 2×N: the thinnest raster with area
+    write_raster(tmp_path / "thin.tif", thin)
+    build_dsm(tmp_path / "thin.tif", tmp_path / "thin", tile_size=65, workers=1, progress=False)
+    check_tileset(tmp_path / "thin", thin, np.ones_like(thin, bool))
+
+
+def test_one_row_raster_is_a_clear_error_or_empty(tmp_path) -> None:
+    write_raster(tmp_path / "row.tif", np.arange(20.0)[None, :])
+    with pytest.raises(InputError, match="row.tif"):
+        build_dsm(tmp_path / "row.tif", tmp_path / "row", workers=1, progress=False)
+    assert not (tmp_path / "row").exists()
+
+
+def test_bad_input_is_a_clear_error(tmp_path) -> None:
+    write_raster(tmp_path / "nodata.tif", np.full((50, 50), NODATA))
+    with pytest.raises(EmptyInputError, match="nodata.tif"):
+        build_dsm(tmp_path / "nodata.tif", tmp_path / "o1", workers=1, progress=False)
+    with rasterio.open(tmp_path / "nogeo.tif", "w", driver="GTiff", width=10, height=10, count=1,
+                       dtype="float32") as ds:
+        ds.write(np.zeros((10, 10), np.float32), 1)
+    with pytest.raises(GeoreferenceError, match="nogeo.tif"):
+        build_dsm(tmp_path / "nogeo.tif", tmp_path / "o2", workers=1, progress=False)
+    (tmp_path / "junk.tif").write_bytes(b"II*\x00garbage")
+    with pytest.raises(InputError, match="junk.tif"):
+        build_dsm(tmp_path / "junk.tif", tmp_path / "o3", workers=1, progress=False)
+    for name in ("o1", "o2", "o3"):
+        assert not (tmp_path / name).exists() and not (tmp_path / f"{name}.partial").exists()
+
+
+def test_degrees_raster_jacksboro(tmp_path) -> None:
+    """matplotlib's real DEM, in degrees: the bound holds in metres and vertices land in UTM."""
+    from matplotlib import cbook
+
+    dem = cbook.get_sample_data("jacksboro_fault_dem.npz")
+    z = np.asarray(dem["elevation"], np.float64)  # row 0 is the northern edge
+    dx = dy = float(dem["dx"])  # 3 arc-seconds
+    x0 = float(dem["xmin"])
+    y0 = max(float(dem["ymin"]), float(dem["ymax"]))
+    with rasterio.open(tmp_path / "jb.tif", "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1,
+                       dtype="float32", crs="EPSG:4326", transform=from_origin(x0, y0, dx, dy)) as ds:
+        ds.write(z.astype(np.float32), 1)
+    rep = build_dsm(tmp_path / "jb.tif", tmp_path / "jb", workers=1, progress=False)
+    ts = open_tileset(tmp_path / "jb")
+    assert ts.crs.is_projected and "UTM" in ts.crs.name
+    cy = y0 - dy * z.shape[0] / 2
+    assert rep.leaf_target == pytest.approx(0.5 * 0.5 * (dx * 111_320 * np.cos(np.radians(cy)) + dy * 111_320),
+                                            rel=1e-6)
+    to_utm = pyproj.Transformer.from_crs("EPSG:4326", ts.crs, always_xy=True)
+
+    def tr(x, y):
+        return to_utm.transform(x, y)
+
+    f32 = z.astype(np.float32).astype(np.float64)
+    check_tileset(tmp_path / "jb", f32, np.ones_like(z, bool), x0=x0, y0=y0, res=dx, transform_xy=tr)
+
+
+def test_resume_after_interruption(tmp_path) -> None:
+    z = city_like(200, 200, seed=3)
+    write_raster(tmp_path / "dsm.tif", z)
+    with pytest.raises(KeyboardInterrupt):
+        build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False, _stop_after=5)
+    assert not (tmp_path / "out").exists() and (tmp_path / "out.partial").exists()
+    rep = build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False)
+    assert rep.resumed == 5
+    check_tileset(tmp_path / "out", z, np.ones_like(z, bool))
+
+
+def test_tileset_is_standard_3dtiles(tmp_path) -> None:
+    z = city_like(130, 130)
+    write_raster(tmp_path / "dsm.tif", z)
+    build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False)
+    doc = json.loads((tmp_path / "out" / "tileset.json").read_text())
+    assert doc["asset"]["version"] == "1.1"
+    stack = [doc["root"]]
+    while stack:
+        t = stack.pop()
+        assert t["refine"] == "REPLACE" and "box" in t["boundingVolume"] and t["geometricError"] >= 0
+        stack.extend(t.get("children", []))
+    assert doc["extras"]["citylod"]["kind"] == "dsm"
+    assert pyproj.CRS.from_wkt(doc["extras"]["citylod"]["crs"]).to_epsg() == 32632
