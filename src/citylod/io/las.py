@@ -149,7 +149,7 @@ def read_info(path: str | PathLike[str]) -> LasInfo:
             h = reader.header
             try:
                 crs = h.parse_crs()
-            except Exception:  # noqa: BLE001 - a broken GeoTIFF/WKT VLR is "no CRS", reported later
+            except Exception:
                 crs = None
             return LasInfo(
                 path=p, point_count=int(h.point_count),
@@ -195,8 +195,9 @@ def read_metadata(files: Sequence[str | PathLike[str]], crs: Any = None) -> LasM
         if missing:
             raise GeoreferenceError("the header has no CRS; pass one with --crs (e.g. --crs EPSG:28992)",
                                     missing[0].path)
-        common = infos[0].crs
-        assert common is not None
+        first = infos[0].crs
+        assert first is not None
+        common = first
         for info in infos[1:]:
             assert info.crs is not None
             if not info.crs.equals(common, ignore_axis_order=True):

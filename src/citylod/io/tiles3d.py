@@ -655,7 +655,7 @@ class Tile:
     """One tile of an opened tileset. See docs/CONTRACTS.md."""
 
     __slots__ = ("_size", "box", "children", "content_path", "content_uri", "geometric_error", "key",
-                 "level", "matrix", "parent", "refine", "tileset")
+                 "level", "matrix", "parent", "point_count", "refine", "tileset", "triangle_count")
 
     def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
                  geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None) -> None:
@@ -671,6 +671,9 @@ class Tile:
         self.content_uri = content_uri
         self.content_path = content_path
         self._size: int | None = None
+        # Cost hints for budgets before a tile is loaded (written by citylod builders in tile extras).
+        self.triangle_count = 0
+        self.point_count = 0
 
     def __repr__(self) -> str:
         return f"Tile({self.key!r}, level={self.level}, error={self.geometric_error:.3g})"
@@ -785,6 +788,10 @@ class Tileset:
             if "implicitTiling" in tj:
                 raise InputError(f"tile {key} uses implicit tiling, which citylod does not read yet", source)
             tile = Tile(self, key, level, parent, matrix, box, float(tj["geometricError"]), refine, uri, cpath)
+            hints = tj.get("extras", {})
+            if isinstance(hints, dict):
+                tile.triangle_count = int(hints.get("triangles", 0) or 0)
+                tile.point_count = int(hints.get("points", 0) or 0)
             if parent is None:
                 root_tile = tile
             else:

@@ -436,7 +436,7 @@ def _assemble(results: dict[str, TileResult], levels: int, info: RasterInfo, cel
             # A parent without content must refine at once: its error is that of its worst child.
             err = r.geometric_error if r.has_content else max(k.geometric_error for k in kids) * 2.0
             specs[key] = TileSpec(key, d, center, lo, hi, err, f"tiles/{key}.glb" if r.has_content else None,
-                                  kids)
+                                  kids, extras={"triangles": r.triangles} if r.has_content else None)
     return specs.get("0/0/0")
 
 

@@ -31,13 +31,13 @@ class InlineExecutor(Executor):
         fut: Future[T] = Future()
         try:
             fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+        except BaseException as exc:
             fut.set_exception(exc)
         return fut
 
 
 @contextmanager
-def make_executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[Executor]:
+def make_executor(workers: int | None = None, scheduler: Any = None) -> Iterator[Executor]:
     """An executor for build tasks, shut down when the ``with`` block ends.
 
     Parameters
@@ -58,7 +58,8 @@ def make_executor(workers: int | None = None, scheduler: str | None = None) -> I
         import distributed
 
         own = not isinstance(scheduler, distributed.Client)
-        client = distributed.Client(scheduler, set_as_default=False) if own else scheduler
+        client: distributed.Client = (distributed.Client(scheduler, set_as_default=False) if own
+                                      else scheduler)
         try:
             yield client.get_executor()
         finally:

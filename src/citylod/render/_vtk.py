@@ -25,18 +25,22 @@ from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray,
 from vtkmodules.vtkCommonCore import (
     VTK_UNSIGNED_CHAR,
     vtkCommand,
+    vtkFloatArray,
     vtkLogger,
     vtkObject,
-    vtkOutputWindow,
     vtkPoints,
     vtkUnsignedCharArray,
 )
-from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
+from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkImageData, vtkMultiBlockDataSet, vtkPolyData
 from vtkmodules.vtkCommonMath import vtkMatrix4x4
+from vtkmodules.vtkIOCore import vtkMemoryResourceStream
 from vtkmodules.vtkIOImage import vtkImageReader2, vtkJPEGReader, vtkPNGReader, vtkPNGWriter
 from vtkmodules.vtkRenderingCore import (
     vtkActor,
     vtkCamera,
+    vtkCompositeDataDisplayAttributes,
+    vtkCompositePolyDataMapper,
+    vtkLight,
     vtkPolyDataMapper,
     vtkProperty,
     vtkRenderer,
@@ -63,10 +67,17 @@ __all__ = [
     "vtkCamera",
     "vtkCellArray",
     "vtkCommand",
+    "vtkCompositeDataDisplayAttributes",
+    "vtkCompositePolyDataMapper",
     "vtkEDLShading",
+    "vtkFloatArray",
+    "vtkImageData",
     "vtkImageReader2",
     "vtkJPEGReader",
+    "vtkLight",
     "vtkMatrix4x4",
+    "vtkMemoryResourceStream",
+    "vtkMultiBlockDataSet",
     "vtkOpenGLRenderer",
     "vtkPNGReader",
     "vtkPNGWriter",

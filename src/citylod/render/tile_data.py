@@ -86,9 +86,9 @@ def decode_image(data: bytes, source: str = "") -> npt.NDArray[np.uint8]:
         reader = _vtk.vtkJPEGReader()
     else:
         raise InputError("tile texture is neither JPEG nor PNG", source)
-    buf = bytes(data)  # the reader keeps a raw pointer: hold the bytes until Update() is done
-    reader.SetMemoryBuffer(buf)
-    reader.SetMemoryBufferLength(len(buf))
+    stream = _vtk.vtkMemoryResourceStream()
+    stream.SetBuffer(bytes(data), len(data), True)  # copy: the stream must not outlive a Python buffer
+    reader.SetStream(stream)
     reader.Update()
     image = reader.GetOutput()
     scalars = image.GetPointData().GetScalars()
@@ -145,3 +145,18 @@ def prepare_tile(node: Any) -> tuple[PreparedTile, int]:
     content = tile.load_content()
     prepared = prepare_content(content, node.key, tile.level, str(tile.content_path or tile.key))
     return prepared, prepared.nbytes
+
+
+def encode_png(rgb: npt.NDArray[np.uint8]) -> bytes:
+    """Encode (H, W, C) uint8, row 0 at the top, as PNG bytes (for writing textures and test data)."""
+    h, w, c = rgb.shape
+    img = _vtk.vtkImageData()
+    img.SetDimensions(w, h, 1)
+    arr = _vtk.numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, c), deep=True,
+                            array_type=_vtk.VTK_UNSIGNED_CHAR)
+    img.GetPointData().SetScalars(arr)
+    writer = _vtk.vtkPNGWriter()
+    writer.WriteToMemoryOn()
+    writer.SetInputData(img)
+    writer.Write()
+    return bytes(_vtk.vtk_to_numpy(writer.GetResult()).tobytes())

@@ -1,0 +1,245 @@
+"""Octree kernels for point clouds: integer cell addressing, counting sorts, vertex clustering, Morton order.
+
+Every point gets integer coordinates ``q`` on a 2^:data:`QBITS` grid over the cloud's bounding cube, once,
+from float64. All octree arithmetic after that is integer shifts, so a node's octants, its 64³ clustering
+grid, its parent's grid and the 128³ counting grid of the out-of-core pass nest *exactly*: a parent's
+clustering cell is exactly 2×2×2 of its children's cells, whatever floating point would have rounded.
+
+Hot loops are numba kernels (``cache=True``); everything else is vectorised numpy. No I/O, no VTK, no Qt.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+#: Bits of the integer grid per axis. Level L nodes are 2^(QBITS-L) units wide.
+QBITS = 31
+#: Vertex clustering grid per node: 2^6 = 64 cells per axis (Wahl, Guthe, Klein, PG 2005).
+CLUSTER_BITS = 6
+#: Deepest level: a node there still has a full 64³ clustering grid of whole integer units.
+MAX_LEVEL = QBITS - CLUSTER_BITS - 1
+
+I64 = npt.NDArray[np.int64]
+F64 = npt.NDArray[np.float64]
+
+
+def quantize(xyz: F64, cube_lo: F64, cube_size: float) -> I64:
+    """Integer grid coordinates of points.
+
+    Parameters
+    ----------
+    xyz
+        (N, 3) float64 positions.
+    cube_lo
+        (3,) float64 lower corner of the bounding cube.
+    cube_size
+        Edge length of the cube.
+
+    Returns
+    -------
+    (N, 3) int64 in [0, 2^QBITS), clamped, so a point on the upper face or a header that understated the
+    bounds still lands in the cube.
+    """
+    scale = float(1 << QBITS) / cube_size
+    q = np.floor((xyz - cube_lo) * scale).astype(np.int64)
+    np.clip(q, 0, (1 << QBITS) - 1, out=q)
+    return q
+
+
+@numba.njit(cache=True)
+def counting_sort(keys: I64, nbins: int) -> tuple[I64, I64]:  # pragma: no cover - compiled
+    """Stable counting sort of small integer keys (PotreeConverter 2's chunk partitioning).
+
+    Parameters
+    ----------
+    keys
+        (N,) int64 in [0, nbins).
+    nbins
+        Number of distinct keys.
+
+    Returns
+    -------
+    order
+        (N,) int64 permutation: ``keys[order]`` is sorted, ties keep input order.
+    offsets
+        (nbins + 1,) int64: key k occupies ``order[offsets[k]:offsets[k + 1]]``.
+    """
+    n = keys.shape[0]
+    offsets = np.zeros(nbins + 1, np.int64)
+    for i in range(n):
+        offsets[keys[i] + 1] += 1
+    for k in range(nbins):
+        offsets[k + 1] += offsets[k]
+    fill = offsets[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        k = keys[i]
+        order[fill[k]] = i
+        fill[k] += 1
+    return order, offsets
+
+
+def octant_keys(q: I64, level: int) -> I64:
+    """(N,) int64 child octant (0–7, bit 0 = x) of points in a node of ``level``."""
+    s = QBITS - level - 1
+    return ((q[:, 0] >> s) & 1) | (((q[:, 1] >> s) & 1) << 1) | (((q[:, 2] >> s) & 1) << 2)
+
+
+def cell_keys(q: I64, level: int) -> I64:
+    """(N,) int64 flat index (x + 64·y + 64²·z) of each point's cell in the 64³ grid of its level-``level`` node."""
+    s = QBITS - level - CLUSTER_BITS
+    m = (1 << CLUSTER_BITS) - 1
+    return ((q[:, 0] >> s) & m) | (((q[:, 1] >> s) & m) << CLUSTER_BITS) | (((q[:, 2] >> s) & m) << (2 * CLUSTER_BITS))
+
+
+@numba.njit(cache=True)
+def _cluster(keys: I64, xyz: F64, sums: F64, counts: I64, nbins: int
+             ) -> tuple[I64, I64, F64, I64]:  # pragma: no cover - compiled
+    order, offsets = counting_sort(keys, nbins)
+    ncell = 0
+    for k in range(nbins):
+        if offsets[k + 1] > offsets[k]:
+            ncell += 1
+    cells = np.empty(ncell, np.int64)
+    rep = np.empty(ncell, np.int64)
+    out_sums = np.zeros((ncell, 3))
+    out_counts = np.zeros(ncell, np.int64)
+    c = 0
+    for k in range(nbins):
+        a, b = offsets[k], offsets[k + 1]
+        if a == b:
+            continue
+        sx = sy = sz = 0.0
+        cnt = 0
+        for t in range(a, b):
+            i = order[t]
+            sx += sums[i, 0]
+            sy += sums[i, 1]
+            sz += sums[i, 2]
+            cnt += counts[i]
+        mx, my, mz = sx / cnt, sy / cnt, sz / cnt
+        best = -1
+        bd = np.inf
+        for t in range(a, b):
+            i = order[t]
+            d = (xyz[i, 0] - mx) ** 2 + (xyz[i, 1] - my) ** 2 + (xyz[i, 2] - mz) ** 2
+            if d < bd:
+                bd = d
+                best = i
+        cells[c] = k
+        rep[c] = best
+        out_sums[c, 0], out_sums[c, 1], out_sums[c, 2] = sx, sy, sz
+        out_counts[c] = cnt
+        c += 1
+    return cells, rep, out_sums, out_counts
+
+
+def cluster(q: I64, xyz: F64, sums: F64, counts: I64, level: int) -> tuple[I64, I64, F64, I64]:
+    """Vertex clustering on the 64³ grid of a level-``level`` node (Wahl, Guthe, Klein, PG 2005).
+
+    The candidates are the children's representatives; each carries the sum and count of the input
+    points it stands for, so the cluster mean is the mean of the *input* points in the cell. The
+    representative is the candidate nearest that mean: a real input point, so its attributes are true.
+
+    Parameters
+    ----------
+    q
+        (K, 3) int64 grid coordinates of the candidates.
+    xyz
+        (K, 3) float64 candidate positions.
+    sums
+        (K, 3) float64 sum of the input positions each candidate stands for.
+    counts
+        (K,) int64 number of input points each candidate stands for.
+    level
+        The node's level.
+
+    Returns
+    -------
+    cells
+        (C,) int64 sorted flat cell indices of the occupied cells.
+    rep
+        (C,) int64 index of each cell's representative among the candidates.
+    sums, counts
+        (C, 3) float64 and (C,) int64 aggregated over the cell.
+    """
+    return _cluster(cell_keys(q, level), xyz, sums, counts, 1 << (3 * CLUSTER_BITS))
+
+
+@numba.njit(cache=True)
+def _spread10(v: I64) -> I64:  # pragma: no cover - compiled
+    v = v & 0x3FF
+    v = (v | (v << 16)) & 0x030000FF
+    v = (v | (v << 8)) & 0x0300F00F
+    v = (v | (v << 4)) & 0x030C30C3
+    v = (v | (v << 2)) & 0x09249249
+    return v
+
+
+@numba.njit(cache=True)
+def _morton(q: I64, shift: int) -> I64:  # pragma: no cover - compiled
+    n = q.shape[0]
+    out = np.empty(n, np.int64)
+    for i in range(n):
+        out[i] = (_spread10(q[i, 0] >> shift) | (_spread10(q[i, 1] >> shift) << 1)
+                  | (_spread10(q[i, 2] >> shift) << 2))
+    return out
+
+
+def morton_order(q: I64, level: int) -> I64:
+    """(N,) int64 permutation sorting points of one level-``level`` node in Morton (Z-curve) order.
+
+    Codes use the 10 bits per axis below the node's level (a 1024³ grid over the node).
+    """
+    if len(q) == 0:
+        return np.zeros(0, np.int64)
+    return np.argsort(_morton(q, max(QBITS - level - 10, 0)), kind="stable")
+
+
+def batch_shuffle(n: int, seed: int, batch: int = 32) -> I64:
+    """(n,) int64 permutation that keeps runs of ``batch`` consecutive items and shuffles the runs.
+
+    Applied to Morton-ordered points, each run stays spatially compact (cache-friendly) while any prefix
+    of the result is a roughly uniform subsample of the node, so a renderer with a point budget can draw
+    the first k points (smooth refinement, Kehl et al.; Potree's point budgets). ``seed`` makes the
+    order reproducible, so every executor writes the same tileset.
+    """
+    if n == 0:
+        return np.zeros(0, np.int64)
+    nb = -(-n // batch)
+    starts = np.random.default_rng(seed).permutation(nb) * batch
+    lens = np.minimum(starts + batch, n) - starts
+    out_start = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    return np.repeat(starts - out_start, lens) + np.arange(n)
+
+
+def lookup_error(q: I64, xyz: F64, level: int, cells: I64, elem: F64) -> float:
+    """Exact max distance from input points to the element standing for their cell.
+
+    Parameters
+    ----------
+    q, xyz
+        (N, 3) int64 grid coordinates and (N, 3) float64 positions of input points of the node's subtree.
+    level
+        The node's level.
+    cells
+        (C,) int64 sorted occupied cells of the node's 64³ grid.
+    elem
+        (C, 3) float64 what the node draws for each cell: the representative point, or the centre of the
+        quad texel the representative was splatted into.
+
+    Returns
+    -------
+    float
+        max over points of ``|p - elem[cell(p)]|``; every point's cell must be in ``cells``.
+    """
+    if len(q) == 0:
+        return 0.0
+    k = cell_keys(q, level)
+    pos = np.searchsorted(cells, k)
+    if np.any(pos >= len(cells)) or np.any(cells[np.minimum(pos, len(cells) - 1)] != k):
+        raise AssertionError("an input point's cell has no representative (octree invariant broken)")
+    d = xyz - elem[pos]
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))

@@ -1,0 +1,615 @@
+"""Point clouds (LAS/LAZ) to a 3D Tiles octree with exact per-node error and hybrid plane quads.
+
+The build is out-of-core, after PotreeConverter 2 (Schütz, Ohrhallinger, Wimmer, "Fast out-of-core
+octree generation for massive point clouds", 2020):
+
+1. *scan* — tasks decode the input in segments, count points per cell of a 128³ grid over the bounding
+   cube and park the decoded segments as raw ``.npy`` (so LAZ is decoded once, not twice);
+2. *chunking* — cells are merged top-down into octree nodes ("chunks") of at most ``max_chunk_points``
+   points (counting sort over the count pyramid);
+3. *distribution* — tasks counting-sort each segment by chunk and write per-chunk pieces;
+4. *subtrees* — one independent task per chunk builds the chunk's subtree in memory;
+5. *upper levels* — the nodes above the chunks are built from the chunks' representatives;
+6. *upper errors* — one task per chunk measures the exact error of its ancestors on its input points.
+
+Memory is bounded by the segment and chunk sizes, not by the input. The per-node level of detail is
+Wahl, Guthe, Klein, "Identifying planes in point-clouds for efficient hybrid rendering", PG 2005: vertex
+clustering on a 64³ grid per node, whose representatives are real input points (nearest the mean of the
+input points of the cell), and RANSAC planes replaced by textured quads (:mod:`citylod.lod.planes`).
+Leaves hold every input point exactly once (refinement REPLACE, geometric error 0). An internal node's
+``geometricError`` is exact: the largest distance from an input point of its subtree to what the node
+draws for it (the representative of its cell, or the quad texel that representative was splatted into),
+raised to its children's errors so errors never grow downwards.
+
+Output is written in ``<out>.partial/`` and renamed when complete; an interrupted build resumes there
+(a finished chunk is not redone). No VTK, no Qt.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import shutil
+import time
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod import __version__
+from citylod.io.las import iter_points, read_metadata
+from citylod.io.tiles3d import (
+    MeshData,
+    PointData,
+    TileContent,
+    TileSpec,
+    content_path,
+    write_content,
+    write_tileset,
+)
+from citylod.lod.executor import make_executor, run_tasks
+from citylod.lod.octree import (
+    CLUSTER_BITS,
+    MAX_LEVEL,
+    QBITS,
+    batch_shuffle,
+    cluster,
+    counting_sort,
+    lookup_error,
+    morton_order,
+    octant_keys,
+    quantize,
+)
+from citylod.lod.planes import encode_png, find_planes, quad_mesh_arrays, splat_colors
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+Recs = npt.NDArray[np.void]
+
+#: Levels of the scan grid: 2^7 = 128 cells per axis.
+SCAN_BITS = 7
+#: Below this many points a build runs in the calling process when no worker count is given: starting
+#: spawned workers (each imports numpy, numba, laspy: ≈1 s) costs more than two cores save.
+INLINE_BELOW = 3_000_000
+
+
+@dataclass(frozen=True)
+class PointBuildReport:
+    """What a point-cloud build produced and how fast.
+
+    Attributes
+    ----------
+    output
+        The tileset folder.
+    points
+        Input points (each is in exactly one leaf).
+    nodes, leaves, levels, chunks
+        Octree nodes, leaf nodes, depth + 1, out-of-core chunks.
+    quads
+        Plane quads over all internal nodes; ``quad_points`` representatives they replaced.
+    seconds, points_per_s
+        Wall time of the whole build and input points per second.
+    bytes
+        Size of the written tile contents.
+    decode_floor_s
+        Time plain laspy takes to decode the same files in this process, when measured.
+    """
+
+    output: Path
+    points: int
+    nodes: int
+    leaves: int
+    levels: int
+    chunks: int
+    quads: int
+    quad_points: int
+    seconds: float
+    points_per_s: float
+    bytes: int
+    hybrid: bool
+    root_error: float
+    decode_floor_s: float | None = None
+
+    def summary(self) -> str:
+        lines = [
+            f"points     {self.points:,} -> {self.output}",
+            f"octree     {self.nodes:,} nodes ({self.leaves:,} leaves), {self.levels} levels, "
+            f"{self.chunks} chunks, root error {self.root_error:.3g} m",
+            f"hybrid     {'on' if self.hybrid else 'off'}: {self.quads:,} quads replacing "
+            f"{self.quad_points:,} points",
+            f"size       {self.bytes / 1e6:.1f} MB",
+            f"time       {self.seconds:.2f} s, {self.points_per_s / 1e6:.2f} M points/s",
+        ]
+        if self.decode_floor_s:
+            lines.append(f"floor      laspy decode {self.decode_floor_s:.2f} s "
+                         f"(build = {self.seconds / self.decode_floor_s:.1f}× decode)")
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class _Params:
+    """Everything a task needs; small and picklable (tasks run in other processes or on Dask workers)."""
+
+    out: str
+    tmp: str
+    cube_lo: tuple[float, float, float]
+    cube_size: float
+    has_rgb: bool
+    hybrid: bool
+    phi: float
+    max_leaf_points: int
+    intensity_scale: float = 255.0
+
+    def node_size(self, level: int) -> float:
+        return self.cube_size / (1 << level)
+
+
+@dataclass
+class _Summary:
+    """A built node as its parent needs it: its tile and its representatives (with cell sums)."""
+
+    level: int
+    idx: tuple[int, int, int]
+    spec: TileSpec
+    recs: Recs           # (K,) POINT_DTYPE representatives (a leaf: all its points)
+    q: I64               # (K, 3)
+    sums: F64            # (K, 3) sum of the input positions each representative stands for
+    counts: I64          # (K,)
+    lo: F64
+    hi: F64
+
+
+@dataclass
+class _Stats:
+    nodes: int = 0
+    leaves: int = 0
+    quads: int = 0
+    quad_points: int = 0
+    max_level: int = 0
+    bytes: int = 0
+
+    def add(self, other: _Stats) -> None:
+        self.nodes += other.nodes
+        self.leaves += other.leaves
+        self.quads += other.quads
+        self.quad_points += other.quad_points
+        self.max_level = max(self.max_level, other.max_level)
+        self.bytes += other.bytes
+
+
+@dataclass
+class _ChunkResult:
+    cid: int
+    root: _Summary
+    stats: _Stats = field(default_factory=_Stats)
+
+
+# ------------------------------------------------------------------------------------------ node kernels
+def _xyz(recs: Recs) -> F64:
+    """(N, 3) float64 positions of POINT_DTYPE records."""
+    return np.stack([recs["x"], recs["y"], recs["z"]], axis=1)
+
+
+def _key(level: int, idx: tuple[int, int, int]) -> str:
+    return f"{level}/{idx[0]}/{idx[1]}/{idx[2]}"
+
+
+def _seed(key: str) -> int:
+    return zlib.crc32(key.encode())
+
+
+def _point_data(recs: Recs, center: F64, has_rgb: bool) -> PointData:
+    rgb = np.stack([recs["red"], recs["green"], recs["blue"]], axis=1) if has_rgb else None
+    return PointData(positions=(_xyz(recs) - center).astype(np.float32), rgb=rgb,
+                     intensity=recs["intensity"].copy(), classification=recs["classification"].copy(),
+                     return_number=recs["return_number"].copy())
+
+
+def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
+    path = content_path(p.out, key)
+    if path.exists():  # resumed build: this node was finished before the interruption
+        stats.bytes += path.stat().st_size
+        return path.relative_to(p.out).as_posix()
+    uri = write_content(p.out, key, content)
+    stats.bytes += path.stat().st_size
+    return uri
+
+
+def _leaf(p: _Params, recs: Recs, q: I64, level: int, idx: tuple[int, int, int], stats: _Stats) -> _Summary:
+    key = _key(level, idx)
+    xyz = _xyz(recs)
+    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    center = (lo + hi) / 2.0
+    order = morton_order(q, level)
+    order = order[batch_shuffle(len(order), _seed(key))]
+    uri = _write(p, key, TileContent(points=_point_data(recs[order], center, p.has_rgb)), stats)
+    stats.nodes += 1
+    stats.leaves += 1
+    stats.max_level = max(stats.max_level, level)
+    spec = TileSpec(key=key, level=level, center=center, lo=lo, hi=hi, geometric_error=0.0, content=uri,
+                    extras={"points": len(recs), "triangles": 0, "quads": 0})
+    return _Summary(level, idx, spec, recs, q, xyz, np.ones(len(recs), np.int64), lo, hi)
+
+
+def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[_Summary],
+              stats: _Stats) -> tuple[_Summary, I64, F64]:
+    """Build an internal node from its children's representatives; write its content.
+
+    Returns the node's summary (its ``geometric_error`` still to be set by the caller), and its error
+    table: the sorted occupied cells (C,) of its 64³ grid and what it draws for each, (C, 3) float64.
+    """
+    key = _key(level, idx)
+    recs = np.concatenate([c.recs for c in children])
+    q = np.concatenate([c.q for c in children])
+    sums = np.concatenate([c.sums for c in children])
+    counts = np.concatenate([c.counts for c in children])
+    cells, rep, csums, ccounts = cluster(q, _xyz(recs), sums, counts, level)
+    rrecs, rq = recs[rep], q[rep]
+    rxyz = _xyz(rrecs)
+    lo = np.min([c.lo for c in children], axis=0)
+    hi = np.max([c.hi for c in children], axis=0)
+    center = (lo + hi) / 2.0
+    texel = p.node_size(level) / (1 << CLUSTER_BITS)
+    m = morton_order(rq, level)
+    elem = rxyz.copy()
+    drawn = m
+    meshes: list[MeshData] = []
+    nquads = 0
+    if p.hybrid and len(m) >= 32:
+        colors = splat_colors(np.stack([rrecs["red"], rrecs["green"], rrecs["blue"]], axis=1)[m] if p.has_rgb
+                              else None, rrecs["classification"][m], rrecs["intensity"][m], p.intensity_scale)
+        res = find_planes(rxyz[m] - center, colors, texel, phi=p.phi, seed=_seed(key))
+        if res.quads:
+            elem[m] = res.elem + center
+            drawn = m[~res.replaced]
+            pos, faces, uv, atlas = quad_mesh_arrays(res.quads)
+            meshes.append(MeshData(positions=pos, faces=faces, uv=uv, texture=encode_png(atlas), name="quads"))
+            corners = pos.astype(np.float64) + center
+            lo, hi = np.minimum(lo, corners.min(axis=0)), np.maximum(hi, corners.max(axis=0))
+            nquads = len(res.quads)
+            stats.quads += nquads
+            stats.quad_points += int(res.replaced.sum())
+    drawn = drawn[batch_shuffle(len(drawn), _seed(key))]
+    points = _point_data(rrecs[drawn], center, p.has_rgb) if len(drawn) else None
+    uri = _write(p, key, TileContent(meshes=meshes, points=points), stats)
+    stats.nodes += 1
+    spec = TileSpec(key=key, level=level, center=center, lo=lo, hi=hi, geometric_error=0.0, content=uri,
+                    children=[c.spec for c in children],
+                    extras={"points": len(drawn), "triangles": 2 * nquads, "quads": nquads,
+                            "texel_m": texel})
+    return _Summary(level, idx, spec, rrecs, rq, csums, ccounts, lo, hi), cells, elem
+
+
+def _subtree(p: _Params, recs: Recs, q: I64, level: int, idx: tuple[int, int, int], stats: _Stats) -> _Summary:
+    """Build the octree under one node from all its points (in memory: the points of one chunk)."""
+    if len(recs) <= p.max_leaf_points or level >= MAX_LEVEL:
+        return _leaf(p, recs, q, level, idx, stats)
+    # Counting sort into the 8 octants (PotreeConverter 2's partitioning, one pass, stable).
+    order, offs = counting_sort(octant_keys(q, level), 8)
+    recs, q = recs[order], q[order]
+    children = []
+    for o in range(8):
+        a, b = offs[o], offs[o + 1]
+        if a == b:
+            continue
+        cidx = (2 * idx[0] + (o & 1), 2 * idx[1] + ((o >> 1) & 1), 2 * idx[2] + ((o >> 2) & 1))
+        children.append(_subtree(p, recs[a:b], q[a:b], level + 1, cidx, stats))
+    node, cells, elem = _internal(p, level, idx, children, stats)
+    exact = lookup_error(q, _xyz(recs), level, cells, elem)
+    _set_error(node.spec, exact)
+    return node
+
+
+def _set_error(spec: TileSpec, exact: float) -> None:
+    # The exact error of this node's content; raised to the children's so that refining never increases
+    # the error a view sees (3D Tiles clients assume errors shrink downwards). Both are true bounds.
+    spec.geometric_error = max([exact, *(c.geometric_error for c in spec.children)])
+    assert spec.extras is not None
+    spec.extras["exact_error_m"] = exact
+
+
+# ----------------------------------------------------------------------------------------------- tasks
+def _scan_segment(cube_lo: tuple[float, float, float], cube_size: float, path: str, start: int, count: int,
+                  raw: str) -> tuple[I64, I64, int, F64, F64, float]:
+    """Pass 1: decode a segment, park it as raw records, count it on the 128³ grid.
+
+    Returns the occupied grid cells (sorted), their counts, the number of points, the tight bounds and
+    the 99th intensity percentile.
+    """
+    parts = list(iter_points(path, start=start, count=count, chunk_points=min(count, 1_000_000)))
+    recs = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    _save_npy(raw, recs)
+    xyz = _xyz(recs)
+    g = quantize(xyz, np.asarray(cube_lo), cube_size) >> (QBITS - SCAN_BITS)
+    flat = g[:, 0] | (g[:, 1] << SCAN_BITS) | (g[:, 2] << (2 * SCAN_BITS))
+    cells, cnt = np.unique(flat, return_counts=True)
+    p99 = float(np.percentile(recs["intensity"], 99)) if len(recs) else 0.0
+    return cells, cnt.astype(np.int64), len(recs), xyz.min(axis=0), xyz.max(axis=0), p99
+
+
+def _distribute_segment(p: _Params, raw: str, sid: int, lut_path: str) -> int:
+    """Pass 2: counting-sort a parked segment by chunk and write one piece per chunk."""
+    recs = np.load(raw)
+    lut = np.load(lut_path, mmap_mode="r")
+    g = quantize(_xyz(recs), np.asarray(p.cube_lo), p.cube_size) >> (QBITS - SCAN_BITS)
+    cid = np.asarray(lut[g[:, 0] | (g[:, 1] << SCAN_BITS) | (g[:, 2] << (2 * SCAN_BITS))], np.int64)
+    nch = int(cid.max()) + 1
+    order, offs = counting_sort(cid, nch)
+    recs = recs[order]
+    for c in np.flatnonzero(np.diff(offs)):
+        _save_npy(os.path.join(p.tmp, "chunks", str(c), f"{sid:06d}.npy"), recs[offs[c]:offs[c + 1]])
+    return len(recs)
+
+
+def _load_chunk(p: _Params, cid: int) -> Recs:
+    d = Path(p.tmp) / "chunks" / str(cid)
+    parts = [np.load(f) for f in sorted(d.glob("*.npy"))]
+    return np.concatenate(parts) if len(parts) > 1 else parts[0]
+
+
+def _build_chunk(p: _Params, cid: int, level: int, idx: tuple[int, int, int]) -> _ChunkResult:
+    """Pass 3: the subtree of one chunk. The result is kept on disk, so a resumed build skips it."""
+    done = Path(p.tmp) / "results" / f"{cid}.pkl"
+    if done.exists():
+        with open(done, "rb") as f:
+            res: _ChunkResult = pickle.load(f)
+        return res
+    recs = _load_chunk(p, cid)
+    q = quantize(_xyz(recs), np.asarray(p.cube_lo), p.cube_size)
+    stats = _Stats()
+    root = _subtree(p, recs, q, level, idx, stats)
+    res = _ChunkResult(cid, root, stats)
+    _atomic_bytes(done, pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+    return res
+
+
+def _chunk_errors(p: _Params, cid: int, ancestors: list[tuple[int, str]]) -> dict[str, float]:
+    """Pass 5: exact error of the upper nodes above one chunk, measured on the chunk's input points."""
+    recs = _load_chunk(p, cid)
+    xyz = _xyz(recs)
+    q = quantize(xyz, np.asarray(p.cube_lo), p.cube_size)
+    out = {}
+    for level, key in ancestors:
+        t = np.load(Path(p.tmp) / "tables" / (key.replace("/", "_") + ".npz"))
+        out[key] = lookup_error(q, xyz, level, t["cells"], t["elem"])
+    return out
+
+
+# --------------------------------------------------------------------------------------------- helpers
+def _save_npy(path: str | Path, arr: np.ndarray) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        np.save(f, arr)
+    os.replace(tmp, path)
+
+
+def _atomic_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def _chunks_from_counts(counts: I64, max_chunk_points: int) -> list[tuple[int, int, int, int, int]]:
+    """Merge 128³ grid cells into octree nodes of at most ``max_chunk_points`` (top-down on the pyramid).
+
+    Returns (level, x, y, z, count) per chunk; a single 128³ cell with more points is a chunk anyway.
+    """
+    n = 1 << SCAN_BITS
+    pyr = [counts.reshape(n, n, n)]  # [z, y, x]
+    for lv in range(SCAN_BITS - 1, -1, -1):
+        c = pyr[0]
+        s = 1 << lv
+        pyr.insert(0, c.reshape(s, 2, s, 2, s, 2).sum(axis=(1, 3, 5)))
+    out = []
+    stack = [(0, 0, 0, 0)]
+    while stack:
+        lv, x, y, z = stack.pop()
+        cnt = int(pyr[lv][z, y, x])
+        if cnt == 0:
+            continue
+        if cnt <= max_chunk_points or lv == SCAN_BITS:
+            out.append((lv, x, y, z, cnt))
+            continue
+        for o in range(7, -1, -1):
+            stack.append((lv + 1, 2 * x + (o & 1), 2 * y + ((o >> 1) & 1), 2 * z + ((o >> 2) & 1)))
+    return out
+
+
+def _fingerprint(files: Sequence[Path], **params: Any) -> str:
+    items = [[str(f.resolve()), f.stat().st_size, f.stat().st_mtime_ns] for f in files]
+    return json.dumps({"files": items, "version": __version__, **params}, sort_keys=True, default=str)
+
+
+def _prepare_partial(partial: Path, fingerprint: str) -> None:
+    fp = partial / ".build" / "fingerprint.json"
+    if partial.exists() and (not fp.exists() or fp.read_text() != fingerprint):
+        shutil.rmtree(partial)  # another build's leftovers: resuming it would mix two builds
+    fp.parent.mkdir(parents=True, exist_ok=True)
+    if not fp.exists():
+        fp.write_text(fingerprint)
+
+
+def _finish(partial: Path, out: Path) -> None:
+    shutil.rmtree(partial / ".build", ignore_errors=True)
+    old = None
+    if out.exists():
+        old = out.with_name(f".{out.name}.old{os.getpid()}")
+        os.replace(out, old)
+    os.replace(partial, out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------------------------- build
+def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[str], *, crs: Any = None,
+                 hybrid: bool = True, workers: int | None = None, scheduler: Any = None,
+                 progress: bool = True, phi: float = 8.0, max_leaf_points: int = 20_000,
+                 max_chunk_points: int = 500_000, segment_points: int = 500_000,
+                 measure_floor: bool = False) -> PointBuildReport:
+    """Build a 3D Tiles point octree from LAS/LAZ files.
+
+    Parameters
+    ----------
+    files
+        LAS/LAZ files of one cloud (one CRS).
+    out_dir
+        The tileset folder to write (replaced when it exists, only once the build has succeeded).
+    crs
+        CRS override, needed when the headers carry none.
+    hybrid
+        Replace planes of internal nodes by textured quads (Wahl et al. 2005); False: points only.
+    workers
+        Local worker processes; None: CPU count, or the calling process for inputs below
+        :data:`INLINE_BELOW` points; 0: the calling process.
+    scheduler
+        Dask scheduler address (``tcp://HOST:PORT``) or ``distributed.Client``: run the tasks there.
+    progress
+        Progress bars on stderr.
+    phi
+        Compactness factor of the plane rule ``texels < φ · (inliers − 4)``.
+    max_leaf_points
+        A node with at most this many points is a leaf.
+    max_chunk_points
+        Out-of-core chunk size: bounds the memory of one subtree task.
+    segment_points
+        Points decoded per scan task: bounds the memory of one scan or distribution task.
+    measure_floor
+        Also time plain laspy decoding the same files, for the report.
+
+    Returns
+    -------
+    PointBuildReport
+
+    Raises
+    ------
+    InputError
+        Unreadable, truncated, empty or un-georeferenced input (naming the file).
+    """
+    t_start = time.perf_counter()
+    paths = [Path(f) for f in files]
+    meta = read_metadata(paths, crs)
+    floor = None
+    if measure_floor:
+        from citylod.io.las import decode_seconds
+
+        floor = decode_seconds(paths)
+        t_start = time.perf_counter()
+    out = Path(out_dir)
+    partial = out.with_name(out.name + ".partial")
+    tmp = partial / ".build"
+    _prepare_partial(partial, _fingerprint(paths, crs=meta.crs.to_wkt(), hybrid=hybrid, phi=phi,
+                                           max_leaf=max_leaf_points, max_chunk=max_chunk_points,
+                                           segment=segment_points))
+    extent = float(np.max(meta.hi - meta.lo))
+    cube_size = extent * (1.0 + 1e-9) + 1e-6 if extent > 0 else 1.0
+    cube_lo = (meta.lo + meta.hi) / 2.0 - cube_size / 2.0
+    segments: list[tuple[str, int, int, str]] = []
+    for info in meta.files:
+        for start in range(0, info.point_count, segment_points):
+            sid = len(segments)
+            segments.append((str(info.path), start, min(segment_points, info.point_count - start),
+                             str(tmp / "raw" / f"{sid:06d}.npy")))
+    if workers is None and scheduler is None and meta.point_count < INLINE_BELOW:
+        workers = 0
+    with make_executor(workers, scheduler) as ex:
+        # Pass 1: scan.
+        scan = tmp / "scan.npz"
+        if not scan.exists():
+            counts = np.zeros(1 << (3 * SCAN_BITS), np.int64)
+            lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+            p99 = 0.0
+            lo_t = tuple(float(v) for v in cube_lo)
+            for cells, cnt, _n, slo, shi, sp in run_tasks(ex, _scan_segment, [(lo_t, cube_size, *s) for s in segments],
+                                                          progress=progress, desc="scan"):
+                counts[cells] += cnt
+                lo, hi, p99 = np.minimum(lo, slo), np.maximum(hi, shi), max(p99, sp)
+            np.savez(tmp / "scan.tmp.npz", counts=counts, lo=lo, hi=hi, p99=p99)
+            os.replace(tmp / "scan.tmp.npz", scan)
+        s = np.load(scan)
+        counts, p99 = s["counts"], float(s["p99"])
+        params = _Params(out=str(partial), tmp=str(tmp),
+                         cube_lo=(float(cube_lo[0]), float(cube_lo[1]), float(cube_lo[2])),
+                         cube_size=cube_size, has_rgb=meta.has_rgb, hybrid=hybrid, phi=phi,
+                         max_leaf_points=max_leaf_points, intensity_scale=max(p99, 1.0))
+        chunks = _chunks_from_counts(counts, max_chunk_points)
+        # Pass 2: distribute segments into chunk pieces.
+        if not (tmp / "distributed.done").exists():
+            n = 1 << SCAN_BITS
+            lut = np.full((n, n, n), -1, np.int32)
+            for cid, (lv, x, y, z, _c) in enumerate(chunks):
+                w = 1 << (SCAN_BITS - lv)
+                lut[z * w:(z + 1) * w, y * w:(y + 1) * w, x * w:(x + 1) * w] = cid
+            _save_npy(tmp / "lut.npy", lut.reshape(-1))
+            shutil.rmtree(tmp / "chunks", ignore_errors=True)
+            for _ in run_tasks(ex, _distribute_segment,
+                               [(params, seg[3], sid, str(tmp / "lut.npy")) for sid, seg in enumerate(segments)],
+                               progress=progress, desc="distribute"):
+                pass
+            (tmp / "distributed.done").touch()
+            shutil.rmtree(tmp / "raw", ignore_errors=True)
+        # Pass 3: one subtree per chunk.
+        stats = _Stats()
+        roots: dict[tuple[int, tuple[int, int, int]], _Summary] = {}
+        for res in run_tasks(ex, _build_chunk, [(params, cid, lv, (x, y, z)) for cid, (lv, x, y, z, _c)
+                                                 in enumerate(chunks)], progress=progress, desc="subtrees"):
+            stats.add(res.stats)
+            roots[(res.root.level, res.root.idx)] = res.root
+        # Pass 4: upper levels, bottom-up from the chunk roots (in this process: few nodes).
+        tables = tmp / "tables"
+        upper: dict[str, _Summary] = {}
+        max_chunk_level = max(lv for lv, *_ in chunks)
+        for lv in range(max_chunk_level, 0, -1):
+            groups: dict[tuple[int, int, int], list[_Summary]] = {}
+            for (l2, idx), node in sorted(roots.items(), key=lambda kv: (kv[0][0], kv[0][1])):
+                if l2 == lv:
+                    groups.setdefault((idx[0] >> 1, idx[1] >> 1, idx[2] >> 1), []).append(node)
+            for pidx, kids in sorted(groups.items()):
+                node, cells, elem = _internal(params, lv - 1, pidx, kids, stats)
+                _save_npy_z(tables / (node.spec.key.replace("/", "_") + ".npz"), cells=cells, elem=elem)
+                upper[node.spec.key] = node
+                roots[(lv - 1, pidx)] = node
+                for k in kids:  # the children's representatives are not needed any more
+                    del roots[(k.level, k.idx)]
+        root = roots[(0, (0, 0, 0))]
+        # Pass 5: exact errors of the upper nodes, measured on the input points chunk by chunk.
+        if upper:
+            exact = dict.fromkeys(upper, 0.0)
+            tasks = []
+            for cid, (lv, x, y, z, _c) in enumerate(chunks):
+                anc = [(a, _key(a, (x >> (lv - a), y >> (lv - a), z >> (lv - a)))) for a in range(lv)]
+                tasks.append((params, cid, anc))
+            for errs in run_tasks(ex, _chunk_errors, tasks, progress=progress, desc="errors"):
+                for nkey, err in errs.items():
+                    exact[nkey] = max(exact[nkey], err)
+            for node in sorted(upper.values(), key=lambda nd: -nd.level):  # children first
+                _set_error(node.spec, exact[node.spec.key])
+    stats.max_level = max(stats.max_level, 0)
+    write_tileset(partial, root.spec, meta.crs, extras={"citylod": {
+        "kind": "points", "points": meta.point_count, "hybrid": hybrid, "phi": phi, "quads": stats.quads,
+        "has_rgb": meta.has_rgb, "max_leaf_points": max_leaf_points, "cluster_grid": 1 << CLUSTER_BITS}})
+    _finish(partial, out)
+    seconds = time.perf_counter() - t_start
+    return PointBuildReport(
+        output=out, points=meta.point_count, nodes=stats.nodes, leaves=stats.leaves, levels=stats.max_level + 1,
+        chunks=len(chunks), quads=stats.quads, quad_points=stats.quad_points, seconds=seconds,
+        points_per_s=meta.point_count / seconds if seconds > 0 else 0.0, bytes=stats.bytes, hybrid=hybrid,
+        root_error=float(root.spec.geometric_error), decode_floor_s=floor)
+
+
+def _save_npy_z(path: Path, cells: I64, elem: F64) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
+    np.savez(tmp, cells=cells, elem=elem)
+    os.replace(tmp, path)
+
+
+__all__ = ["INLINE_BELOW", "PointBuildReport", "build_points"]

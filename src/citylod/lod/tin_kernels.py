@@ -1,0 +1,1068 @@
+"""Compiled kernels behind `citylod.lod.tin`: greedy-insertion Delaunay TIN with an exact vertical bound.
+
+The public API, its contracts and the reasoning about correctness live in `citylod.lod.tin`; this
+module holds only the numba kernels. It must not import anything but numpy and numba.
+
+Layout of the triangulation (after mapbox/delatin, itself Garland & Heckbert 1995, algorithm III):
+triangle ``t`` owns half-edges ``3t, 3t+1, 3t+2``; ``tri[e]`` is the vertex where half-edge ``e``
+starts; ``half[e]`` is the twin half-edge or -1 on the hull. Vertices are grid samples with integer
+coordinates ``x = col``, ``y = row``. Every triangle has ``_orient(a, b, c) > 0``, which with rows
+growing downwards is counter-clockwise seen from above in (x east, y north).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# Indices into the int64 counter array ``cnt`` shared by the kernels (numba has no mutable scalars).
+_NTRI, _NPEND, _NHEAP, _NVERT, _ERRORS_ON, _STUCK, _NBORDER_ADDED = 0, 1, 2, 3, 4, 5, 6
+
+
+# --------------------------------------------------------------------------------------------------
+# exact predicates on integer coordinates
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _orient(ax: int, ay: int, bx: int, by: int, cx: int, cy: int) -> int:
+    # Delatin's sign convention; exact in int64 for any grid below 2**31 samples a side.
+    return (bx - cx) * (ay - cy) - (by - cy) * (ax - cx)
+
+
+@njit(cache=True, inline="always")
+def _det3(dx: int, dy: int, ap: int, ex: int, ey: int, bp: int, fx: int, fy: int, cp: int) -> int:
+    return dx * (ey * cp - bp * fy) - dy * (ex * cp - bp * fx) + ap * (ex * fy - ey * fx)
+
+
+@njit(cache=True)
+def _in_circle(ax: int, ay: int, bx: int, by: int, cx: int, cy: int, px: int, py: int) -> bool:
+    """Whether p lies inside the circumcircle of (a, b, c) (``_orient(a, b, c) > 0``), ties perturbed.
+
+    Exact in int64 for coordinates below 2**15. Lattice points are often cocircular (every grid cell),
+    so ties are broken by a symbolic perturbation: Delaunay of the points mapped by
+    ``I - e1 u u^T - e2 e_x e_x^T`` with u = (1, 1)/sqrt(2) and 0 < e2 << e1 -> 0. That is a regular
+    triangulation under a strictly convex quadratic lifting, hence consistent (flips terminate and the
+    result is unique), and it makes the Delaunay triangulation of a full grid use the diagonal
+    (i, j)-(i+1, j+1) of every cell: the very surface the bound is measured against.
+    """
+    dx = ax - px
+    dy = ay - py
+    ex = bx - px
+    ey = by - py
+    fx = cx - px
+    fy = cy - py
+    d = _det3(dx, dy, dx * dx + dy * dy, ex, ey, ex * ex + ey * ey, fx, fy, fx * fx + fy * fy)
+    if d != 0:
+        return d < 0
+    # lifted minus e1 * 2 * det[q, qx*qy] (the qx^2 + qy^2 parts cancel because d == 0)
+    d = _det3(dx, dy, dx * dy, ex, ey, ex * ey, fx, fy, fx * fy)
+    if d != 0:
+        return d > 0
+    d = _det3(dx, dy, dx * dx, ex, ey, ex * ex, fx, fy, fx * fx)
+    return d > 0
+
+
+# --------------------------------------------------------------------------------------------------
+# max-heap of triangles keyed by their error
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _heap_up(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int) -> None:
+    t = heap[i]
+    e = terr[t]
+    while i > 0:
+        p = (i - 1) >> 1
+        tp = heap[p]
+        if terr[tp] >= e:
+            break
+        heap[i] = tp
+        hpos[tp] = i
+        i = p
+    heap[i] = t
+    hpos[t] = i
+
+
+@njit(cache=True)
+def _heap_down(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int, n: int) -> None:
+    t = heap[i]
+    e = terr[t]
+    while True:
+        c = 2 * i + 1
+        if c >= n:
+            break
+        if c + 1 < n and terr[heap[c + 1]] > terr[heap[c]]:
+            c += 1
+        tc = heap[c]
+        if terr[tc] <= e:
+            break
+        heap[i] = tc
+        hpos[tc] = i
+        i = c
+    heap[i] = t
+    hpos[t] = i
+
+
+@njit(cache=True)
+def _heap_push(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.ndarray, t: int) -> None:
+    i = cnt[_NHEAP]
+    cnt[_NHEAP] = i + 1
+    heap[i] = t
+    hpos[t] = i
+    _heap_up(heap, hpos, terr, i)
+
+
+@njit(cache=True)
+def _heap_remove(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.ndarray, t: int) -> None:
+    i = hpos[t]
+    hpos[t] = -1
+    n = cnt[_NHEAP] - 1
+    cnt[_NHEAP] = n
+    if i != n:
+        last = heap[n]
+        heap[i] = last
+        hpos[last] = i
+        _heap_down(heap, hpos, terr, i, n)
+        _heap_up(heap, hpos, terr, hpos[last])
+
+
+# --------------------------------------------------------------------------------------------------
+# error of one triangle against the grid surface: samples and edge crossings
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _is_border(s: int, H: int, W: int) -> bool:
+    r = s // W
+    c = s - r * W
+    return r == 0 or c == 0 or r == H - 1 or c == W - 1
+
+
+@njit(cache=True)
+def _pick(
+    ss: np.ndarray,
+    n: int,
+    h: np.ndarray,
+    vid: np.ndarray,
+    z0: float,
+    x0: int,
+    y0: int,
+    a1: int,
+    b1: int,
+    c1: int,
+    a2: int,
+    b2: int,
+    c2: int,
+    g1: float,
+    g2: float,
+) -> int:
+    """The best insertion candidate among samples ``ss[:n]``: not yet a vertex, interior before border.
+
+    Border samples are the last resort so that the tile border keeps its 1D-simplified vertices
+    whenever the 2D bound can be met without touching it. Among equals, the sample where the
+    triangle's plane is farthest from the data wins (Garland & Heckbert's greedy criterion).
+    """
+    H, W = h.shape
+    best = -1
+    best_score = -1.0
+    for k in range(n):
+        s = ss[k]
+        if s < 0 or vid[s] >= 0:
+            continue
+        y = s // W
+        x = s - y * W
+        e = abs((z0 - h[y, x]) + g1 * (a1 * x + b1 * y + c1) + g2 * (a2 * x + b2 * y + c2))
+        if not _is_border(s, H, W):
+            e += 1e300
+        if e > best_score:
+            best_score = e
+            best = s
+    return best
+
+
+@njit(cache=True)
+def _triangle_error(
+    h: np.ndarray,
+    cellvalid: np.ndarray,
+    vid: np.ndarray,
+    scratch: np.ndarray,
+    x0: int,
+    y0: int,
+    x1: int,
+    y1: int,
+    x2: int,
+    y2: int,
+    crossings: bool,
+) -> tuple[float, int]:
+    """Max |TIN - grid surface| over one triangle and the sample to insert next (-1: none).
+
+    The max of the difference of two piecewise-linear functions over the triangle is attained at a
+    vertex of their overlay: a grid sample in the closed triangle, or a crossing of a triangle edge
+    with a grid line (row, column or cell diagonal x - y = const). Both kinds are enumerated exactly
+    with integer arithmetic, so the result is the exact vertical L-infinity distance (up to rounding).
+    """
+    H, W = h.shape
+    z0 = h[y0, x0]
+    area = _orient(x0, y0, x1, y1, x2, y2)
+    g1 = (h[y1, x1] - z0) / area
+    g2 = (h[y2, x2] - z0) / area
+    # barycentric numerators w1 = orient(p2, p0, p), w2 = orient(p0, p1, p) as a*x + b*y + c
+    a1 = y0 - y2
+    b1 = x2 - x0
+    c1 = x0 * y2 - y0 * x2
+    a2 = y1 - y0
+    b2 = x0 - x1
+    c2 = x1 * y0 - y1 * x0
+    a0 = y2 - y1
+    b0 = x1 - x2
+    c0 = x2 * y1 - y2 * x1
+
+    best_s = 0.0
+    cand_s = -1
+    ymin = min(y0, min(y1, y2))
+    ymax = max(y0, max(y1, y2))
+    xmin = min(x0, min(x1, x2))
+    xmax = max(x0, max(x1, x2))
+    for y in range(ymin, ymax + 1):
+        lo = xmin
+        hi = xmax
+        # x-range of the row inside the closed triangle, from the three half-planes w_k >= 0
+        for k in range(3):
+            if k == 0:
+                a, r = a0, b0 * y + c0
+            elif k == 1:
+                a, r = a1, b1 * y + c1
+            else:
+                a, r = a2, b2 * y + c2
+            if a > 0:
+                lo = max(lo, -(r // a))
+            elif a < 0:
+                hi = min(hi, r // (-a))
+            elif r < 0:
+                hi = lo - 1
+        r1 = b1 * y + c1
+        r2 = b2 * y + c2
+        for x in range(lo, hi + 1):
+            e = abs((z0 - h[y, x]) + g1 * (a1 * x + r1) + g2 * (a2 * x + r2))
+            if e > best_s:
+                s = y * W + x
+                if vid[s] < 0:
+                    best_s = e
+                    cand_s = s
+
+    best_c = 0.0
+    cs0 = -1  # the two samples of the crossed grid edge, and the cell(s) beside it
+    cs1 = -1
+    cell_a = -1
+    cell_b = -1
+    for k in range(3 if crossings else 0):
+        if k == 0:
+            px, py, qx, qy = x0, y0, x1, y1
+        elif k == 1:
+            px, py, qx, qy = x1, y1, x2, y2
+        else:
+            px, py, qx, qy = x2, y2, x0, y0
+        zp = h[py, px]
+        zq = h[qy, qx]
+        # columns x = m: the crossed grid edge is vertical, (fy, m)-(fy+1, m)
+        if px != qx:
+            if px < qx:
+                ax, ay, az, bx, by, bz = px, py, zp, qx, qy, zq
+            else:
+                ax, ay, az, bx, by, bz = qx, qy, zq, px, py, zp
+            d = bx - ax
+            dy = by - ay
+            # y = ay + (m - ax) dy / d = fy + rem / d, stepped without divisions
+            fy = ay
+            rem = 0
+            for m in range(ax + 1, bx):
+                rem += dy
+                while rem >= d:
+                    rem -= d
+                    fy += 1
+                while rem < 0:
+                    rem += d
+                    fy -= 1
+                if rem == 0:
+                    continue  # a grid sample: already counted by the scan above
+                f = rem / d
+                t = (m - ax) / d
+                ga = h[fy, m]
+                e = abs((az - ga) + t * (bz - az) - f * (h[fy + 1, m] - ga))
+                if e > best_c:
+                    best_c = e
+                    cs0 = fy * W + m
+                    cs1 = cs0 + W
+                    cell_a = fy * (W - 1) + m - 1
+                    cell_b = fy * (W - 1) + m if m < W - 1 else -1
+        # rows y = m: horizontal grid edge (m, fx)-(m, fx+1)
+        if py != qy:
+            if py < qy:
+                ax, ay, az, bx, by, bz = px, py, zp, qx, qy, zq
+            else:
+                ax, ay, az, bx, by, bz = qx, qy, zq, px, py, zp
+            d = by - ay
+            dx = bx - ax
+            fx = ax
+            rem = 0
+            for m in range(ay + 1, by):
+                rem += dx
+                while rem >= d:
+                    rem -= d
+                    fx += 1
+                while rem < 0:
+                    rem += d
+                    fx -= 1
+                if rem == 0:
+                    continue
+                f = rem / d
+                t = (m - ay) / d
+                ga = h[m, fx]
+                e = abs((az - ga) + t * (bz - az) - f * (h[m, fx + 1] - ga))
+                if e > best_c:
+                    best_c = e
+                    cs0 = m * W + fx
+                    cs1 = cs0 + 1
+                    cell_a = (m - 1) * (W - 1) + fx
+                    cell_b = m * (W - 1) + fx if m < H - 1 else -1
+        # diagonals x - y = m: grid edge (fy, fy+m)-(fy+1, fy+m+1), inside one cell
+        sp = px - py
+        sq = qx - qy
+        if sp != sq:
+            if sp < sq:
+                ax, ay, az, bx, by, bz, sa, sb = px, py, zp, qx, qy, zq, sp, sq
+            else:
+                ax, ay, az, bx, by, bz, sa, sb = qx, qy, zq, px, py, zp, sq, sp
+            d = sb - sa
+            dy = by - ay
+            fy = ay
+            rem = 0
+            for m in range(sa + 1, sb):
+                rem += dy
+                while rem >= d:
+                    rem -= d
+                    fy += 1
+                while rem < 0:
+                    rem += d
+                    fy -= 1
+                if rem == 0:
+                    continue
+                f = rem / d
+                t = (m - sa) / d
+                ga = h[fy, fy + m]
+                e = abs((az - ga) + t * (bz - az) - f * (h[fy + 1, fy + m + 1] - ga))
+                if e > best_c:
+                    best_c = e
+                    cs0 = fy * W + fy + m
+                    cs1 = cs0 + W + 1
+                    cell_a = fy * (W - 1) + fy + m
+                    cell_b = -1
+
+    if best_s >= best_c:
+        return best_s, cand_s
+    # The worst point is a crossing, not a sample: insert an end of the crossed grid edge, else a
+    # corner of a valid cell beside it. Such a corner always exists while the TIN is Delaunay: no
+    # Delaunay edge crosses a cell whose four corners are all vertices.
+    scratch[0] = cs0
+    scratch[1] = cs1
+    cand = _pick(scratch, 2, h, vid, z0, x0, y0, a1, b1, c1, a2, b2, c2, g1, g2)
+    if cand < 0:
+        n = 0
+        for cell in (cell_a, cell_b):
+            if cell < 0:
+                continue
+            ci = cell // (W - 1)
+            cj = cell - ci * (W - 1)
+            if not cellvalid[ci, cj]:
+                continue
+            s = ci * W + cj
+            scratch[n] = s
+            scratch[n + 1] = s + 1
+            scratch[n + 2] = s + W
+            scratch[n + 3] = s + W + 1
+            n += 4
+        cand = _pick(scratch, n, h, vid, z0, x0, y0, a1, b1, c1, a2, b2, c2, g1, g2)
+    if cand < 0:
+        # last resort, not expected to run: any valid non-vertex sample of the surrounding box
+        n = 0
+        best = -1.0
+        for y in range(max(ymin - 1, 0), min(ymax + 2, H)):
+            for x in range(max(xmin - 1, 0), min(xmax + 2, W)):
+                s = y * W + x
+                if vid[s] >= 0:
+                    continue
+                ok = False
+                for ci in range(max(y - 1, 0), min(y + 1, H - 1)):
+                    for cj in range(max(x - 1, 0), min(x + 1, W - 1)):
+                        ok = ok or cellvalid[ci, cj]
+                if not ok:
+                    continue
+                e = abs((z0 - h[y, x]) + g1 * (a1 * x + b1 * y + c1) + g2 * (a2 * x + b2 * y + c2))
+                if not _is_border(s, H, W):
+                    e += 1e300
+                if e > best:
+                    best = e
+                    cand = s
+    return best_c, cand
+
+
+# --------------------------------------------------------------------------------------------------
+# triangulation updates (Delatin's half-edge scheme, iterative legalisation)
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _add_triangle(
+    tri: np.ndarray,
+    half: np.ndarray,
+    hpos: np.ndarray,
+    heap: np.ndarray,
+    terr: np.ndarray,
+    pend: np.ndarray,
+    inpend: np.ndarray,
+    cnt: np.ndarray,
+    e: int,
+    a: int,
+    b: int,
+    c: int,
+    ab: int,
+    bc: int,
+    ca: int,
+) -> int:
+    if e < 0:
+        e = 3 * cnt[_NTRI]
+        cnt[_NTRI] += 1
+    t = e // 3
+    tri[e] = a
+    tri[e + 1] = b
+    tri[e + 2] = c
+    half[e] = ab
+    half[e + 1] = bc
+    half[e + 2] = ca
+    if ab >= 0:
+        half[ab] = e
+    if bc >= 0:
+        half[bc] = e + 1
+    if ca >= 0:
+        half[ca] = e + 2
+    if hpos[t] >= 0:
+        _heap_remove(heap, hpos, terr, cnt, t)
+    if cnt[_ERRORS_ON] and not inpend[t]:
+        inpend[t] = True
+        pend[cnt[_NPEND]] = t
+        cnt[_NPEND] += 1
+    return e
+
+
+@njit(cache=True)
+def _legalize(
+    tri: np.ndarray,
+    half: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    hpos: np.ndarray,
+    heap: np.ndarray,
+    terr: np.ndarray,
+    pend: np.ndarray,
+    inpend: np.ndarray,
+    cnt: np.ndarray,
+    stack: np.ndarray,
+    n: int,
+) -> None:
+    """Lawson flips from the half-edges ``stack[:n]``, each opposite the point just inserted.
+
+    An explicit stack replaces Delatin's recursion. Entries never go stale: a triangle on the stack
+    touches the new point, and only its edge opposite that point (the one on the stack) can flip it.
+    """
+    while n > 0:
+        n -= 1
+        a = stack[n]
+        b = half[a]
+        if b < 0:
+            continue
+        a0 = a - a % 3
+        b0 = b - b % 3
+        al = a0 + (a + 1) % 3
+        ar = a0 + (a + 2) % 3
+        bl = b0 + (b + 2) % 3
+        br = b0 + (b + 1) % 3
+        p0 = tri[ar]
+        pr = tri[a]
+        pl = tri[al]
+        p1 = tri[bl]
+        if not _in_circle(vx[p0], vy[p0], vx[pr], vy[pr], vx[pl], vy[pl], vx[p1], vy[p1]):
+            continue
+        hal = half[al]
+        har = half[ar]
+        hbl = half[bl]
+        hbr = half[br]
+        t0 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, a0, p0, p1, pl, -1, hbl, hal)
+        t1 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, b0, p1, p0, pr, t0, har, hbr)
+        stack[n] = t0 + 1
+        stack[n + 1] = t1 + 2
+        n += 2
+
+
+@njit(cache=True)
+def _locate(
+    tri: np.ndarray,
+    half: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    cnt: np.ndarray,
+    t: int,
+    px: int,
+    py: int,
+) -> int:
+    """The triangle whose closed interior holds (px, py): a visibility walk from ``t``.
+
+    The walk terminates on Delaunay triangulations (Edelsbrunner 1990); the step cap and the linear
+    scan behind it only guard against a bug turning into a hang.
+    """
+    ntri = cnt[_NTRI]
+    rot = 0
+    for _ in range(4 * ntri + 16):
+        e = 3 * t
+        moved = False
+        rot = (rot + 1) % 3
+        for k in range(3):
+            ee = e + (k + rot) % 3
+            en = e + (ee - e + 1) % 3
+            a = tri[ee]
+            b = tri[en]
+            if _orient(vx[a], vy[a], vx[b], vy[b], px, py) < 0:
+                nb = half[ee]
+                if nb >= 0:
+                    t = nb // 3
+                    moved = True
+                    break
+        if not moved:
+            return t
+    for t in range(ntri):
+        e = 3 * t
+        a, b, c = tri[e], tri[e + 1], tri[e + 2]
+        if (
+            _orient(vx[a], vy[a], vx[b], vy[b], px, py) >= 0
+            and _orient(vx[b], vy[b], vx[c], vy[c], px, py) >= 0
+            and _orient(vx[c], vy[c], vx[a], vy[a], px, py) >= 0
+        ):
+            return t
+    return -1
+
+
+@njit(cache=True)
+def _insert(
+    tri: np.ndarray,
+    half: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    vid: np.ndarray,
+    hpos: np.ndarray,
+    heap: np.ndarray,
+    terr: np.ndarray,
+    pend: np.ndarray,
+    inpend: np.ndarray,
+    cnt: np.ndarray,
+    stack: np.ndarray,
+    W: int,
+    px: int,
+    py: int,
+    t: int,
+) -> int:
+    """Insert grid sample (px, py) starting the search at triangle ``t``; return a triangle near it."""
+    if vid[py * W + px] >= 0:
+        return t
+    t = _locate(tri, half, vx, vy, cnt, t, px, py)
+    pn = cnt[_NVERT]
+    cnt[_NVERT] += 1
+    vx[pn] = px
+    vy[pn] = py
+    vid[py * W + px] = pn
+    e0 = 3 * t
+    p0 = tri[e0]
+    p1 = tri[e0 + 1]
+    p2 = tri[e0 + 2]
+    if _orient(vx[p0], vy[p0], vx[p1], vy[p1], px, py) == 0:
+        return _split_edge(tri, half, vx, vy, hpos, heap, terr, pend, inpend, cnt, stack, pn, e0)
+    if _orient(vx[p1], vy[p1], vx[p2], vy[p2], px, py) == 0:
+        return _split_edge(tri, half, vx, vy, hpos, heap, terr, pend, inpend, cnt, stack, pn, e0 + 1)
+    if _orient(vx[p2], vy[p2], vx[p0], vy[p0], px, py) == 0:
+        return _split_edge(tri, half, vx, vy, hpos, heap, terr, pend, inpend, cnt, stack, pn, e0 + 2)
+    h0 = half[e0]
+    h1 = half[e0 + 1]
+    h2 = half[e0 + 2]
+    t0 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, e0, p0, p1, pn, h0, -1, -1)
+    t1 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, p1, p2, pn, h1, -1, t0 + 1)
+    t2 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, p2, p0, pn, h2, t0 + 2, t1 + 1)
+    stack[0] = t0
+    stack[1] = t1
+    stack[2] = t2
+    _legalize(tri, half, vx, vy, hpos, heap, terr, pend, inpend, cnt, stack, 3)
+    return t0 // 3
+
+
+@njit(cache=True)
+def _split_edge(
+    tri: np.ndarray,
+    half: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    hpos: np.ndarray,
+    heap: np.ndarray,
+    terr: np.ndarray,
+    pend: np.ndarray,
+    inpend: np.ndarray,
+    cnt: np.ndarray,
+    stack: np.ndarray,
+    pn: int,
+    a: int,
+) -> int:
+    """Insert vertex ``pn`` lying on half-edge ``a`` (Delatin's ``_handleCollinear``)."""
+    a0 = a - a % 3
+    al = a0 + (a + 1) % 3
+    ar = a0 + (a + 2) % 3
+    p0 = tri[ar]
+    pr = tri[a]
+    pl = tri[al]
+    hal = half[al]
+    har = half[ar]
+    b = half[a]
+    if b < 0:
+        t0 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, a0, pn, p0, pr, -1, har, -1)
+        t1 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, p0, pn, pl, t0, -1, hal)
+        stack[0] = t0 + 1
+        stack[1] = t1 + 2
+        _legalize(tri, half, vx, vy, hpos, heap, terr, pend, inpend, cnt, stack, 2)
+        return t0 // 3
+    b0 = b - b % 3
+    bl = b0 + (b + 2) % 3
+    br = b0 + (b + 1) % 3
+    p1 = tri[bl]
+    hbl = half[bl]
+    hbr = half[br]
+    t0 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, a0, p0, pr, pn, har, -1, -1)
+    t1 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, b0, pr, p1, pn, hbr, -1, t0 + 1)
+    t2 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, p1, pl, pn, hbl, -1, t1 + 1)
+    t3 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, pl, p0, pn, hal, t0 + 2, t2 + 1)
+    stack[0] = t0
+    stack[1] = t1
+    stack[2] = t2
+    stack[3] = t3
+    _legalize(tri, half, vx, vy, hpos, heap, terr, pend, inpend, cnt, stack, 4)
+    return t0 // 3
+
+
+@njit(cache=True)
+def _grown(a: np.ndarray, n: int, fill: int) -> np.ndarray:
+    out = np.full(n, fill, dtype=a.dtype)
+    out[: a.size] = a
+    return out
+
+
+@njit(cache=True)
+def _flush(
+    h: np.ndarray,
+    cellvalid: np.ndarray,
+    vid: np.ndarray,
+    scratch: np.ndarray,
+    tri: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    hpos: np.ndarray,
+    heap: np.ndarray,
+    terr: np.ndarray,
+    tcand: np.ndarray,
+    pend: np.ndarray,
+    inpend: np.ndarray,
+    cnt: np.ndarray,
+    max_error: float,
+    crossings: bool,
+) -> None:
+    """Compute the error of every pending triangle and queue those above ``max_error``."""
+    H, W = h.shape
+    for i in range(cnt[_NPEND]):
+        t = pend[i]
+        inpend[t] = False
+        e = 3 * t
+        a, b, c = tri[e], tri[e + 1], tri[e + 2]
+        x0, y0, x1, y1, x2, y2 = vx[a], vy[a], vx[b], vy[b], vx[c], vy[c]
+        # Every edge of the valid region's boundary is a TIN edge (see tin.py), so a triangle lies
+        # wholly inside or wholly outside it, and its centroid's cell tells which.
+        ci = min((y0 + y1 + y2) // 3, H - 2)
+        cj = min((x0 + x1 + x2) // 3, W - 2)
+        if not cellvalid[ci, cj]:
+            terr[t] = 0.0
+            tcand[t] = -1
+            continue
+        err, cand = _triangle_error(h, cellvalid, vid, scratch, x0, y0, x1, y1, x2, y2, crossings)
+        if cand < 0:
+            if err > max_error:
+                cnt[_STUCK] += 1
+            err = 0.0
+        terr[t] = err
+        tcand[t] = cand
+        if err > max_error:
+            _heap_push(heap, hpos, terr, cnt, t)
+    cnt[_NPEND] = 0
+
+
+@njit(cache=True)
+def build_tin(
+    h: np.ndarray,
+    cellvalid: np.ndarray,
+    forced_x: np.ndarray,
+    forced_y: np.ndarray,
+    max_error: float,
+    crossings: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """Greedy-insertion Delaunay TIN of grid ``h`` (H, W), H, W >= 2, after the forced vertices.
+
+    Parameters
+    ----------
+    h
+        (H, W) float64 heights, finite everywhere (no-data already filled).
+    cellvalid
+        (H-1, W-1) bool, cell (i, j) has valid corners (i..i+1, j..j+1).
+    forced_x, forced_y
+        (K,) int64 column and row of the vertices inserted before the greedy phase, the four grid
+        corners first.
+    max_error
+        Stop when no triangle inside the valid region has error above this.
+    crossings
+        False measures the error at samples only (Garland & Heckbert's criterion, pydelatin's), which
+        is not a bound on the surfaces' distance; for benchmarks only.
+
+    Returns
+    -------
+    vx, vy
+        (V,) int64 column and row of every vertex.
+    tris
+        (T, 3) int32 vertex indices, ``_orient > 0``; includes triangles outside the valid region.
+    stuck
+        Number of triangles left above ``max_error`` for want of a sample to insert (expected 0).
+    border_added
+        Number of grid-border samples the greedy phase had to add beyond the forced ones.
+    """
+    H, W = h.shape
+    cap = 2 * forced_x.size + 256
+    vx = np.empty(cap, dtype=np.int64)
+    vy = np.empty(cap, dtype=np.int64)
+    tri = np.empty(3 * cap, dtype=np.int32)
+    half = np.empty(3 * cap, dtype=np.int32)
+    hpos = np.full(cap, -1, dtype=np.int32)
+    heap = np.empty(cap, dtype=np.int32)
+    terr = np.zeros(cap, dtype=np.float64)
+    tcand = np.full(cap, -1, dtype=np.int64)
+    pend = np.empty(cap, dtype=np.int32)
+    inpend = np.zeros(cap, dtype=np.bool_)
+    stack = np.empty(3 * cap, dtype=np.int32)
+    vid = np.full(H * W, -1, dtype=np.int32)
+    scratch = np.empty(8, dtype=np.int64)
+    cnt = np.zeros(8, dtype=np.int64)
+
+    # the four corners, two triangles along the (0,0)-(H-1,W-1) diagonal (the perturbed-Delaunay one)
+    for k in range(4):
+        x = 0 if k % 2 == 0 else W - 1
+        y = 0 if k < 2 else H - 1
+        vx[k] = x
+        vy[k] = y
+        vid[y * W + x] = k
+    cnt[_NVERT] = 4
+    t0 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, 3, 0, 2, -1, -1, -1)
+    _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, 0, 3, 1, t0, -1, -1)
+
+    t = 0
+    for k in range(forced_x.size):
+        if 3 * (cnt[_NTRI] + 4) > tri.size:
+            cap *= 2
+            vx, vy = _grown(vx, cap, 0), _grown(vy, cap, 0)
+            tri, half = _grown(tri, 3 * cap, 0), _grown(half, 3 * cap, 0)
+            hpos, heap = _grown(hpos, cap, -1), _grown(heap, cap, 0)
+            terr, tcand = _grown(terr, cap, 0), _grown(tcand, cap, -1)
+            pend, inpend, stack = _grown(pend, cap, 0), _grown(inpend, cap, 0), _grown(stack, 3 * cap, 0)
+        t = _insert(
+            tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, forced_x[k], forced_y[k], t
+        )
+
+    # Errors are only meaningful once every valid-region boundary sample is in (see tin.py).
+    cnt[_ERRORS_ON] = 1
+    for t in range(cnt[_NTRI]):
+        pend[t] = t
+        inpend[t] = True
+    cnt[_NPEND] = cnt[_NTRI]
+    _flush(
+        h,
+        cellvalid,
+        vid,
+        scratch,
+        tri,
+        vx,
+        vy,
+        hpos,
+        heap,
+        terr,
+        tcand,
+        pend,
+        inpend,
+        cnt,
+        max_error,
+        crossings,
+    )
+
+    # Garland & Heckbert 1995: insert the worst sample of the worst triangle until all are within bound.
+    while cnt[_NHEAP] > 0:
+        t = heap[0]
+        _heap_remove(heap, hpos, terr, cnt, t)
+        s = tcand[t]
+        if 3 * (cnt[_NTRI] + 4) > tri.size:
+            cap *= 2
+            vx, vy = _grown(vx, cap, 0), _grown(vy, cap, 0)
+            tri, half = _grown(tri, 3 * cap, 0), _grown(half, 3 * cap, 0)
+            hpos, heap = _grown(hpos, cap, -1), _grown(heap, cap, 0)
+            terr, tcand = _grown(terr, cap, 0), _grown(tcand, cap, -1)
+            pend, inpend, stack = _grown(pend, cap, 0), _grown(inpend, cap, 0), _grown(stack, 3 * cap, 0)
+        y = s // W
+        x = s - y * W
+        if vid[s] < 0 and _is_border(s, H, W):
+            cnt[_NBORDER_ADDED] += 1
+        _insert(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, x, y, t)
+        # A candidate outside t (from an edge crossing) may leave t untouched: re-evaluate it too.
+        if not inpend[t]:
+            inpend[t] = True
+            pend[cnt[_NPEND]] = t
+            cnt[_NPEND] += 1
+        _flush(
+            h,
+            cellvalid,
+            vid,
+            scratch,
+            tri,
+            vx,
+            vy,
+            hpos,
+            heap,
+            terr,
+            tcand,
+            pend,
+            inpend,
+            cnt,
+            max_error,
+            crossings,
+        )
+
+    nv = cnt[_NVERT]
+    nt = cnt[_NTRI]
+    return (
+        vx[:nv].copy(),
+        vy[:nv].copy(),
+        tri[: 3 * nt].reshape(nt, 3).copy(),
+        int(cnt[_STUCK]),
+        int(cnt[_NBORDER_ADDED]),
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# 1D: bounded-error polyline simplification
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def simplify_runs(z: np.ndarray, valid: np.ndarray, max_error: float) -> np.ndarray:
+    """Keep-mask (N,) bool of a bounded-error simplification of each run of valid samples of ``z``.
+
+    Top-down splitting at the worst sample (Douglas & Peucker 1973) on vertical distance. In 1D the
+    max of |polyline - chord| is attained at samples, so checking samples is exact. The result
+    depends only on ``z[run]`` and ``max_error``, scanned in index order (first maximum wins).
+    """
+    n = z.size
+    keep = np.zeros(n, dtype=np.bool_)
+    stack = np.empty(2 * n + 2, dtype=np.int64)
+    i = 0
+    while i < n:
+        if not valid[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n and valid[j + 1]:
+            j += 1
+        keep[i] = True
+        keep[j] = True
+        sp = 0
+        if j - i > 1:
+            stack[0] = i
+            stack[1] = j
+            sp = 2
+        while sp > 0:
+            sp -= 2
+            lo = stack[sp]
+            hi = stack[sp + 1]
+            zl = z[lo]
+            slope = (z[hi] - zl) / (hi - lo)
+            worst = 0.0
+            at = -1
+            for k in range(lo + 1, hi):
+                e = abs((zl - z[k]) + slope * (k - lo))
+                if e > worst:
+                    worst = e
+                    at = k
+            if worst > max_error:
+                keep[at] = True
+                if at - lo > 1:
+                    stack[sp] = lo
+                    stack[sp + 1] = at
+                    sp += 2
+                if hi - at > 1:
+                    stack[sp] = at
+                    stack[sp + 1] = hi
+                    sp += 2
+        i = j + 1
+    return keep
+
+
+# --------------------------------------------------------------------------------------------------
+# independent evaluator and coverage (share nothing with the inserter above)
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _grid_z(h: np.ndarray, valid: np.ndarray, r: float, c: float) -> float:
+    """Height of the grid surface (diagonal (i,j)-(i+1,j+1) per cell) at (r, c); NaN if no-data."""
+    H, W = h.shape
+    i = min(max(int(np.floor(r)), 0), H - 2) if H > 1 else 0
+    j = min(max(int(np.floor(c)), 0), W - 2) if W > 1 else 0
+    v = r - i
+    u = c - j
+    i1 = min(i + 1, H - 1)
+    j1 = min(j + 1, W - 1)
+    if u >= v:
+        if not (valid[i, j] and valid[i, j1] and valid[i1, j1]):
+            return np.nan
+        return h[i, j] + u * (h[i, j1] - h[i, j]) + v * (h[i1, j1] - h[i, j1])
+    if not (valid[i, j] and valid[i1, j] and valid[i1, j1]):
+        return np.nan
+    return h[i, j] + v * (h[i1, j] - h[i, j]) + u * (h[i1, j1] - h[i1, j])
+
+
+@njit(cache=True)
+def eval_max_error(
+    h: np.ndarray,
+    valid: np.ndarray,
+    vr: np.ndarray,
+    vc: np.ndarray,
+    vz: np.ndarray,
+    faces: np.ndarray,
+) -> tuple[float, float, float]:
+    """Max |TIN - grid| at grid samples in faces and at face-edge / grid-line crossings.
+
+    Written independently of `build_tin`: floating-point barycentrics and a generic line-crossing
+    parametrisation. Returns (error, row, col) of the worst point; (0, nan, nan) when nothing is covered.
+    """
+    worst = 0.0
+    wr = np.nan
+    wc = np.nan
+    for f in range(faces.shape[0]):
+        ia, ib, ic = faces[f, 0], faces[f, 1], faces[f, 2]
+        ra, ca, za = float(vr[ia]), float(vc[ia]), vz[ia]
+        rb, cb, zb = float(vr[ib]), float(vc[ib]), vz[ib]
+        rc, cc, zc = float(vr[ic]), float(vc[ic]), vz[ic]
+        det = (rb - ra) * (cc - ca) - (rc - ra) * (cb - ca)
+        if det == 0.0:
+            continue
+        # samples: barycentric coordinates of every sample in the bounding box
+        for r in range(int(min(ra, rb, rc)), int(max(ra, rb, rc)) + 1):
+            for c in range(int(min(ca, cb, cc)), int(max(ca, cb, cc)) + 1):
+                lb = ((r - ra) * (cc - ca) - (rc - ra) * (c - ca)) / det
+                lc = ((rb - ra) * (c - ca) - (r - ra) * (cb - ca)) / det
+                if lb < -1e-12 or lc < -1e-12 or lb + lc > 1.0 + 1e-12:
+                    continue
+                if not valid[r, c]:
+                    continue
+                e = abs((za - h[r, c]) + lb * (zb - za) + lc * (zc - za))
+                if e > worst:
+                    worst, wr, wc = e, float(r), float(c)
+        # crossings of each edge with every grid line n.(r, c) = k, n in {(0,1), (1,0), (-1,1)}
+        for k in range(3):
+            if k == 0:
+                r0, c0, z0, r1, c1, z1 = ra, ca, za, rb, cb, zb
+            elif k == 1:
+                r0, c0, z0, r1, c1, z1 = rb, cb, zb, rc, cc, zc
+            else:
+                r0, c0, z0, r1, c1, z1 = rc, cc, zc, ra, ca, za
+            for fam in range(3):
+                nr = 0.0 if fam == 0 else (1.0 if fam == 1 else -1.0)
+                nc = 1.0 if fam != 1 else 0.0
+                s0 = nr * r0 + nc * c0
+                s1 = nr * r1 + nc * c1
+                if s0 == s1:
+                    continue
+                for line in range(int(np.ceil(min(s0, s1))), int(np.floor(max(s0, s1))) + 1):
+                    t = (line - s0) / (s1 - s0)
+                    if t <= 0.0 or t >= 1.0:
+                        continue
+                    r = r0 + t * (r1 - r0)
+                    c = c0 + t * (c1 - c0)
+                    g = _grid_z(h, valid, r, c)
+                    if np.isnan(g):
+                        continue
+                    e = abs((z0 - g) + t * (z1 - z0))
+                    if e > worst:
+                        worst, wr, wc = e, r, c
+    return worst, wr, wc
+
+
+@njit(cache=True)
+def _clip_area(px: np.ndarray, py: np.ndarray, n: int, x0: float, y0: float) -> float:
+    """Area of polygon (px, py)[:n] clipped to the unit square at (x0, y0) (Sutherland-Hodgman)."""
+    bx = np.empty(16)
+    by = np.empty(16)
+    cx = px[:n].copy()
+    cy = py[:n].copy()
+    m = n
+    for side in range(4):
+        k = 0
+        for i in range(m):
+            ax, ay = cx[i], cy[i]
+            qx, qy = cx[(i + 1) % m], cy[(i + 1) % m]
+            if side == 0:
+                da, dq = ax - x0, qx - x0
+            elif side == 1:
+                da, dq = x0 + 1.0 - ax, x0 + 1.0 - qx
+            elif side == 2:
+                da, dq = ay - y0, qy - y0
+            else:
+                da, dq = y0 + 1.0 - ay, y0 + 1.0 - qy
+            if da >= 0:
+                bx[k], by[k] = ax, ay
+                k += 1
+            if (da >= 0) != (dq >= 0):
+                s = da / (da - dq)
+                bx[k], by[k] = ax + s * (qx - ax), ay + s * (qy - ay)
+                k += 1
+        m = k
+        if m == 0:
+            return 0.0
+        cx = bx[:m].copy()
+        cy = by[:m].copy()
+    a = 0.0
+    for i in range(m):
+        a += cx[i] * cy[(i + 1) % m] - cx[(i + 1) % m] * cy[i]
+    return abs(a) / 2.0
+
+
+@njit(cache=True)
+def cell_coverage(
+    shape_cells: tuple[int, int], vr: np.ndarray, vc: np.ndarray, faces: np.ndarray
+) -> np.ndarray:
+    """(H-1, W-1) float64 sum over faces of the area of face ∩ cell (cells have area 1)."""
+    cov = np.zeros(shape_cells)
+    px = np.empty(3)
+    py = np.empty(3)
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            px[k] = vc[faces[f, k]]
+            py[k] = vr[faces[f, k]]
+        for i in range(max(int(py.min()), 0), min(int(np.ceil(py.max())), shape_cells[0])):
+            for j in range(max(int(px.min()), 0), min(int(np.ceil(px.max())), shape_cells[1])):
+                cov[i, j] += _clip_area(px, py, 3, float(j), float(i))
+    return cov

@@ -1,0 +1,290 @@
+"""Off-screen rendering of tilesets: images and eye-distance depth, and the ``citylod render`` command.
+
+:class:`OffscreenRenderer` owns an off-screen window (EGL, see :mod:`citylod.render._vtk`) and a
+:class:`~citylod.render.tileset_actor.Scene`. For each camera it resolves the selection (waits until
+every selected tile is loaded), renders and reads back the colour and, on request, the depth converted
+to the distance from the eye along each pixel ray (``inf`` where nothing was drawn).
+
+Semantic styling (``--city``, ``--highlight``, ``--hide``) is applied through a hook: a callable
+``hook(scene, city=..., highlight=..., hide=...)``; the command finds it as ``semantic_hook`` in
+``citylod.render.semantic`` when that module exists.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.core.camera import Camera, load_cameras
+from citylod.core.errors import CitylodError, InputError
+from citylod.render import _vtk
+from citylod.render.depth import zbuffer_to_distance
+from citylod.render.tileset_actor import FrameStats, Scene
+
+__all__ = ["OffscreenRenderer", "RenderedFrame", "render_command", "render_images", "save_png"]
+
+SemanticHook = Callable[..., None]
+
+
+@dataclass
+class RenderedFrame:
+    """One off-screen frame: ``rgb`` (H, W, 3) uint8 (row 0 = top), ``depth`` (H, W) float32 distance
+    from the eye or None, ``stats`` what was drawn."""
+
+    rgb: npt.NDArray[np.uint8]
+    depth: npt.NDArray[np.float32] | None
+    stats: FrameStats
+
+
+def _tileset_sources(sources: Sequence[str | os.PathLike[str]]) -> tuple[list[Path], list[Path]]:
+    tilesets, cities = [], []
+    for s in sources:
+        p = Path(s)
+        if p.suffix.lower() == ".gpkg":
+            cities.append(p)
+        elif p.is_dir() or p.suffix.lower() == ".json":
+            if not p.exists():
+                raise InputError("no such tileset", p)
+            tilesets.append(p)
+        elif not p.exists():
+            raise InputError("no such file or folder", p)
+        else:
+            raise InputError("not a tileset folder, tileset.json or .gpkg city store", p)
+    return tilesets, cities
+
+
+class OffscreenRenderer:
+    """A scene drawn into an off-screen window.
+
+    Parameters
+    ----------
+    sources
+        Tileset folders or ``tileset.json`` files.
+    size
+        (width, height) in pixels.
+    tau_px
+        Screen-space error threshold.
+    color_by
+        See :data:`citylod.render.colors.COLOR_MODES`.
+    cache_bytes
+        Tile cache budget (hard cap).
+    edl
+        Eye-Dome Lighting (``vtkEDLShading``) for point clouds.
+    point_size_px
+        Size of drawn points.
+    workers
+        Loader threads.
+    """
+
+    def __init__(self, sources: Sequence[str | os.PathLike[str]], *, size: tuple[int, int] = (1280, 720),
+                 tau_px: float = 1.0, color_by: str = "auto", cache_bytes: int = 2 << 30, edl: bool = False,
+                 point_size_px: float = 2.0, workers: int = 2, origin: npt.ArrayLike | None = None) -> None:
+        tilesets, cities = _tileset_sources(sources)
+        if cities:
+            raise CitylodError(f"{cities[0]}: city stores are drawn through the semantic hook; pass them "
+                               "with --city")
+        if not tilesets:
+            raise CitylodError("nothing to render: give at least one tileset")
+        self.size = (int(size[0]), int(size[1]))
+        self.window = _vtk.offscreen_window(*self.size)
+        self.renderer = _vtk.vtkOpenGLRenderer()
+        self.window.AddRenderer(self.renderer)
+        self.scene = Scene(self.renderer, cache_bytes=cache_bytes, tau_px=tau_px, color_by=color_by,
+                           workers=workers, origin=origin)
+        for t in tilesets:
+            layer = self.scene.add(t)
+            layer.point_size_px = point_size_px
+        if edl:
+            basic = _vtk.vtkRenderStepsPass()
+            self._edl = _vtk.vtkEDLShading()
+            self._edl.SetDelegatePass(basic)
+            self.renderer.SetPass(self._edl)
+
+    # -- frames -----------------------------------------------------------------------------------
+    def prepare(self, camera: Camera, *, full_resolution: bool = False) -> FrameStats:
+        """Place the camera and make the frame's tiles resident and shown (no drawing)."""
+        self.scene.set_camera(camera)
+        view = self.scene.view(camera, self.size)
+        stats = self.scene.show_full_resolution(view) if full_resolution else self.scene.resolve(view)
+        self.renderer.ResetCameraClippingRange()
+        return stats
+
+    def draw(self) -> float:
+        """Render the prepared frame and wait for the GL to finish; returns the seconds it took."""
+        t0 = time.perf_counter()
+        self.window.Render()
+        self.window.WaitForCompletion()
+        return time.perf_counter() - t0
+
+    def grab_rgb(self) -> npt.NDArray[np.uint8]:
+        """Colour of the last frame, (H, W, 3) uint8, row 0 at the top."""
+        w, h = self.size
+        arr = _vtk.vtkUnsignedCharArray()
+        self.window.GetPixelData(0, 0, w - 1, h - 1, 0, arr, 0)
+        rgb = _vtk.vtk_to_numpy(arr).reshape(h, w, 3)
+        return np.ascontiguousarray(rgb[::-1])
+
+    def grab_depth(self) -> npt.NDArray[np.float32]:
+        """Distance from the eye per pixel of the last frame, (H, W) float32, ``inf`` for background."""
+        w, h = self.size
+        arr = _vtk.vtkFloatArray()
+        self.window.GetZbufferData(0, 0, w - 1, h - 1, arr)
+        zb = _vtk.vtk_to_numpy(arr).reshape(h, w)[::-1]
+        cam = self.renderer.GetActiveCamera()
+        near, far = cam.GetClippingRange()
+        return zbuffer_to_distance(zb, near, far, cam.GetViewAngle())
+
+    def render(self, camera: Camera, *, depth: bool = False, full_resolution: bool = False) -> RenderedFrame:
+        """Resolve, draw and read back one frame."""
+        stats = self.prepare(camera, full_resolution=full_resolution)
+        self.draw()
+        return RenderedFrame(self.grab_rgb(), self.grab_depth() if depth else None, stats)
+
+    def close(self) -> None:
+        self.scene.close()
+        self.window.Finalize()
+
+    def __enter__(self) -> OffscreenRenderer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def render_images(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[Camera], *,
+                  size: tuple[int, int] = (1280, 720), tau_px: float = 1.0, depth: bool = False,
+                  color_by: str = "auto", cache_bytes: int = 2 << 30, edl: bool = False,
+                  point_size_px: float = 2.0, semantic_hook: SemanticHook | None = None,
+                  semantic_args: dict[str, Any] | None = None,
+                  progress: bool = False) -> list[tuple[npt.NDArray[np.uint8], npt.NDArray[np.float32] | None]]:
+    """Render ``sources`` from each camera off screen.
+
+    Parameters
+    ----------
+    sources
+        Tileset folders or ``tileset.json`` files (one scene; they must share a CRS).
+    cameras
+        Cameras in the data's CRS.
+    size
+        (width, height) pixels.
+    tau_px
+        Screen-space error threshold; every selected tile is loaded before the frame is grabbed.
+    depth
+        Also return the distance from the eye per pixel.
+    semantic_hook, semantic_args
+        ``semantic_hook(scene, **semantic_args)`` is called once before the first frame.
+
+    Returns
+    -------
+    list of (rgb, depth)
+        ``rgb`` (H, W, 3) uint8 with row 0 at the top; ``depth`` (H, W) float32 (``inf`` = background) or
+        None.
+    """
+    from tqdm import tqdm
+
+    out = []
+    with OffscreenRenderer(sources, size=size, tau_px=tau_px, color_by=color_by, cache_bytes=cache_bytes,
+                           edl=edl, point_size_px=point_size_px) as r:
+        if semantic_hook is not None:
+            semantic_hook(r.scene, **(semantic_args or {}))
+        for cam in tqdm(cameras, desc="render", unit="frame", disable=not progress or len(cameras) < 2):
+            f = r.render(cam, depth=depth)
+            out.append((f.rgb, f.depth))
+    return out
+
+
+# ------------------------------------------------------------------------------------------ writing
+def save_png(path: str | os.PathLike[str], rgb: npt.NDArray[np.uint8]) -> Path:
+    """Write (H, W, 3|4) uint8 as PNG atomically (temporary name, then rename)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    h, w, c = rgb.shape
+    img = _vtk.vtkImageData()
+    img.SetDimensions(w, h, 1)
+    arr = _vtk.numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, c), deep=True,
+                            array_type=_vtk.VTK_UNSIGNED_CHAR)
+    img.GetPointData().SetScalars(arr)
+    tmp = p.with_name(f".{p.name}.tmp{os.getpid()}.png")
+    writer = _vtk.vtkPNGWriter()
+    writer.SetFileName(str(tmp))
+    writer.SetInputData(img)
+    writer.Write()
+    if not tmp.exists():
+        raise CitylodError("cannot write PNG", p)
+    os.replace(tmp, p)
+    return p
+
+
+def _save_npy(path: Path, arr: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}.npy")
+    np.save(tmp, arr)
+    os.replace(tmp, path)
+
+
+def frame_path(pattern: Path, index: int, count: int) -> Path:
+    """The file of frame ``index``: ``pattern`` itself for one frame, else ``stem_0007.suffix`` (or the
+    pattern formatted, when it holds ``{}``/``{:04d}``)."""
+    if count == 1:
+        return pattern
+    if "{" in pattern.name:
+        return pattern.with_name(pattern.name.format(index))
+    return pattern.with_name(f"{pattern.stem}_{index:04d}{pattern.suffix}")
+
+
+def _find_semantic_hook() -> SemanticHook | None:
+    try:
+        mod = importlib.import_module("citylod.render.semantic")
+    except ImportError:
+        return None
+    hook = getattr(mod, "semantic_hook", None)
+    return hook if callable(hook) else None
+
+
+def render_command(args: argparse.Namespace, progress: bool = True) -> int:
+    """``citylod render SOURCES... -o IMAGE.png --camera CAMERA.json [--tau PX] [--size WxH] [--depth D.npy]
+    [--color-by MODE] [--city STORE.gpkg --highlight SQL --hide SQL]``."""
+    from tqdm import tqdm
+
+    cameras = load_cameras(args.camera)
+    tilesets, cities = _tileset_sources(args.sources)
+    city = getattr(args, "city", None) or (cities[0] if cities else None)
+    highlight, hide = getattr(args, "highlight", None), getattr(args, "hide", None)
+    hook = None
+    if city is not None or highlight or hide:
+        hook = _find_semantic_hook()
+        if hook is None:
+            raise CitylodError("--city/--highlight/--hide and .gpkg sources are not available yet "
+                               "(the semantic renderer is not installed)")
+    out = Path(args.output)
+    if out.suffix.lower() != ".png":
+        raise CitylodError(f"output must be a .png file, got {out.name!r}")
+    n = len(cameras)
+    with OffscreenRenderer(tilesets, size=tuple(args.size), tau_px=args.tau,
+                           color_by=getattr(args, "color_by", "auto") or "auto") as r:
+        if hook is not None:
+            hook(r.scene, city=city, highlight=highlight, hide=hide)
+        last = None
+        for i, cam in enumerate(tqdm(cameras, desc="render", unit="frame", disable=not progress or n < 2)):
+            frame = r.render(cam, depth=args.depth is not None)
+            save_png(frame_path(out, i, n), frame.rgb)
+            if args.depth is not None and frame.depth is not None:
+                _save_npy(frame_path(Path(args.depth), i, n), frame.depth)
+            last = frame.stats
+        failed = r.scene.loader.failed
+    for key, msg in failed.items():
+        print(f"citylod: warning: tile {key} skipped: {msg}")
+    if last is not None:
+        where = out if n == 1 else out.with_name(f"{out.stem}_NNNN{out.suffix}")
+        print(f"{where}: {n} frame(s), last: {last.tiles} tiles, {last.triangles} triangles, "
+              f"{last.points} points, max error {last.max_sse_px:.2f} px")
+    return 0

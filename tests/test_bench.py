@@ -1,0 +1,74 @@
+"""The benchmark harness: error measurement on known depth images, and a tiny end-to-end report.
+
+Asserts on files, counters and measured errors, never on timings.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from citylod.bench.flight import default_flight
+from citylod.bench.synthetic import make_terrain_tileset
+from citylod.core.camera import Camera
+from citylod.render.depth import world_rays
+from citylod.render.sse import measure_error
+
+CORNER = np.array([500000.0, 5400000.0, 0.0])
+
+
+def _plane_depth(cam: Camera, w: int, h: int, z: float) -> np.ndarray:
+    rays = world_rays(cam, w, h)
+    with np.errstate(divide="ignore"):
+        t = (z - cam.position[2]) / rays[..., 2]
+    return np.where(t > 0, t, np.inf).astype(np.float32)
+
+
+def test_measured_error_of_a_shifted_plane() -> None:
+    # Straight down onto a plane; a copy 0.5 m lower. On the central ray the two points are 0.5 m
+    # apart, i.e. 0.5 / footprint pixels.
+    w, h = 64, 48
+    cam = Camera((CORNER[0], CORNER[1], 1000.0), (CORNER[0], CORNER[1], 0.0), (0.0, 1.0, 0.0), 40.0)
+    full = _plane_depth(cam, w, h, 0.0)
+    lod = _plane_depth(cam, w, h, -0.5)
+    same = measure_error(full, full, cam)
+    assert same.max_px == 0 and same.near_max_px == 0 and same.valid == w * h
+    err = measure_error(lod, full, cam)
+    footprint = 2 * 1000.0 * math.tan(math.radians(20)) / h
+    assert err.max_px == pytest.approx(0.5 / footprint, rel=0.05)
+    assert err.near_max_px <= err.max_px + 1e-6
+    assert err.lod_only == err.full_only == 0
+    # A hole in the LOD frame is counted, not measured.
+    lod[10:12, 10:12] = np.inf
+    assert measure_error(lod, full, cam).full_only == 4
+
+
+def test_default_flight_covers_the_three_legs() -> None:
+    cams = default_flight(CORNER, CORNER + np.array([1000.0, 800.0, 50.0]), n=30)
+    assert len(cams) == 30
+    heights = np.array([c.position[2] for c in cams])
+    assert heights[0] > heights[9]  # the approach descends
+    assert np.all(heights[10:20] < 150)  # the low pass stays low
+
+
+@pytest.mark.render
+def test_run_bench_writes_a_consistent_report(tmp_path: Path) -> None:
+    from citylod.bench.report import run_bench
+
+    ts = make_terrain_tileset(tmp_path / "ts", levels=3, n=9, extent=512.0, corner=CORNER, texture_px=16)
+    target = CORNER + np.array([256.0, 256.0, 0.0])
+    cams = [Camera(tuple(target + np.array([0.0, -d, d * 0.6])), tuple(target), (0.0, 0.0, 1.0), 45.0) for d in (300, 800, 2000)]
+    res = run_bench([ts], cams, [1.0, 8.0], (160, 120), tmp_path / "report", repeats=1)
+    for name in ("report.csv", "frames.csv", "report.md", "report.png", "full.png", "diff.png", "lod_tau1.png"):
+        assert (tmp_path / "report" / name).stat().st_size > 0, name
+    assert [r.label for r in res.rows] == ["full", "tau=1", "tau=8"]
+    full, fine, coarse = res.rows
+    assert full.err_max_px == 0
+    assert full.triangles_median >= fine.triangles_median >= coarse.triangles_median
+    assert coarse.triangles_median < full.triangles_median
+    assert len(res.frames) == 3 * 3
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "| tau=8 |" in md and "full.png" in md

@@ -1,0 +1,130 @@
+"""LAS/LAZ input: headers first, chunked decoding, and clear errors naming the file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+
+from citylod.core.errors import EmptyInputError, GeoreferenceError, InputError
+from citylod.io.las import decode_seconds, iter_points, read_info, read_metadata, supports
+from test_points_cloud import make_cloud
+
+DELFT = Path(__file__).resolve().parents[2] / "shared" / "data" / "delft"
+
+
+@pytest.fixture(scope="module")
+def cloud(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    path = tmp_path_factory.mktemp("las") / "cloud.laz"
+    return path, make_cloud(path, n_terrain=20_000)
+
+
+def test_supports_by_suffix_and_magic(tmp_path: Path, cloud: tuple[Path, np.ndarray]) -> None:
+    assert supports(cloud[0])
+    assert supports(tmp_path / "missing.LAS")
+    renamed = tmp_path / "cloud.bin"
+    renamed.write_bytes(cloud[0].read_bytes()[:64])
+    assert supports(renamed)
+    other = tmp_path / "x.tif"
+    other.write_bytes(b"II*\x00rest")
+    assert not supports(other)
+
+
+def test_metadata_from_headers(cloud: tuple[Path, np.ndarray]) -> None:
+    path, pts = cloud
+    meta = read_metadata([path])
+    assert meta.point_count == len(pts)
+    assert meta.crs.to_epsg() == 28992
+    assert meta.has_rgb
+    np.testing.assert_allclose(meta.lo, pts[:, :3].min(axis=0), atol=1e-3)
+    np.testing.assert_allclose(meta.hi, pts[:, :3].max(axis=0), atol=1e-3)
+
+
+def test_chunks_keep_attributes_and_scale_rgb(cloud: tuple[Path, np.ndarray]) -> None:
+    path, pts = cloud
+    chunks = list(iter_points(path, chunk_points=7_000))
+    assert max(len(c) for c in chunks) <= 7_000
+    recs = np.concatenate(chunks)
+    np.testing.assert_array_equal(recs["x"], pts[:, 0])
+    np.testing.assert_array_equal(recs["intensity"], pts[:, 3])
+    np.testing.assert_array_equal(recs["classification"], pts[:, 4])
+    np.testing.assert_array_equal(recs["return_number"], pts[:, 5])
+    las = laspy.read(path)
+    np.testing.assert_array_equal(recs["red"], np.asarray(las.red) >> 8)
+    # A segment read with seek is the same as the slice of a full read.
+    seg = np.concatenate(list(iter_points(path, start=10_001, count=5_000, chunk_points=2_000)))
+    np.testing.assert_array_equal(seg, recs[10_001:15_001])
+
+
+def test_truncated_laz_names_the_file(tmp_path: Path, cloud: tuple[Path, np.ndarray]) -> None:
+    cut = tmp_path / "cut.laz"
+    data = cloud[0].read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match=r"cut\.laz") as info:
+        for _ in iter_points(cut, chunk_points=5_000):
+            pass
+    assert "truncated" in str(info.value) or "ends after" in str(info.value)
+
+
+def test_truncated_las_names_the_file(tmp_path: Path, cloud: tuple[Path, np.ndarray]) -> None:
+    las = laspy.read(cloud[0])
+    full = tmp_path / "full.las"
+    las.write(full)
+    cut = tmp_path / "cut.las"
+    data = full.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match=r"cut\.las"):
+        for _ in iter_points(cut, chunk_points=5_000):
+            pass
+
+
+def test_garbage_is_an_input_error(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.laz"
+    bad.write_bytes(b"LASF" + b"\x00" * 10)
+    with pytest.raises(InputError, match=r"bad\.laz"):
+        read_info(bad)
+    with pytest.raises(InputError, match=r"nope\.laz"):
+        read_info(tmp_path / "nope.laz")
+
+
+def test_empty_file(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.laz"
+    hdr = laspy.LasHeader(point_format=1, version="1.2")
+    hdr.add_crs(pyproj.CRS.from_epsg(28992))
+    laspy.LasData(hdr).write(empty)
+    with pytest.raises(EmptyInputError, match=r"empty\.laz"):
+        read_metadata([empty])
+
+
+def test_missing_crs_needs_override(tmp_path: Path) -> None:
+    path = tmp_path / "nocrs.laz"
+    make_cloud(path, n_terrain=2_000, crs=None, rgb=False)
+    with pytest.raises(GeoreferenceError, match=r"nocrs\.laz.*--crs"):
+        read_metadata([path])
+    meta = read_metadata([path], crs="EPSG:28992")
+    assert meta.crs.to_epsg() == 28992
+    assert not meta.has_rgb
+
+
+def test_different_crs_refused(tmp_path: Path) -> None:
+    a, b = tmp_path / "a.laz", tmp_path / "b.laz"
+    make_cloud(a, n_terrain=1_000)
+    make_cloud(b, n_terrain=1_000, crs=pyproj.CRS.from_epsg(32631))
+    with pytest.raises(GeoreferenceError, match=r"b\.laz"):
+        read_metadata([a, b])
+
+
+@pytest.mark.realdata
+def test_delft_headers() -> None:
+    files = sorted(DELFT.glob("ahn3_cropped_*.laz"))
+    if len(files) != 2:
+        pytest.skip(f"real data not found in {DELFT}")
+    with pytest.raises(GeoreferenceError, match="--crs"):  # the AHN3 crops carry no CRS VLR
+        read_metadata(files)
+    meta = read_metadata(files, crs="EPSG:28992")
+    assert meta.point_count == 640_510 + 208_432
+    assert meta.files[0].point_format == 1 and not meta.has_rgb
+    assert decode_seconds(files) > 0
