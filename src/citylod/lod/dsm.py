@@ -27,6 +27,7 @@ sidecar, so an interrupted build resumes without redoing them.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -65,6 +66,9 @@ class DsmJob:
     ortho: str | None
     texture_size: int
     metric_crs_wkt: str
+    # Border vertices (grid index along the side) forced in so neighbours match: side -> indices,
+    # sides "n" (row 0), "s" (row cells), "w" (col 0), "e" (col cells).
+    border_must: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
 
 @dataclass
@@ -86,6 +90,8 @@ class TileResult:
     samples: int = 0
     seconds: float = 0.0
     passes: int = 0
+    projection: float = 0.0
+    borders: dict[str, list[int]] = field(default_factory=dict)
 
 
 @dataclass
@@ -152,11 +158,14 @@ def build_tile(job: DsmJob) -> TileResult:
     cpos, cex = _grid_positions(c_start, n, stride, info.width - 1)
     if not rex.any() or not cex.any():
         return res
+    # Tiles at the raster's far edges are cropped to the grid lines that exist rather than padded with
+    # no-data: the TIN kernel forces every sample on a no-data boundary, which would waste triangles.
+    rpos, cpos = rpos[rex], cpos[cex]
     heights, valid = _read_grid(src, rpos, cpos)
-    valid &= rex[:, None] & cex[None, :]
+    last_r, last_c = len(rpos) - 1, len(cpos) - 1
     if valid.sum() < 3:
         return res
-    footprint = (int(rpos[0]), int(cpos[0]), int(rpos[rex][-1]), int(cpos[cex][-1]))
+    footprint = (int(rpos[0]), int(cpos[0]), int(rpos[-1]), int(cpos[-1]))
 
     def read_block(r: int, c: int, nr: int, nc: int) -> tuple[np.ndarray, np.ndarray]:
         return src.read(r, c, nr, nc)
@@ -166,7 +175,7 @@ def build_tile(job: DsmJob) -> TileResult:
     if info.geographic:
         to_metric = pyproj.Transformer.from_crs(info.crs, pyproj.CRS.from_wkt(job.metric_crs_wkt), always_xy=True)
 
-    must: np.ndarray | None = None
+    must: np.ndarray | None = _border_vertices(job.border_must, last_r, last_c, valid)
     tol = job.target
     best: tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float] | None = None
     for passes in range(1, _MAX_REFINE_PASSES + 1):
@@ -196,7 +205,7 @@ def build_tile(job: DsmJob) -> TileResult:
         # Force the grid corners of offending interior cells; border vertices stay as the 1D border
         # simplification chose them, so neighbours keep matching.
         corners = np.concatenate([bad, bad + [0, 1], bad + [1, 0], bad + [1, 1]])
-        interior = (corners[:, 0] > 0) & (corners[:, 0] < cells) & (corners[:, 1] > 0) & (corners[:, 1] < cells)
+        interior = (corners[:, 0] > 0) & (corners[:, 0] < last_r) & (corners[:, 1] > 0) & (corners[:, 1] < last_c)
         corners = corners[interior]
         corners = corners[valid[corners[:, 0], corners[:, 1]]]
         new = np.unique(np.concatenate([corners, must]) if must is not None else corners, axis=0)
@@ -209,16 +218,17 @@ def build_tile(job: DsmJob) -> TileResult:
     res.passes = passes
     res.certified = err
     res.quantisation = q_xy
-    res.geometric_error = err + q_xy
+    res.projection = 0.0 if to_metric is None else _projection_bound(info, to_metric, rpos, cpos, vij, faces)
+    res.geometric_error = err + q_xy + res.projection
     skirt_depth = 2.0 * max(res.geometric_error, job.target)
     if info.transform[0] * info.transform[4] > 0:  # south-up raster: the grid's orientation is mirrored
         faces = faces[:, ::-1]
-    positions, faces_all, skirt, skirt_src = _add_skirts(local, faces, vij, cells, skirt_depth)
+    positions, faces_all, skirt, skirt_src = _add_skirts(local, faces, vij, last_r, last_c, skirt_depth)
     uv = texture = None
     if job.ortho:
         from citylod.io.image import encode_image
 
-        xs, ys = info.sample_xy(np.array([rpos[0], rpos[rex][-1]]), np.array([cpos[0], cpos[cex][-1]]))
+        xs, ys = info.sample_xy(np.array([rpos[0], rpos[-1]]), np.array([cpos[0], cpos[-1]]))
         bounds = (float(min(xs)), float(min(ys)), float(max(xs)), float(max(ys)))
         img = read_image_window(job.ortho, bounds, info.crs, job.texture_size)
         if img is not None:
@@ -239,9 +249,83 @@ def build_tile(job: DsmJob) -> TileResult:
     res.triangles = int(len(faces))
     res.vertices = int(len(vij))
     res.samples = int(valid.sum()) * stride * stride
+    r_, c_ = vij[:, 0], vij[:, 1]
+    res.borders = {"n": sorted(int(v) for v in c_[r_ == 0]), "s": sorted(int(v) for v in c_[r_ == last_r]),
+                   "w": sorted(int(v) for v in r_[c_ == 0]), "e": sorted(int(v) for v in r_[c_ == last_c])}
     res.seconds = time.perf_counter() - t0
     _write_sidecar(job.out_dir, key, res)
     return res
+
+
+def _projection_bound(info: RasterInfo, to_metric: pyproj.Transformer, rpos: np.ndarray, cpos: np.ndarray,
+                      vij: np.ndarray, faces: np.ndarray) -> float:
+    """Horizontal distance between a TIN triangle in degrees, projected, and the straight triangle
+    through its projected vertices (geographic rasters only).
+
+    Over a tile the projection is quadratic to within (h/R)³ of its value; for a quadratic map the
+    interpolation error inside a triangle is at most 4/3 of the largest deviation at an edge midpoint
+    (the error is Σ c_ij b_i b_j in barycentric coordinates, with Σ b_i b_j ≤ 1/3 and c_ij = 4 × the
+    midpoint deviation). The cubic remainder is added as h³/R². This horizontal term enters the
+    Hausdorff bound the tile's geometricError promises.
+    """
+    r = rpos[vij[:, 0]].astype(np.float64)
+    c = cpos[vij[:, 1]].astype(np.float64)
+    x, y = info.sample_xy(r, c)
+    px, py = to_metric.transform(x, y)
+    worst, longest = 0.0, 0.0
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        i, j = faces[:, a], faces[:, b]
+        mx, my = info.sample_xy((r[i] + r[j]) / 2, (c[i] + c[j]) / 2)
+        qx, qy = to_metric.transform(mx, my)
+        dev = np.hypot(qx - (px[i] + px[j]) / 2, qy - (py[i] + py[j]) / 2)
+        worst = max(worst, float(dev.max(initial=0.0)))
+        longest = max(longest, float(np.hypot(px[i] - px[j], py[i] - py[j]).max(initial=0.0)))
+    return 4.0 / 3.0 * worst + longest**3 / 6.371e6**2
+
+
+def _border_vertices(border_must: tuple[tuple[str, tuple[int, ...]], ...], last_r: int, last_c: int,
+                     valid: np.ndarray) -> np.ndarray | None:
+    pts = []
+    for side, idx in border_must:
+        k = np.asarray(idx, np.int32)
+        k = k[k <= (last_c if side in "ns" else last_r)]
+        fixed = np.full(len(k), {"n": 0, "s": last_r, "w": 0, "e": last_c}[side], np.int32)
+        pts.append(np.column_stack([fixed, k]) if side in "ns" else np.column_stack([k, fixed]))
+    if not pts:
+        return None
+    ij = np.unique(np.concatenate(pts), axis=0)
+    return ij[valid[ij[:, 0], ij[:, 1]]].astype(np.int32)
+
+
+def _reconcile_borders(results: dict[str, TileResult], jobs: dict[str, DsmJob]) -> list[DsmJob]:
+    """Rebuild jobs for same-level neighbours whose shared border vertices differ.
+
+    The TIN kernel derives most border vertices from the border samples alone (identical on both sides),
+    but may add a border vertex that the tile's interior needs for the bound. Each tile of such a pair is
+    rebuilt with the union forced in; sets only grow, so a few rounds converge.
+    """
+    extra: dict[str, dict[str, set[int]]] = {}
+    for key, r in results.items():
+        if not r.has_content:
+            continue
+        for side, (dr, dc), other_side in (("e", (0, 1), "w"), ("s", (1, 0), "n")):
+            nkey = f"{r.level}/{r.row + dr}/{r.col + dc}"
+            n = results.get(nkey)
+            if n is None or not n.has_content:
+                continue
+            a, b = set(r.borders.get(side, [])), set(n.borders.get(other_side, []))
+            if a != b:
+                union = a | b
+                extra.setdefault(key, {}).setdefault(side, set()).update(union)
+                extra.setdefault(nkey, {}).setdefault(other_side, set()).update(union)
+    out = []
+    for key, sides in extra.items():
+        job = jobs[key]
+        merged = {s: set(v) for s, v in job.border_must}
+        for side, idx in sides.items():
+            merged.setdefault(side, set()).update(idx)
+        out.append(dataclasses.replace(job, border_must=tuple((s, tuple(sorted(v))) for s, v in sorted(merged.items()))))
+    return out
 
 
 def _read_grid(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -259,7 +343,7 @@ def _read_grid(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray) -> tuple[n
     return heights, valid
 
 
-def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, cells: int,
+def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: int, last_c: int,
                 depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Append a vertical strip below each TIN edge on the tile's outer border.
 
@@ -271,7 +355,8 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, cells: in
     bd = e[counts[inverse.reshape(-1)] == 1]
     r, c = vij[:, 0], vij[:, 1]
     a, b = bd[:, 0], bd[:, 1]
-    on_border = ((r[a] == r[b]) & ((r[a] == 0) | (r[a] == cells))) | ((c[a] == c[b]) & ((c[a] == 0) | (c[a] == cells)))
+    on_border = (((r[a] == r[b]) & ((r[a] == 0) | (r[a] == last_r)))
+                 | ((c[a] == c[b]) & ((c[a] == 0) | (c[a] == last_c))))
     bd = bd[on_border]
     sources = np.unique(bd)
     dup = np.full(len(local), -1, np.int64)
@@ -363,6 +448,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     tex = texture_size or 256
     cells = tile_size - 1
     jobs: list[DsmJob] = []
+    all_jobs: dict[str, DsmJob] = {}
     done: list[TileResult] = []
     for d in range(levels + 1):
         stride = 2 ** (levels - d)
@@ -370,12 +456,14 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         nc = math.ceil(max(info.width - 1, 1) / (cells * stride))
         for i in range(nr):
             for j in range(nc):
+                job = DsmJob(src, str(partial), d, i, j, levels, tile_size, leaf * 2 ** (levels - d),
+                             None if ortho is None else str(ortho), tex, metric.to_wkt())
+                all_jobs[f"{d}/{i}/{j}"] = job
                 prev = _read_sidecar(partial, f"{d}/{i}/{j}")
                 if prev is not None:
                     done.append(prev)
                     continue
-                jobs.append(DsmJob(src, str(partial), d, i, j, levels, tile_size, leaf * 2 ** (levels - d),
-                                   None if ortho is None else str(ortho), tex, metric.to_wkt()))
+                jobs.append(job)
     resumed = len(done)
     if _stop_after is not None:
         jobs = jobs[:_stop_after]
@@ -386,9 +474,17 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     with make_executor(workers=workers, scheduler=scheduler) as ex:
         for r in run_tasks(ex, build_tile, jobs, progress=progress, desc="dsm tiles"):
             done.append(r)
-    if _stop_after is not None:
-        raise KeyboardInterrupt("stopped on request (test hook)")
-    results = {r.key: r for r in done}
+        if _stop_after is not None:
+            raise KeyboardInterrupt("stopped on request (test hook)")
+        results = {r.key: r for r in done}
+        for _round in range(6):
+            again = _reconcile_borders(results, all_jobs)
+            if not again:
+                break
+            for job in again:
+                all_jobs[f"{job.level}/{job.row}/{job.col}"] = job
+            for r in run_tasks(ex, build_tile, again, progress=progress, desc="dsm borders"):
+                results[r.key] = r
     root = _assemble(results, levels, info, cells)
     if root is None:
         raise InputError("no tile has valid data", raster)

@@ -212,7 +212,9 @@ def build_city(citymodel: str | PathLike[str] | CityModel, out_gpkg: str | PathL
                     continue
                 v, f = prism_mesh(proxies.shapes[i], float(proxies.zmin[i]), float(proxies.zmax[i]))
                 rs, rp = roofs[i]
-                roof = _npz(planes=rp, shapes=shapely.to_wkb(np.asarray(rs, dtype=object))) if rs else None
+                # Roof faces as one MultiPolygon WKB whose parts keep the order of the planes.
+                roof = _npz(planes=rp, shapes=np.frombuffer(shapely.to_wkb(shapely.MultiPolygon(rs)), np.uint8)
+                            ) if rs else None
                 prow.append((i + 1, o.id, float(proxies.zmin[i]), float(proxies.zmax[i]),
                              _npz(vertices=v, faces=f), roof, encode_geometry(_multi(proxies.shapes[i]), srs_id)))
             conn.executemany("INSERT INTO proxies (fid, object_id, zmin, zmax, mesh, roof, proxy_footprint) "
@@ -425,7 +427,7 @@ class CityStore:
             if roof is not None:
                 r = _unnpz(roof)
                 owner.append(np.full(len(r["planes"]), fid - 1, dtype=np.int32))
-                r_shapes.append(shapely.from_wkb(r["shapes"]))
+                r_shapes.append(shapely.get_parts(shapely.from_wkb(r["shapes"].tobytes())))
                 r_planes.append(r["planes"])
         # zmin/zmax stored inflated; ProxySet.build would inflate again, so construct directly.
         return ProxySet(
