@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ def box_surfaces(x0: float, y0: float, x1: float, y1: float, z0: float, z1: floa
     t = [(x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1), (x0, y0, z1)]  # roof, facing up
     walls = []
     c = [(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]
-    for (ax, ay), (bx, by) in zip(c[:-1], c[1:], strict=True):
+    for (ax, ay), (bx, by) in pairwise(c):
         walls.append([(ax, ay, z0), (bx, by, z0), (bx, by, z1), (ax, ay, z1), (ax, ay, z0)])
     return [b, t, *walls]
 
@@ -268,7 +269,7 @@ def test_cityjson_reader(tmp_path: Path) -> None:
 def test_cityjson_errors(tmp_path: Path) -> None:
     p = tmp_path / "bad.json"
     p.write_text("{not json")
-    with pytest.raises(InputError, match="bad.json"):
+    with pytest.raises(InputError, match=r"bad\.json"):
         read_city_model(p)
     doc = cityjson_doc()
     doc["CityObjects"]["R"]["geometry"][0]["boundaries"] = [[[0, 1, 99]]]

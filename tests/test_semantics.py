@@ -5,10 +5,12 @@ from __future__ import annotations
 import sqlite3
 import warnings
 from importlib.metadata import EntryPoint
+from itertools import pairwise
 from pathlib import Path
 
 import laspy
 import numpy as np
+import pyproj
 import pytest
 import shapely
 
@@ -21,8 +23,6 @@ from citylod.semantics.proxy import ProxySet, prism_mesh
 from citylod.semantics.state import FeatureState
 from citylod.semantics.store import CityStore, build_city
 
-import pyproj
-
 CRS = pyproj.CRS.from_epsg(32632)
 X0, Y0 = 500_000.0, 5_400_000.0  # large coordinates on purpose
 
@@ -32,7 +32,7 @@ def box(oid: str, x0: float, y0: float, x1: float, y1: float, z0: float, z1: flo
     ground = np.array([(x, y, z0) for x, y in c[::-1]], dtype=float)
     roof = np.array([(x, y, z1) for x, y in c], dtype=float)
     walls = [np.array([(ax, ay, z0), (bx, by, z0), (bx, by, z1), (ax, ay, z1), (ax, ay, z0)], dtype=float)
-             for (ax, ay), (bx, by) in zip(c[:-1], c[1:], strict=True)]
+             for (ax, ay), (bx, by) in pairwise(c)]
     surfaces = [[ground], [roof]] + [[w] for w in walls]
     sem = ["GroundSurface", "RoofSurface"] + ["WallSurface"] * 4
     return CityObject(oid, "Building", dict(attrs), surfaces, 1, None, sem)
@@ -101,7 +101,7 @@ def test_contains_matches_independent_shapely_computation() -> None:
         if g.buffer(0.5, join_style="mitre").contains(p) and z >= -0.5:
             yy = min(max(y, Y0), Y0 + 10)
             roof = 6 + 4 * (1 - abs(yy - (Y0 + 5)) / 5)  # gable: 6 at the eaves, 10 at the ridge
-            if g.contains(p) and z <= roof + 0.5 or not g.contains(p) and z <= 10.5:
+            if (g.contains(p) and z <= roof + 0.5) or (not g.contains(p) and z <= 10.5):
                 want.append((g.distance(p), "G"))
         expect = min(want)[1] if want else None
         assert (ps.object_ids[got[k]] if got[k] >= 0 else None) == expect, (k, x, y, z)
@@ -198,7 +198,7 @@ def test_sql_injection_and_errors_are_input_errors(store_path: Path, where: str)
 def test_not_a_store_and_atomic_failure(tmp_path: Path) -> None:
     junk = tmp_path / "junk.gpkg"
     junk.write_bytes(b"not sqlite at all" * 100)
-    with pytest.raises(InputError, match="junk.gpkg"):
+    with pytest.raises(InputError, match=r"junk\.gpkg"):
         CityStore.open(junk)
     dup = CityModel([box("A", 0, 0, 1, 1, 0, 1), box("A", 2, 2, 3, 3, 0, 1)], CRS, "dups.gml")
     out = tmp_path / "dups.gpkg"
@@ -211,7 +211,7 @@ def test_not_a_store_and_atomic_failure(tmp_path: Path) -> None:
 
 def test_builtin_and_entry_point_queries(store_path: Path) -> None:
     reg = queries.QueryRegistry()
-    names = {q.name: q.source for q in reg.list()}
+    names = {q.name: q.source for q in reg.registered()}
     assert {"sql", "polygon", "distance", "tall_buildings"} <= set(names)
     assert names["sql"] == "citylod (built-in)" and names["tall_buildings"].startswith("citylod")
     with CityStore.open(store_path) as s:
@@ -226,7 +226,7 @@ def test_broken_plugin_is_a_warning(monkeypatch: pytest.MonkeyPatch, store_path:
     not_query = EntryPoint("not_query", "citylod.core.errors:CitylodError", queries.GROUP)
     monkeypatch.setattr(queries, "entry_points", lambda group: [broken, not_query] if group == queries.GROUP else [])
     reg = queries.QueryRegistry()
-    assert {"broken", "not_query", "sql"} <= {q.name for q in reg.list()}
+    assert {"broken", "not_query", "sql"} <= {q.name for q in reg.registered()}
     with pytest.warns(UserWarning, match="'broken'"):
         assert reg.get("broken") is None
     with pytest.warns(UserWarning, match="not_query"):
@@ -300,7 +300,7 @@ def test_link_command_writes_object_id(tmp_path: Path, store_path: Path, capsys:
 
 
 def test_link_missing_file_is_input_error(tmp_path: Path, store_path: Path) -> None:
-    with pytest.raises(InputError, match="nothing.laz"):
+    with pytest.raises(InputError, match=r"nothing\.laz"):
         link_command(store_path, tmp_path / "nothing.laz", tmp_path / "o.laz", progress=False)
     assert not (tmp_path / "o.laz").exists()
 

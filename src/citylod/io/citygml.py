@@ -37,10 +37,10 @@ Polygon = list[Ring]  # exterior ring first, then holes
 __all__ = [
     "CityModel",
     "CityObject",
-    "read_citygml",
-    "read_city_model",
-    "repair_polygon",
     "orient_outward",
+    "read_city_model",
+    "read_citygml",
+    "repair_polygon",
     "to_metric",
 ]
 
@@ -378,7 +378,7 @@ def _polygons(elem: Any, dim: int, col: _Collector, lod: int, sem: str | None) -
             continue
         if name in ("Polygon", "PolygonPatch", "Triangle", "Rectangle"):
             try:
-                rings = []
+                rings: list[F64] = []
                 for part in node:
                     pname = _local(part.tag)
                     if pname in ("exterior", "outerBoundaryIs"):

@@ -22,8 +22,8 @@ from shapely.geometry.base import BaseGeometry
 
 __all__ = [
     "GPKG_APPLICATION_ID",
-    "add_feature_table",
     "add_attributes_table",
+    "add_feature_table",
     "decode_geometry",
     "encode_geometry",
     "fill_rtree",
@@ -176,8 +176,8 @@ def fill_rtree(conn: sqlite3.Connection, table: str, geom_col: str, fids: Iterab
     b = np.asarray(bounds, dtype=np.float64).reshape(-1, 4)
     fid_list = list(fids)
     ok = np.isfinite(b).all(axis=1)
-    rows = [(int(f), float(r[0]), float(r[2]), float(r[1]), float(r[3]))
-            for f, r, good in zip(fid_list, b, ok, strict=True) if good]
+    rows = [(int(fid_list[k]), float(b[k, 0]), float(b[k, 2]), float(b[k, 1]), float(b[k, 3]))
+            for k in np.flatnonzero(ok)]
     conn.executemany(f'INSERT INTO "rtree_{table}_{geom_col}" VALUES (?, ?, ?, ?, ?)', rows)
     if ok.any():
         g = b[ok]

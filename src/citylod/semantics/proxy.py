@@ -279,7 +279,7 @@ class ProxySet:
                         float(inflate), roof_owner, roof_shapes, roof_planes)
 
     # ----------------------------------------------------------------------------------------------
-    def _pairs2d(self, xy: F64) -> tuple[I32, I32]:
+    def _pairs2d(self, xy: F64) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
         """(point index, proxy index) for every point inside an inflated footprint."""
         # Bounding-box candidates from the tree, then an exact test against prepared polygons, pair by
         # pair: much faster than a predicate query, which would prepare the points instead of the polygons.

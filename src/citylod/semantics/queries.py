@@ -74,6 +74,7 @@ class QueryInfo:
     value: str
 
 
+
 def _source(ep: EntryPoint) -> str:
     dist = getattr(ep, "dist", None)
     if dist is None:
@@ -101,7 +102,7 @@ class QueryRegistry:
             self._eps = eps
         return self._eps
 
-    def list(self) -> list[QueryInfo]:
+    def registered(self) -> list[QueryInfo]:
         """Every registered query, without importing any."""
         return [QueryInfo(n, src, ep.value) for n, (ep, src) in sorted(self._scan().items())]
 
@@ -150,7 +151,7 @@ registry = QueryRegistry()
 
 def list_queries() -> list[QueryInfo]:
     """Name and origin of every registered query (built-ins and ``citylod.queries`` plugins)."""
-    return registry.list()
+    return registry.registered()
 
 
 def get_query(name: str) -> Query | None:
