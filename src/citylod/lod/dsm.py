@@ -177,11 +177,13 @@ def build_tile(job: DsmJob) -> TileResult:
 
     must: np.ndarray | None = _border_vertices(job.border_must, last_r, last_c, valid)
     tol = job.target
-    best: tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float] | None = None
-    for passes in range(1, _MAX_REFINE_PASSES + 1):
+    border_must = must
+
+    def attempt(tol: float, must: np.ndarray | None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray,
+                                                             np.ndarray, float, np.ndarray]:
         vij, faces = _triangulate(heights, valid, tol, must)
         if len(faces) == 0:
-            return res
+            return 0.0, vij, faces, np.zeros((0, 3), np.float32), np.zeros(3), 0.0, np.zeros((cells, cells))
         vr = rpos[vij[:, 0]].astype(np.float64)
         vc = cpos[vij[:, 1]].astype(np.float64)
         vz = heights[vij[:, 0], vij[:, 1]]
@@ -195,14 +197,17 @@ def build_tile(job: DsmJob) -> TileResult:
         q_xy = float(np.max(np.hypot(back[:, 0] - xyz[:, 0], back[:, 1] - xyz[:, 1]), initial=0.0))
         err, cell_err, _ = certify(read_block, footprint, vr, vc, back[:, 2], faces.astype(np.int64),
                                    (cells, cells), stride)
-        if best is None or err < best[0]:
-            best = (err, vij, faces, local, center, q_xy)
-        if err <= job.target or stride == 1 and passes > 1:
-            break
+        return err, vij, faces, local, center, q_xy, cell_err
+
+    tol = job.target
+    best = attempt(tol, must)
+    if len(best[2]) == 0:
+        return res
+    cell_err = best[6]
+    passes = 1
+    while passes < _MAX_REFINE_PASSES and best[0] > job.target and stride > 1:
         bad = np.argwhere(cell_err > job.target)
-        if len(bad) == 0:
-            break
-        # Force the grid corners of offending interior cells; border vertices stay as the 1D border
+        # Force the grid corners of offending interior cells; border vertices stay as the border
         # simplification chose them, so neighbours keep matching.
         corners = np.concatenate([bad, bad + [0, 1], bad + [1, 0], bad + [1, 1]])
         interior = (corners[:, 0] > 0) & (corners[:, 0] < last_r) & (corners[:, 1] > 0) & (corners[:, 1] < last_c)
@@ -212,9 +217,22 @@ def build_tile(job: DsmJob) -> TileResult:
         if must is not None and len(new) == len(must):
             break
         must = new.astype(np.int32)
-        tol = tol * 0.5
-    assert best is not None
-    err, vij, faces, local, center, q_xy = best
+        tol *= 0.5
+        passes += 1
+        trial = attempt(tol, must)
+        cell_err = trial[6]
+        # Forcing vertices only pays when it lowers the certified error: façades between the samples of
+        # a coarse grid cannot be fixed on that grid.
+        if trial[0] >= best[0] * 0.98:
+            break
+        best = trial
+    if best[0] > 2.0 * job.target and stride > 1:
+        # The target is out of reach on this grid; the tile's bound is best[0] wherever it is shown, so a
+        # TIN that stays under that bound everywhere looks the same at the distances where it is drawn.
+        coarse = attempt(0.8 * best[0], border_must)
+        if len(coarse[2]) and coarse[0] <= best[0] and len(coarse[2]) < len(best[2]):
+            best = coarse
+    err, vij, faces, local, center, q_xy, _ = best
     res.passes = passes
     res.certified = err
     res.quantisation = q_xy
