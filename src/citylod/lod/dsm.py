@@ -49,6 +49,8 @@ from citylod.lod.certify import certify
 # Coarse levels may need several passes of "force the vertices of bad cells"; after this many the
 # certified error is accepted as it is (and written as the tile's bound).
 _MAX_REFINE_PASSES = 4
+# Rasters smaller than this build in the calling process unless workers are asked for.
+_INLINE_BELOW_SAMPLES = 1_500_000
 
 
 @dataclass(frozen=True)
@@ -369,8 +371,10 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     hangs from (so attributes such as texture coordinates can be copied).
     """
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
-    _, inverse, counts = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True, return_counts=True)
-    bd = e[counts[inverse.reshape(-1)] == 1]
+    n = len(local)
+    undirected = np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1])  # 1D keys: fast unique
+    _, inverse, counts = np.unique(undirected, return_inverse=True, return_counts=True)
+    bd = e[counts[inverse] == 1]
     r, c = vij[:, 0], vij[:, 1]
     a, b = bd[:, 0], bd[:, 1]
     on_border = (((r[a] == r[b]) & ((r[a] == 0) | (r[a] == last_r)))
@@ -489,6 +493,8 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     jobs.sort(key=lambda j: -j.level)
     from citylod.lod.executor import make_executor, run_tasks
 
+    if workers is None and scheduler is None and info.width * info.height < _INLINE_BELOW_SAMPLES:
+        workers = 0  # starting worker processes (imports, numba cache) costs more than it saves here
     with make_executor(workers=workers, scheduler=scheduler) as ex:
         for r in run_tasks(ex, build_tile, jobs, progress=progress, desc="dsm tiles"):
             done.append(r)

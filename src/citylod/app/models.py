@@ -1,0 +1,706 @@
+"""Plain models of the desktop application: every user action is a method here (no Qt).
+
+The widgets in ``citylod.app.qt_*`` only hold these models and call their methods, so each action (toggle a
+layer, change τ, run a query, highlight its result, measure, bookmark a camera) can be scripted and tested
+without a window (STYLE.md, "Model, adapter, widget").
+
+* :class:`Document` — what is open: the render :class:`~citylod.render.tileset_actor.Scene` (tilesets), an
+  optional :class:`~citylod.semantics.store.CityStore` and its :class:`~citylod.semantics.state.FeatureState`;
+  layer display state (visibility, opacity, colour mode) and LOD settings; queries and picking.
+* camera maths (:func:`overview_camera`, :func:`fly`, :func:`focus_on`, :func:`frame_box`);
+* :func:`measure` — distance, height difference, area; geodesic (geographiclib, WGS84) for geographic CRSs;
+* :class:`Bookmarks`, :class:`QueryHistory` — what the settings persist, as JSON-able values;
+* :func:`source_kind`, :func:`build_plan`, :func:`parse_progress` — opening raw inputs through a build
+  subprocess (``python -m citylod.cli build ...``).
+
+Nothing here imports Qt; VTK only through :mod:`citylod.render`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.core.camera import Camera
+from citylod.core.errors import CitylodError, InputError
+
+__all__ = [
+    "COLOR_MODES", "SHORTCUTS", "Bookmarks", "BuildPlan", "Document", "LayerEntry", "Measurement",
+    "QueryHistory", "build_plan", "fly", "focus_on", "format_status", "frame_box", "measure",
+    "overview_camera", "parse_progress", "source_kind", "tau_from_slider", "tau_to_slider",
+]
+
+COLOR_MODES = ("auto", "rgb", "classification", "elevation", "intensity", "level")
+
+#: (key sequence, what it does): the Help → Shortcuts dialog and the actions read this one list.
+SHORTCUTS: tuple[tuple[str, str], ...] = (
+    ("Ctrl+O", "Open a tileset, city store, raster, LAS/LAZ or city model"),
+    ("W / S", "Fly forward / backward"),
+    ("A / D", "Fly left / right"),
+    ("Q / E", "Fly down / up"),
+    ("R", "Reset the view to the data"),
+    ("F", "Focus on the point under the cursor"),
+    ("M", "Measure distance (click points; Esc ends)"),
+    ("H", "Measure height difference"),
+    ("G", "Measure area"),
+    ("Esc", "End the measurement / clear the pick"),
+    ("Ctrl+B", "Add a camera bookmark"),
+    ("Ctrl+Shift+S", "Save the camera as JSON for `citylod render`"),
+    ("Ctrl+E", "Export an image"),
+    ("Ctrl+Return", "Run the query"),
+    ("F1", "This list of shortcuts"),
+    ("Ctrl+Q", "Quit"),
+)
+
+TAU_MIN_PX, TAU_MAX_PX = 0.25, 16.0
+_SLIDER_STEPS = 1000
+
+
+def tau_to_slider(tau_px: float) -> int:
+    """Position 0..1000 of a log-scale slider over τ in [0.25, 16] px."""
+    t = min(max(float(tau_px), TAU_MIN_PX), TAU_MAX_PX)
+    return round(_SLIDER_STEPS * math.log(t / TAU_MIN_PX) / math.log(TAU_MAX_PX / TAU_MIN_PX))
+
+
+def tau_from_slider(pos: int) -> float:
+    """τ in pixels of a slider position (inverse of :func:`tau_to_slider`)."""
+    return TAU_MIN_PX * (TAU_MAX_PX / TAU_MIN_PX) ** (min(max(pos, 0), _SLIDER_STEPS) / _SLIDER_STEPS)
+
+
+# ------------------------------------------------------------------------------------------- camera maths
+def overview_camera(lo: npt.ArrayLike, hi: npt.ArrayLike, *, fovy_deg: float = 45.0, azimuth_deg: float = 200.0,
+                    elevation_deg: float = 40.0, aspect: float = 1.5) -> Camera:
+    """A camera that sees the whole box ``lo``–``hi`` (3,), from the south-south-west, looking down.
+
+    The distance makes the bounding sphere fit the narrower field of view.
+    """
+    lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    centre = (lo_a + hi_a) / 2.0
+    radius = max(float(np.linalg.norm(hi_a - lo_a)) / 2.0, 1.0)
+    half = math.radians(fovy_deg) / 2.0
+    half = min(half, math.atan(math.tan(half) * aspect))
+    dist = radius / math.sin(half) * 0.85
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    offset = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)]) * dist
+    return Camera(tuple(centre + offset), tuple(centre), (0.0, 0.0, 1.0), fovy_deg)  # type: ignore[arg-type]
+
+
+_FLY = {"forward": (0, 0, 1), "backward": (0, 0, -1), "left": (-1, 0, 0), "right": (1, 0, 0),
+        "up": (0, 1, 0), "down": (0, -1, 0)}
+
+
+def fly(camera: Camera, direction: str, step: float) -> Camera:
+    """The camera moved by ``step`` along ``direction`` (forward, backward, left, right, up, down).
+
+    Forward moves along the view direction, up/down along the world z axis, left/right horizontally; the
+    focal point moves with the eye so the view direction is kept.
+    """
+    if direction not in _FLY:
+        raise ValueError(f"direction must be one of {', '.join(_FLY)}, got {direction!r}")
+    right, _up, fwd = camera.basis()
+    r, u, f = _FLY[direction]
+    horiz = np.array([right[0], right[1], 0.0])
+    n = np.linalg.norm(horiz)
+    horiz = horiz / n if n > 1e-9 else right
+    move = (r * horiz + u * np.array([0.0, 0.0, 1.0]) + f * fwd) * float(step)
+    return Camera(tuple(np.add(camera.position, move)), tuple(np.add(camera.focal_point, move)),  # type: ignore[arg-type]
+                  camera.view_up, camera.fovy_deg)
+
+
+def focus_on(camera: Camera, point: npt.ArrayLike, *, zoom: float = 0.5, min_distance: float = 5.0) -> Camera:
+    """Look at ``point`` from the same direction, ``zoom`` times as far as the eye is from it now."""
+    p = np.asarray(point, np.float64)
+    dist = max(float(np.linalg.norm(np.subtract(camera.position, p))) * zoom, min_distance)
+    eye = p - camera.direction * dist
+    return Camera(tuple(eye), tuple(p), camera.view_up, camera.fovy_deg)  # type: ignore[arg-type]
+
+
+def frame_box(camera: Camera, lo: npt.ArrayLike, hi: npt.ArrayLike, *, margin: float = 1.6) -> Camera:
+    """Look at the box ``lo``–``hi`` from the camera's direction, at a distance that shows all of it."""
+    lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    centre = (lo_a + hi_a) / 2.0
+    radius = max(float(np.linalg.norm(hi_a - lo_a)) / 2.0, 2.0)
+    dist = radius * margin / math.tan(math.radians(camera.fovy_deg) / 2.0)
+    eye = centre - camera.direction * dist
+    return Camera(tuple(eye), tuple(centre), camera.view_up, camera.fovy_deg)  # type: ignore[arg-type]
+
+
+# -------------------------------------------------------------------------------------------- measuring
+@dataclass(frozen=True)
+class Measurement:
+    """One measurement of picked points.
+
+    ``value`` is in metres (distance, height) or square metres (area); ``geodesic`` says whether it was
+    computed on the WGS84 ellipsoid (geographic CRS) or in the plane of a projected CRS.
+    ``horizontal`` is the horizontal length (distance) or the perimeter (area).
+    """
+
+    kind: str
+    value: float
+    horizontal: float
+    geodesic: bool
+    points: tuple[tuple[float, float, float], ...]
+
+    @property
+    def unit(self) -> str:
+        return "m²" if self.kind == "area" else "m"
+
+    def text(self) -> str:
+        """One line for the view and the clipboard."""
+        how = "geodesic" if self.geodesic else "planar"
+        if self.kind == "distance":
+            return (f"distance {self.value:.2f} m (horizontal {self.horizontal:.2f} m, {how}, "
+                    f"{len(self.points)} points)")
+        if self.kind == "height":
+            return f"height difference {self.value:+.2f} m (horizontal {self.horizontal:.2f} m, {how})"
+        return f"area {self.value:.1f} m² (perimeter {self.horizontal:.2f} m, {how}, {len(self.points)} points)"
+
+
+MEASURE_KINDS = ("distance", "height", "area")
+
+
+def measure(kind: str, points: npt.ArrayLike, *, geographic: bool = False) -> Measurement:
+    """Measure picked points (N, 3) float64 in the data's CRS.
+
+    Parameters
+    ----------
+    kind
+        ``distance`` (length of the polyline through the points, 3D), ``height`` (z of the last point minus
+        z of the first) or ``area`` (horizontal area of the polygon of the points).
+    geographic
+        The CRS is geographic: x = longitude, y = latitude in degrees, z in metres. Lengths and areas are
+        then geodesics on WGS84 (geographiclib ``Inverse`` and ``PolygonArea``); otherwise planar.
+    """
+    if kind not in MEASURE_KINDS:
+        raise ValueError(f"kind must be one of {', '.join(MEASURE_KINDS)}, got {kind!r}")
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    pts = tuple(tuple(float(v) for v in row) for row in p)
+    if geographic:
+        from geographiclib.geodesic import Geodesic
+
+        geod = Geodesic.WGS84
+
+        def horiz(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> float:
+            return float(geod.Inverse(a[1], a[0], b[1], b[0])["s12"])
+    else:
+        def horiz(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> float:
+            return float(math.hypot(b[0] - a[0], b[1] - a[1]))
+
+    if kind == "distance":
+        seg_h = [horiz(p[i], p[i + 1]) for i in range(len(p) - 1)]
+        seg_3d = [math.hypot(h, p[i + 1, 2] - p[i, 2]) for i, h in enumerate(seg_h)]
+        return Measurement(kind, float(sum(seg_3d)), float(sum(seg_h)), geographic, pts)
+    if kind == "height":
+        if len(p) < 2:
+            return Measurement(kind, 0.0, 0.0, geographic, pts)
+        return Measurement(kind, float(p[-1, 2] - p[0, 2]), horiz(p[0], p[-1]), geographic, pts)
+    if len(p) < 3:
+        return Measurement(kind, 0.0, 0.0, geographic, pts)
+    if geographic:
+        from geographiclib.geodesic import Geodesic
+
+        poly = Geodesic.WGS84.Polygon()
+        for x, y, _z in p:
+            poly.AddPoint(y, x)
+        _n, perimeter, area = poly.Compute(False, True)
+        return Measurement(kind, abs(float(area)), float(perimeter), True, pts)
+    x, y = p[:, 0] - p[:, 0].mean(), p[:, 1] - p[:, 1].mean()  # centred: no cancellation at 5e6 m
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    closed = np.vstack([p, p[:1]])
+    perim = float(np.hypot(np.diff(closed[:, 0]), np.diff(closed[:, 1])).sum())
+    return Measurement(kind, area, perim, False, pts)
+
+
+# ---------------------------------------------------------------------------------- persisted values
+class Bookmarks:
+    """Named cameras; :meth:`to_json` / :meth:`from_json` is what the settings store."""
+
+    def __init__(self, items: dict[str, Camera] | None = None) -> None:
+        self.items: dict[str, Camera] = dict(items or {})
+
+    def add(self, name: str, camera: Camera) -> str:
+        """Store ``camera`` under ``name`` (a unique name is made if it is empty); returns the name."""
+        name = name.strip() or f"View {len(self.items) + 1}"
+        self.items[name] = camera
+        return name
+
+    def remove(self, name: str) -> None:
+        self.items.pop(name, None)
+
+    def get(self, name: str) -> Camera:
+        return self.items[name]
+
+    def names(self) -> list[str]:
+        return list(self.items)
+
+    def to_json(self) -> str:
+        return json.dumps({k: c.to_dict() for k, c in self.items.items()})
+
+    @classmethod
+    def from_json(cls, text: str | None) -> Bookmarks:
+        """Bookmarks from :meth:`to_json` text; entries that are not cameras are dropped."""
+        out = cls()
+        try:
+            data = json.loads(text) if text else {}
+        except (TypeError, json.JSONDecodeError):
+            return out
+        if isinstance(data, dict):
+            for k, v in data.items():
+                try:
+                    out.items[str(k)] = Camera.from_dict(v)
+                except (InputError, AttributeError):
+                    continue
+        return out
+
+
+class QueryHistory:
+    """Recent WHERE clauses, newest first, without duplicates, at most ``limit``."""
+
+    def __init__(self, items: Iterable[str] = (), limit: int = 30) -> None:
+        self.limit = limit
+        self.items: list[str] = []
+        for it in reversed(list(items)):
+            self.add(it)
+
+    def add(self, where: str) -> None:
+        w = where.strip()
+        if not w:
+            return
+        if w in self.items:
+            self.items.remove(w)
+        self.items.insert(0, w)
+        del self.items[self.limit:]
+
+
+# ---------------------------------------------------------------------------------- sources and builds
+_RASTER = {".tif", ".tiff", ".vrt", ".asc", ".img"}
+_POINTS = {".las", ".laz"}
+_CITY = {".gml", ".xml", ".citygml", ".cityjson"}
+
+
+def source_kind(path: str | os.PathLike[str]) -> str | None:
+    """What a path is, by suffix or folder content (constant time, no reading): ``tileset``, ``store``,
+    ``raster``, ``points``, ``citymodel``, or None."""
+    p = Path(path)
+    suf = p.suffix.lower()
+    if p.is_dir():
+        return "tileset" if (p / "tileset.json").is_file() else None
+    if p.name.lower() == "tileset.json" or (suf == ".json" and p.name.lower().endswith("tileset.json")):
+        return "tileset"
+    if suf == ".gpkg":
+        return "store"
+    if suf in _RASTER:
+        return "raster"
+    if suf in _POINTS:
+        return "points"
+    if suf in _CITY or p.name.lower().endswith(".city.json"):
+        return "citymodel"
+    if suf == ".json":
+        # CityJSON files are JSON without a fixed suffix; a short look at the head tells.
+        try:
+            with open(p, "rb") as fh:
+                head = fh.read(256)
+        except OSError:
+            return None
+        return "citymodel" if b"CityJSON" in head else "tileset"
+    return None
+
+
+@dataclass(frozen=True)
+class BuildPlan:
+    """How to turn a raw input into something the viewer opens: ``argv`` of the build subprocess and the
+    ``output`` it writes (a tileset folder or a .gpkg)."""
+
+    source: Path
+    kind: str
+    output: Path
+    argv: tuple[str, ...]
+
+    @property
+    def label(self) -> str:
+        return {"raster": "DSM tile tree", "points": "point octree", "citymodel": "city store"}[self.kind]
+
+
+def build_plan(path: str | os.PathLike[str], out_dir: str | os.PathLike[str] | None = None,
+               python: str = sys.executable) -> BuildPlan:
+    """The build that makes ``path`` (raster, LAS/LAZ, CityGML/CityJSON) viewable.
+
+    The output goes beside the input (``<stem>_tiles``, ``<stem>_points``, ``<stem>.gpkg``) or into
+    ``out_dir``. The command runs ``python -m citylod.cli build ...`` so that cancelling kills one process
+    and leaves nothing half written (builds write to a temporary name and rename).
+    """
+    p = Path(path)
+    kind = source_kind(p)
+    base = Path(out_dir) if out_dir is not None else p.parent
+    if kind == "raster":
+        out = base / f"{p.stem}_tiles"
+        args = ["dsm", str(p), "-o", str(out)]
+    elif kind == "points":
+        out = base / f"{p.stem}_points"
+        args = ["points", str(p), "-o", str(out)]
+    elif kind == "citymodel":
+        out = base / f"{p.stem.removesuffix('.city')}.gpkg"
+        args = ["city", str(p), "-o", str(out)]
+    else:
+        raise InputError("not a raster, LAS/LAZ or CityGML/CityJSON file", p)
+    return BuildPlan(p, kind, out, (python, "-m", "citylod.cli", "build", *args))
+
+
+_TQDM = re.compile(r"(?:([^\r\n:|]{1,40}):\s*)?(\d{1,3})%\|")
+
+
+def parse_progress(text: str) -> tuple[str, int] | None:
+    """The last tqdm progress in a chunk of stderr: (description, percent), or None.
+
+    >>> parse_progress("tiles:  40%|####      | 4/10 [00:01<00:01]\\rtiles:  50%|#####")
+    ('tiles', 50)
+    """
+    last = None
+    for m in _TQDM.finditer(text):
+        last = ((m.group(1) or "").strip(), min(int(m.group(2)), 100))
+    return last
+
+
+def format_status(stats: Any, frame_ms: float, pending: int, loading: bool = True) -> str:
+    """The status bar line of a :class:`~citylod.render.tileset_actor.FrameStats`."""
+    mb = stats.bytes_resident / 1e6
+    text = (f"frame {frame_ms:5.1f} ms | {stats.triangles:,} triangles | {stats.points:,} points | "
+            f"{stats.tiles} tiles | {mb:.1f} MB resident | τ {stats.tau_px:.2f} px")
+    if pending:
+        text += f" | {pending} requests pending"
+    elif loading:
+        text += " | complete"
+    return text
+
+
+# --------------------------------------------------------------------------------------------- document
+@dataclass
+class LayerEntry:
+    """A row of the layer panel: a tileset layer (``layer`` set) or the city store (``layer`` None)."""
+
+    name: str
+    kind: str  # tileset | store
+    path: Path
+    layer: Any = None
+    visible: bool = True
+    opacity: float = 1.0
+    color_by: str = "auto"
+
+
+Listener = Callable[[str], None]
+
+
+@dataclass
+class LodSettings:
+    tau_px: float = 1.0
+    point_budget: int = 5_000_000
+    memory_mb: int = 1024
+    frozen: bool = False
+    color_by_level: bool = False
+
+
+class Document:
+    """Everything open in one window and every action on it.
+
+    Parameters
+    ----------
+    scene
+        The render scene (tilesets); created with its own renderer when omitted.
+    """
+
+    def __init__(self, scene: Any = None, *, workers: int = 2) -> None:
+        from citylod.render.tileset_actor import Scene
+        from citylod.semantics.state import FeatureState
+
+        self.lod = LodSettings()
+        self.scene = scene if scene is not None else Scene(cache_bytes=self.lod.memory_mb << 20, workers=workers)
+        self.entries: list[LayerEntry] = []
+        self.store: Any = None
+        self.state = FeatureState()
+        self.results: list[str] = []
+        self.semantic: Any = None
+        self._listeners: list[Listener] = []
+
+    # -- events -----------------------------------------------------------------------------------
+    def on_change(self, listener: Listener) -> Callable[[], None]:
+        """Call ``listener(kind)`` after a change: layers, style, lod, results, store."""
+        self._listeners.append(listener)
+        return lambda: self._listeners.remove(listener) if listener in self._listeners else None
+
+    def _emit(self, kind: str) -> None:
+        for cb in list(self._listeners):
+            cb(kind)
+
+    # -- opening ----------------------------------------------------------------------------------
+    def open(self, path: str | os.PathLike[str]) -> LayerEntry:
+        """Open a tileset (folder or tileset.json) or a city store (.gpkg).
+
+        Raw inputs (rasters, LAS/LAZ, city models) must be built first (:func:`build_plan`).
+        """
+        p = Path(path)
+        kind = source_kind(p)
+        if kind == "tileset":
+            layer = self.scene.add(p)
+            layer.tau_px = self.lod.tau_px
+            self._apply_budget(layer)
+            entry = LayerEntry(layer.name if p.is_dir() else p.parent.name, "tileset", p, layer)
+            if p.is_dir():
+                entry.name = p.name
+        elif kind == "store":
+            if self.store is not None:
+                raise CitylodError("a city store is already open; close the window to open another", p)
+            from citylod.semantics.store import CityStore
+
+            self.store = CityStore.open(p)
+            if self.scene.origin is None:
+                b = self.store.bounds
+                self.scene.origin = np.round(np.array([(b[0] + b[3]) / 2, (b[1] + b[4]) / 2, (b[2] + b[5]) / 2]))
+            entry = LayerEntry(p.stem, "store", p)
+            self._attach_semantics()
+        elif kind in ("raster", "points", "citymodel"):
+            raise InputError(f"a {kind} file must be built before it can be viewed (File → Open builds it)", p)
+        else:
+            raise InputError("not a tileset folder, tileset.json or .gpkg city store", p)
+        self.entries.append(entry)
+        self._emit("layers")
+        return entry
+
+    def _attach_semantics(self) -> None:
+        """Semantic shading of the drawn geometry inside proxies, when the renderer side exists."""
+        try:
+            from citylod.render import semantic  # type: ignore[attr-defined]
+        except ImportError:
+            return
+        attach = getattr(semantic, "attach", None)
+        if callable(attach):
+            try:
+                self.semantic = attach(self.scene, self.store, self.state)
+            except TypeError:
+                self.semantic = None
+
+    @property
+    def geographic(self) -> bool:
+        """The data's CRS is geographic (degrees): measurements are geodesic."""
+        crs = self.scene.crs if self.scene.crs is not None else (self.store.crs if self.store else None)
+        return bool(crs is not None and getattr(crs, "is_geographic", False))
+
+    def bounds(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
+        """(lo, hi) of every layer and the store, in the data's CRS; None when nothing is open."""
+        boxes = []
+        if self.scene.layers:
+            boxes.append(self.scene.bounds)
+        if self.store is not None:
+            b = np.asarray(self.store.bounds, np.float64)
+            if np.all(np.isfinite(b)):
+                boxes.append((b[:3], b[3:]))
+        if not boxes:
+            return None
+        return np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
+
+    def home_camera(self, aspect: float = 1.5) -> Camera | None:
+        b = self.bounds()
+        return None if b is None else overview_camera(*b, aspect=aspect)
+
+    # -- layer display ----------------------------------------------------------------------------
+    def entry(self, index: int) -> LayerEntry:
+        return self.entries[index]
+
+    def set_visible(self, index: int, on: bool) -> None:
+        e = self.entries[index]
+        e.visible = bool(on)
+        if e.layer is not None:
+            e.layer.visible = e.visible
+        self._emit("style")
+
+    def set_opacity(self, index: int, opacity: float) -> None:
+        e = self.entries[index]
+        e.opacity = float(min(max(opacity, 0.0), 1.0))
+        self._emit("style")
+
+    def set_color_by(self, index: int, mode: str) -> None:
+        if mode not in COLOR_MODES:
+            raise CitylodError(f"unknown colour mode {mode!r}; choose one of {', '.join(COLOR_MODES)}")
+        e = self.entries[index]
+        e.color_by = mode
+        if e.layer is not None and not self.lod.color_by_level:
+            e.layer.color_by = mode
+            e.layer.restyle()
+        self._emit("style")
+
+    def apply_opacity(self) -> None:
+        """Give the actors of every drawn tile their layer's opacity (after each update: pooled actors move
+        between layers)."""
+        for e in self.entries:
+            if e.layer is None:
+                continue
+            for slot in e.layer._slots.values():  # noqa: SLF001 - the layer has no public actor list yet
+                for actor in slot.actors():
+                    prop = actor.GetProperty()
+                    if prop.GetOpacity() != e.opacity:
+                        prop.SetOpacity(e.opacity)
+
+    # -- LOD ----------------------------------------------------------------------------------------
+    def set_tau(self, tau_px: float) -> None:
+        """Screen-space error threshold of every layer, pixels."""
+        self.lod.tau_px = float(min(max(tau_px, TAU_MIN_PX), TAU_MAX_PX))
+        self.scene.tau_px = self.lod.tau_px
+        for e in self.entries:
+            if e.layer is not None:
+                e.layer.tau_px = self.lod.tau_px
+        self._emit("lod")
+
+    def _apply_budget(self, layer: Any) -> None:
+        from citylod.lod.selection import Budget
+
+        layer.budget = Budget(max_points=int(self.lod.point_budget)) if self.lod.point_budget > 0 else None
+
+    def set_point_budget(self, points: int) -> None:
+        """Most points drawn per frame per layer (0 = unlimited)."""
+        self.lod.point_budget = max(int(points), 0)
+        for e in self.entries:
+            if e.layer is not None:
+                self._apply_budget(e.layer)
+        self._emit("lod")
+
+    def set_memory_budget(self, megabytes: int) -> None:
+        """Byte budget of the tile cache; tiles that no longer fit are released."""
+        self.lod.memory_mb = max(int(megabytes), 16)
+        for key in self.scene.cache.set_budget(self.lod.memory_mb << 20):
+            self.scene._layer_of(key)._release(key)  # noqa: SLF001 - Scene has no public hook for this
+        self._emit("lod")
+
+    def set_frozen(self, on: bool) -> None:
+        """Freeze the LOD selection: the drawn tiles stay while the camera moves (to inspect culling)."""
+        self.lod.frozen = bool(on)
+        self.scene.frozen = self.lod.frozen
+        self._emit("lod")
+
+    def set_color_by_level(self, on: bool) -> None:
+        """Colour every layer by tile level (on) or by its own colour mode (off)."""
+        self.lod.color_by_level = bool(on)
+        for e in self.entries:
+            if e.layer is not None:
+                e.layer.color_by = "level" if on else e.color_by
+                e.layer.restyle()
+        self._emit("lod")
+
+    # -- city objects -------------------------------------------------------------------------------
+    def object_groups(self) -> dict[str, list[tuple[str, str]]]:
+        """Objects of the store grouped by type: {type: [(object_id, name), ...]} in store order."""
+        if self.store is None:
+            return {}
+        groups: dict[str, list[tuple[str, str]]] = {}
+        for oid, typ, name in self.store._conn.execute(  # noqa: SLF001 - one read, no store API for it yet
+                "SELECT object_id, type, name FROM city_objects ORDER BY fid"):
+            groups.setdefault(typ or "CityObject", []).append((oid, name or ""))
+        return groups
+
+    def attributes(self, object_id: str) -> dict[str, Any]:
+        return {} if self.store is None else self.store.attributes(object_id)
+
+    def select(self, ids: Iterable[str], mode: str = "replace") -> None:
+        self.state.select(ids, mode)
+
+    def object_at(self, point: npt.ArrayLike) -> str | None:
+        """The object whose proxy contains ``point`` (3,) in the data's CRS, or None."""
+        if self.store is None:
+            return None
+        idx = self.store.proxies.contains(np.asarray(point, np.float64).reshape(1, 3))[0]
+        return None if idx < 0 else self.store.proxies.object_ids[int(idx)]
+
+    def pick(self, point: npt.ArrayLike | None) -> str | None:
+        """Select the object at a picked point (nothing picked or no object: clear the selection)."""
+        oid = None if point is None else self.object_at(point)
+        self.state.select([] if oid is None else [oid])
+        return oid
+
+    def object_box(self, ids: Sequence[str]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
+        """Bounding box of objects (their proxies)."""
+        if self.store is None or not ids:
+            return None
+        px = self.store.proxies
+        idx = [px.index_of(i) for i in ids]
+        import shapely
+
+        x0, y0, x1, y1 = shapely.total_bounds(px.shapes[idx])
+        z = np.concatenate([px.zmin[idx], px.zmax[idx]])
+        z = z[np.isfinite(z)]
+        if not np.isfinite([x0, y0, x1, y1]).all() or not len(z):
+            return None
+        return np.array([x0, y0, z.min()]), np.array([x1, y1, z.max()])
+
+    def tallest_building(self) -> str | None:
+        """The building with the largest height (``zmax - zmin``), for ``highlight_first``."""
+        if self.store is None:
+            return None
+        ids = self.store.query("type IN ('Building', 'BuildingPart') AND (zmax - zmin) = "
+                               "(SELECT MAX(zmax - zmin) FROM city_objects WHERE type IN ('Building', 'BuildingPart'))")
+        return ids[0] if ids else None
+
+    # -- queries ------------------------------------------------------------------------------------
+    def run_sql(self, where: str) -> list[str]:
+        """Ids of objects matching an SQL WHERE clause; they become :attr:`results`."""
+        if self.store is None:
+            raise CitylodError("open a city store (.gpkg) to run queries")
+        self.results = list(self.store.query(where))
+        self._emit("results")
+        return self.results
+
+    def run_named(self, name: str, **params: Any) -> list[str]:
+        """Run a registered query (:func:`citylod.semantics.queries.list_queries`)."""
+        if self.store is None:
+            raise CitylodError("open a city store (.gpkg) to run queries")
+        from citylod.semantics.queries import run_query
+
+        self.results = list(run_query(self.store, name, **params))
+        self._emit("results")
+        return self.results
+
+    def highlight(self, ids: Iterable[str] | None = None, color: str = "#ffcc00") -> None:
+        self.state.highlight(self.results if ids is None else ids, color)
+
+    def hide(self, ids: Iterable[str] | None = None) -> None:
+        self.state.hide(self.results if ids is None else ids)
+
+    def isolate(self, ids: Iterable[str] | None = None) -> None:
+        self.state.isolate(self.results if ids is None else ids)
+
+    def clear_state(self) -> None:
+        self.state.clear()
+
+    def close(self) -> None:
+        self.scene.close()
+        if self.store is not None:
+            self.store.close()
+            self.store = None
+
+
+@dataclass
+class GuiTimings:
+    """Longest and count of GUI-thread handler runs, per handler name (filled by the Qt profiler)."""
+
+    max_ms: dict[str, float] = field(default_factory=dict)
+    calls: dict[str, int] = field(default_factory=dict)
+    slow: list[tuple[str, float]] = field(default_factory=list)
+
+    def record(self, name: str, ms: float, threshold_ms: float = 100.0) -> bool:
+        self.max_ms[name] = max(self.max_ms.get(name, 0.0), ms)
+        self.calls[name] = self.calls.get(name, 0) + 1
+        if ms > threshold_ms:
+            self.slow.append((name, ms))
+            return True
+        return False
+
+    def report(self) -> str:
+        rows = sorted(self.max_ms.items(), key=lambda kv: -kv[1])
+        return "\n".join(f"{name:32s} max {ms:8.1f} ms  calls {self.calls[name]}" for name, ms in rows)

@@ -1,0 +1,61 @@
+"""GUI-thread timing: how long each event handler and timer callback holds the GUI thread.
+
+Every handler the application connects goes through :func:`profiled`, which times it with a
+``QElapsedTimer`` into :data:`TIMINGS`. With ``CITYLOD_GUI_PROFILE=1`` (or ``citylod view --profile-gui``)
+handlers over 100 ms are logged on stderr as they happen and a table is printed at exit.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from PySide6.QtCore import QElapsedTimer
+
+from citylod.app.models import GuiTimings
+
+__all__ = ["TIMINGS", "enabled", "profiled", "timed"]
+
+TIMINGS = GuiTimings()
+SLOW_MS = 100.0
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def enabled() -> bool:
+    return os.environ.get("CITYLOD_GUI_PROFILE", "") not in ("", "0")
+
+
+class timed:  # noqa: N801 - used as a context manager like a function
+    """``with timed("name"):`` records the block's GUI-thread time."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.timer = QElapsedTimer()
+
+    def __enter__(self) -> timed:
+        self.timer.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        ms = self.timer.nsecsElapsed() / 1e6
+        if TIMINGS.record(self.name, ms, SLOW_MS) and enabled():
+            print(f"citylod: GUI thread held {ms:.1f} ms by {self.name}", file=sys.stderr)
+
+
+def profiled(name: str | None = None) -> Callable[[F], F]:
+    """Decorator: time every call of a handler under ``name`` (default: its qualified name)."""
+
+    def wrap(fn: F) -> F:
+        label = name or fn.__qualname__
+
+        @functools.wraps(fn)
+        def inner(*args: Any, **kwargs: Any) -> Any:
+            with timed(label):
+                return fn(*args, **kwargs)
+
+        return inner  # type: ignore[return-value]
+
+    return wrap

@@ -1,0 +1,426 @@
+"""The 3D view: a VTK render window in a Qt widget, drawing a :class:`~citylod.app.models.Document`'s scene.
+
+* Navigation: VTK's trackball camera (left drag orbits, middle pans, wheel/right drag zooms); the fly keys
+  and R/F are actions of the main window that call :meth:`SceneView.fly` etc. VTK's own key bindings
+  (``e``/``q`` quit, ``w`` wireframe …) are switched off.
+* Streaming: the scene is attached to the renderer (``Scene.attach``: selection runs before each render)
+  and a 30 ms ``QTimer`` moves finished tile loads into the cache and re-renders only when tiles arrived,
+  the camera moved or a model changed. Tile decoding stays on the loader's threads.
+* Picking: a click (press and release within a few pixels) picks with a ``vtkCellPicker``, looking past
+  skirt triangles (:func:`~citylod.render.tileset_actor.is_skirt_cell`); the world point goes to
+  :meth:`Document.pick` or to the running measurement.
+* Overlays: the measurement polyline and its text, and translucent proxies of selected/highlighted objects
+  (only when the renderer-side semantic shading, ``citylod.render.semantic``, is not installed).
+* :meth:`SceneView.framebuffer` reads the rendered image back, so a grab of the whole window can show the
+  GL part (``QWidget.grab`` alone leaves a native GL child black).
+
+VTK objects are created and changed only here, on the GUI thread.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import vtkmodules.qt
+
+vtkmodules.qt.PyQtImpl = "PySide6"
+
+from PySide6.QtCore import QPoint, Qt, QTimer, Signal  # noqa: E402
+from PySide6.QtGui import QCursor, QImage  # noqa: E402
+from PySide6.QtWidgets import QVBoxLayout, QWidget  # noqa: E402
+from vtkmodules.qt.QVTKRenderWindowInteractor import QVTKRenderWindowInteractor  # noqa: E402
+from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: E402
+from vtkmodules.vtkRenderingCore import vtkCellPicker, vtkTextActor  # noqa: E402
+
+from citylod.app.models import Document, Measurement, focus_on, fly, measure  # noqa: E402
+from citylod.app.qt_profile import profiled, timed  # noqa: E402
+from citylod.core.camera import Camera  # noqa: E402
+from citylod.render import _vtk  # noqa: E402
+from citylod.render.tileset_actor import is_skirt_cell, view_from_renderer  # noqa: E402
+from citylod.semantics.state import StateChange  # noqa: E402
+
+__all__ = ["SceneView"]
+
+_CLICK_PX = 4
+_SELECT_RGBA = (0.0, 0.85, 1.0, 0.45)
+_MAX_OVERLAY_OBJECTS = 2000
+
+
+def _polydata(vertices: npt.NDArray[np.float64], faces: npt.NDArray[np.int64], per_cell: int) -> Any:
+    data = _vtk.vtkPolyData()
+    pts = _vtk.vtkPoints()
+    pts.SetData(_vtk.numpy_to_vtk(np.ascontiguousarray(vertices, np.float64), deep=True))
+    data.SetPoints(pts)
+    conn = np.ascontiguousarray(faces, np.int64).reshape(-1)
+    ca = _vtk.vtkCellArray()
+    offsets = np.arange(0, len(conn) + 1, per_cell, dtype=np.int64)
+    ca.SetData(_vtk.numpy_to_vtkIdTypeArray(offsets, deep=True), _vtk.numpy_to_vtkIdTypeArray(conn, deep=True))
+    if per_cell == 3:
+        data.SetPolys(ca)
+    else:
+        data.SetLines(ca)
+    return data
+
+
+class SceneView(QWidget):
+    """The 3D view of a document. Signals: ``picked(object_id or None)``, ``measured(Measurement or
+    None)``, ``frame(ms)`` after every render."""
+
+    picked = Signal(object)
+    measured = Signal(object)
+    frame = Signal(float)
+
+    def __init__(self, document: Document, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.document = document
+        self.scene = document.scene
+        self.vtk = QVTKRenderWindowInteractor(self)
+        lay = QVBoxLayout(self)
+        lay.setContentsMargins(0, 0, 0, 0)
+        lay.addWidget(self.vtk)
+        self.window = self.vtk.GetRenderWindow()
+        self.window.SetMultiSamples(0)
+        self.renderer = self.scene.renderer
+        self.window.AddRenderer(self.renderer)
+        self.interactor = self.window.GetInteractor()
+        style = vtkInteractorStyleTrackballCamera()
+        # An observer on the style replaces its default handler: VTK's own keys (e/q quit, w/s wireframe,
+        # r/f camera) would fight the application's actions.
+        for event in ("CharEvent", "KeyPressEvent", "KeyReleaseEvent"):
+            style.AddObserver(event, lambda *_: None)
+        self.interactor.SetInteractorStyle(style)
+        self._style = style
+        self.interactor.AddObserver("LeftButtonPressEvent", self._on_press, 10.0)
+        self.interactor.AddObserver("LeftButtonReleaseEvent", self._on_release, 10.0)
+        self.scene.attach()
+        # After Scene.update (priority 0): pooled actors may have changed layer, so opacity is re-applied.
+        self.renderer.AddObserver("StartEvent", self._after_update, -1.0)
+        self.window.AddObserver("StartEvent", self._frame_start)
+        self.window.AddObserver("EndEvent", self._frame_end)
+        self._t0 = 0.0
+        self.frame_ms = 0.0
+        self.renders = 0
+        self._press: tuple[int, int] | None = None
+        self._dirty = True
+        self._camera_mtime = 0
+        self.picker = vtkCellPicker()
+        self.picker.SetTolerance(0.002)
+        # Measurement
+        self.measure_kind: str | None = None
+        self.measure_points: list[npt.NDArray[np.float64]] = []
+        self.measurement: Measurement | None = None
+        self._measure_actor: Any = None
+        self._measure_text = vtkTextActor()
+        self._measure_text.GetTextProperty().SetFontSize(18)
+        self._measure_text.GetTextProperty().SetColor(1.0, 1.0, 0.2)
+        self._measure_text.GetTextProperty().SetBackgroundColor(0.0, 0.0, 0.0)
+        self._measure_text.GetTextProperty().SetBackgroundOpacity(0.6)
+        self._measure_text.SetPosition(12, 12)
+        self._measure_text.SetPickable(False)
+        self._measure_text.VisibilityOff()
+        self.renderer.AddActor2D(self._measure_text)
+        # Semantic overlay (fallback while citylod.render.semantic is absent)
+        self._overlay_actors: list[Any] = []
+        document.state.on_change(self._on_state)
+        document.on_change(self._on_document)
+        self.timer = QTimer(self)
+        self.timer.setInterval(30)
+        self.timer.timeout.connect(self._tick)
+        self.timer.start()
+        self.setMinimumSize(200, 150)
+
+    # -- frames -----------------------------------------------------------------------------------
+    def _frame_start(self, *_: Any) -> None:
+        self._t0 = time.perf_counter()
+
+    def _frame_end(self, *_: Any) -> None:
+        self.frame_ms = (time.perf_counter() - self._t0) * 1e3
+        self.renders += 1
+        self.frame.emit(self.frame_ms)
+
+    def _after_update(self, *_: Any) -> None:
+        self.document.apply_opacity()
+
+    def request_render(self) -> None:
+        """Render at the next timer tick (coalesces several model changes into one frame)."""
+        self._dirty = True
+
+    def render_now(self) -> None:
+        with timed("SceneView.render"):
+            self.window.Render()
+        self._dirty = False
+
+    @profiled("SceneView._tick")
+    def _tick(self) -> None:
+        if not self.isVisible():
+            return
+        newly = self.scene.loader.poll() if self.scene.layers else []
+        mtime = self.renderer.GetActiveCamera().GetMTime()
+        moved = mtime != self._camera_mtime
+        if newly or moved or self._dirty:
+            self._camera_mtime = mtime
+            self.render_now()
+            self._camera_mtime = self.renderer.GetActiveCamera().GetMTime()
+
+    def pending(self) -> int:
+        """Tile requests queued or being decoded."""
+        st = self.scene.loader.stats()
+        return int(st.pending + st.in_flight)
+
+    def is_resolved(self) -> bool:
+        """The last frame drew everything selection wanted and nothing is loading."""
+        return bool(self.scene.last_stats.complete and self.pending() == 0 and self.renders > 0)
+
+    # -- camera -----------------------------------------------------------------------------------
+    def camera(self) -> Camera | None:
+        if self.scene.origin is None:
+            return None
+        return view_from_renderer(self.renderer, self.scene.origin).camera
+
+    def set_camera(self, camera: Camera) -> None:
+        if self.scene.origin is None:
+            self.scene.origin = np.round(np.asarray(camera.focal_point, np.float64))
+        self.scene.set_camera(camera)
+        self.renderer.ResetCameraClippingRange()
+        self.request_render()
+
+    def reset_view(self) -> None:
+        w, h = max(self.vtk.width(), 1), max(self.vtk.height(), 1)
+        cam = self.document.home_camera(aspect=w / h)
+        if cam is not None:
+            self.set_camera(cam)
+
+    def fly(self, direction: str) -> None:
+        cam = self.camera()
+        if cam is None:
+            return
+        dist = float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
+        self.set_camera(fly(cam, direction, max(dist * 0.08, 1.0)))
+
+    def focus_under_cursor(self) -> bool:
+        """Focus the camera on the surface point under the mouse cursor (F)."""
+        pos = self.vtk.mapFromGlobal(QCursor.pos())
+        point = self.pick_point(pos.x(), pos.y())
+        cam = self.camera()
+        if point is None or cam is None:
+            return False
+        self.set_camera(focus_on(cam, point))
+        return True
+
+    def frame_objects(self, ids: list[str]) -> bool:
+        """Zoom to objects (their proxies' box)."""
+        box = self.document.object_box(ids)
+        cam = self.camera()
+        if box is None or cam is None:
+            return False
+        from citylod.app.models import frame_box
+
+        self.set_camera(frame_box(cam, *box))
+        return True
+
+    # -- picking ----------------------------------------------------------------------------------
+    def _display_xy(self, x: int, y: int) -> tuple[int, int]:
+        """VTK display coordinates (origin bottom-left, device pixels) of a widget position."""
+        ratio = self.vtk.devicePixelRatioF()
+        return int(x * ratio), int((self.vtk.height() - 1 - y) * ratio)
+
+    def pick_point(self, x: int, y: int, *, display: bool = False) -> npt.NDArray[np.float64] | None:
+        """The data-CRS point (3,) of the surface under widget position (x, y), skirts skipped."""
+        if self.scene.origin is None:
+            return None
+        dx, dy = (x, y) if display else self._display_xy(x, y)
+        picker = self.picker
+        picker.PickFromListOff()
+        if not picker.Pick(dx, dy, 0, self.renderer):
+            return None
+        actor = picker.GetActor()
+        if is_skirt_cell(actor, picker.GetCellId()):
+            # A skirt hangs below a tile edge; the surface behind it belongs to another tile: pick again
+            # among the other drawn actors.
+            picker.InitializePickList()
+            actors = self.renderer.GetActors()
+            actors.InitTraversal()
+            for _ in range(actors.GetNumberOfItems()):
+                a = actors.GetNextActor()
+                if a is not actor and a.GetVisibility() and a.GetPickable():
+                    picker.AddPickList(a)
+            picker.PickFromListOn()
+            ok = picker.Pick(dx, dy, 0, self.renderer)
+            picker.PickFromListOff()
+            if not ok or is_skirt_cell(picker.GetActor(), picker.GetCellId()):
+                return None
+        return np.asarray(picker.GetPickPosition(), np.float64) + self.scene.origin
+
+    def _on_press(self, obj: Any, _event: str) -> None:
+        self._press = obj.GetEventPosition()
+
+    @profiled("SceneView.click")
+    def _on_release(self, obj: Any, _event: str) -> None:
+        if self._press is None:
+            return
+        x, y = obj.GetEventPosition()
+        px, py = self._press
+        self._press = None
+        if abs(x - px) > _CLICK_PX or abs(y - py) > _CLICK_PX:
+            return
+        self.click_display(x, y)
+
+    def click_display(self, x: int, y: int) -> None:
+        """A click at VTK display position (x, y): a measurement point or a pick."""
+        point = self.pick_point(x, y, display=True)
+        if self.measure_kind is not None:
+            if point is not None:
+                self.add_measure_point(point)
+            return
+        oid = self.document.pick(point)
+        self.picked.emit(oid)
+
+    # -- measuring --------------------------------------------------------------------------------
+    def start_measure(self, kind: str | None) -> None:
+        """Start a measurement (distance, height, area); None ends it (the result stays shown)."""
+        self.measure_kind = kind
+        if kind is not None:
+            self.measure_points = []
+            self.measurement = None
+            self._update_measure_overlay()
+
+    def clear_measure(self) -> None:
+        self.measure_kind = None
+        self.measure_points = []
+        self.measurement = None
+        self._update_measure_overlay()
+        self.measured.emit(None)
+
+    def add_measure_point(self, point: npt.ArrayLike) -> Measurement:
+        kind = self.measure_kind or (self.measurement.kind if self.measurement else "distance")
+        if kind == "height" and len(self.measure_points) >= 2:
+            self.measure_points = []
+        self.measure_points.append(np.asarray(point, np.float64))
+        self.measurement = measure(kind, np.array(self.measure_points), geographic=self.document.geographic)
+        self._update_measure_overlay()
+        self.measured.emit(self.measurement)
+        return self.measurement
+
+    def _update_measure_overlay(self) -> None:
+        if self._measure_actor is not None:
+            self.renderer.RemoveActor(self._measure_actor)
+            self._measure_actor = None
+        pts = self.measure_points
+        if pts and self.scene.origin is not None:
+            verts = np.array(pts) - self.scene.origin
+            n = len(verts)
+            idx = list(range(n))
+            if self.measurement is not None and self.measurement.kind == "area" and n >= 3:
+                idx.append(0)
+            lines = np.array([[idx[i], idx[i + 1]] for i in range(len(idx) - 1)], np.int64).reshape(-1, 2)
+            data = _polydata(verts, lines, 2)
+            va = _vtk.vtkCellArray()
+            va.SetData(_vtk.numpy_to_vtkIdTypeArray(np.arange(n + 1, dtype=np.int64), deep=True),
+                       _vtk.numpy_to_vtkIdTypeArray(np.arange(n, dtype=np.int64), deep=True))
+            data.SetVerts(va)
+            mapper = _vtk.vtkPolyDataMapper()
+            mapper.SetInputData(data)
+            actor = _vtk.vtkActor()
+            actor.SetMapper(mapper)
+            prop = actor.GetProperty()
+            prop.SetColor(1.0, 0.9, 0.1)
+            prop.SetLineWidth(3.0)
+            prop.SetPointSize(9.0)
+            prop.RenderPointsAsSpheresOn()
+            prop.LightingOff()
+            actor.SetPickable(False)
+            # Drawn over the terrain: a measurement on a roof must not vanish behind the roof edge.
+            mapper.SetResolveCoincidentTopologyToPolygonOffset()
+            self._measure_actor = actor
+            self.renderer.AddActor(actor)
+        if self.measurement is not None:
+            self._measure_text.SetInput(self.measurement.text())
+            self._measure_text.VisibilityOn()
+        else:
+            self._measure_text.VisibilityOff()
+        self.request_render()
+
+    # -- semantic overlay -------------------------------------------------------------------------
+    def _on_document(self, kind: str) -> None:
+        self.request_render()
+
+    def _on_state(self, change: StateChange) -> None:
+        if self.document.semantic is None:
+            self.refresh_overlay()
+        self.request_render()
+
+    @profiled("SceneView.refresh_overlay")
+    def refresh_overlay(self) -> None:
+        """Translucent proxies of highlighted (their colour) and selected (cyan) objects."""
+        for a in self._overlay_actors:
+            self.renderer.RemoveActor(a)
+        self._overlay_actors = []
+        doc = self.document
+        if doc.store is None or doc.scene.origin is None:
+            return
+        state = doc.state
+        groups: dict[tuple[float, float, float, float], list[str]] = {}
+        for oid, rgba in state.colors.items():
+            if state.is_visible(oid):
+                groups.setdefault((rgba[0], rgba[1], rgba[2], min(rgba[3], 0.55)), []).append(oid)
+        sel = [o for o in state.selection if state.is_visible(o)]
+        if sel:
+            groups.setdefault(_SELECT_RGBA, []).extend(sel)
+        for rgba, ids in groups.items():
+            verts, faces, base = [], [], 0
+            for oid in ids[:_MAX_OVERLAY_OBJECTS]:
+                v, f = doc.store.mesh(oid)
+                if len(f) == 0:
+                    continue
+                verts.append(v - doc.scene.origin)
+                faces.append(np.asarray(f, np.int64) + base)
+                base += len(v)
+            if not verts:
+                continue
+            mapper = _vtk.vtkPolyDataMapper()
+            mapper.SetInputData(_polydata(np.vstack(verts), np.vstack(faces), 3))
+            actor = _vtk.vtkActor()
+            actor.SetMapper(mapper)
+            prop = actor.GetProperty()
+            prop.SetColor(*rgba[:3])
+            prop.SetOpacity(rgba[3])
+            prop.SetAmbient(0.5)
+            actor.SetPickable(False)
+            self.renderer.AddActor(actor)
+            self._overlay_actors.append(actor)
+
+    # -- images -----------------------------------------------------------------------------------
+    def framebuffer(self) -> QImage:
+        """The rendered image (re-rendered now), the size of the widget in device pixels."""
+        self.render_now()
+        grab = _vtk.vtkWindowToImageFilter()
+        grab.SetInput(self.window)
+        grab.ReadFrontBufferOff()
+        grab.ShouldRerenderOn()
+        grab.SetInputBufferTypeToRGB()
+        grab.Update()
+        img = grab.GetOutput()
+        w, h, _ = img.GetDimensions()
+        arr = _vtk.vtk_to_numpy(img.GetPointData().GetScalars()).reshape(h, w, 3)[::-1].copy()
+        qimg = QImage(arr.data, w, h, 3 * w, QImage.Format.Format_RGB888).copy()
+        return qimg
+
+    def keyPressEvent(self, event: Any) -> None:  # noqa: N802 - Qt override
+        if event.key() == Qt.Key.Key_Escape:
+            if self.measure_kind is not None:
+                self.start_measure(None)
+            else:
+                self.clear_measure()
+            return
+        super().keyPressEvent(event)
+
+    def shutdown(self) -> None:
+        self.timer.stop()
+        self.scene.detach()
+        self.vtk.Finalize()
+
+    def origin_in(self, widget: QWidget) -> QPoint:
+        return self.vtk.mapTo(widget, QPoint(0, 0))
