@@ -28,7 +28,7 @@ import vtkmodules.qt
 
 vtkmodules.qt.PyQtImpl = "PySide6"
 
-from PySide6.QtCore import QPoint, Qt, QTimer, Signal  # noqa: E402
+from PySide6.QtCore import QPoint, QTimer, Signal  # noqa: E402
 from PySide6.QtGui import QCursor, QImage  # noqa: E402
 from PySide6.QtWidgets import QVBoxLayout, QWidget  # noqa: E402
 from vtkmodules.qt.QVTKRenderWindowInteractor import QVTKRenderWindowInteractor  # noqa: E402
@@ -408,14 +408,12 @@ class SceneView(QWidget):
         qimg = QImage(arr.data, w, h, 3 * w, QImage.Format.Format_RGB888).copy()
         return qimg
 
-    def keyPressEvent(self, event: Any) -> None:  # noqa: N802 - Qt override
-        if event.key() == Qt.Key.Key_Escape:
-            if self.measure_kind is not None:
-                self.start_measure(None)
-            else:
-                self.clear_measure()
-            return
-        super().keyPressEvent(event)
+    def escape(self) -> None:
+        """Esc: end a running measurement (its result stays), else clear the measurement overlay."""
+        if self.measure_kind is not None:
+            self.start_measure(None)
+        else:
+            self.clear_measure()
 
     def shutdown(self) -> None:
         self.timer.stop()

@@ -21,7 +21,9 @@ import os
 
 # Importing the OpenGL2 module registers the object factory overrides (vtkOpenGLActor, ...).
 import vtkmodules.vtkRenderingOpenGL2  # noqa: F401
+from vtkmodules.util.misc import calldata_type
 from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray, vtk_to_numpy
+from vtkmodules.util.vtkConstants import VTK_FLOAT, VTK_OBJECT
 from vtkmodules.vtkCommonCore import (
     VTK_UNSIGNED_CHAR,
     vtkCommand,
@@ -54,12 +56,16 @@ from vtkmodules.vtkRenderingOpenGL2 import (
     vtkOpenGLRenderer,
     vtkOSOpenGLRenderWindow,
     vtkRenderStepsPass,
+    vtkTextureObject,
     vtkXOpenGLRenderWindow,
 )
 
 __all__ = [
+    "VTK_FLOAT",
+    "VTK_OBJECT",
     "VTK_UNSIGNED_CHAR",
     "WINDOW_BACKEND",
+    "calldata_type",
     "numpy_to_vtk",
     "numpy_to_vtkIdTypeArray",
     "offscreen_window",
@@ -89,6 +95,7 @@ __all__ = [
     "vtkRenderWindow",
     "vtkRenderer",
     "vtkTexture",
+    "vtkTextureObject",
     "vtkUnsignedCharArray",
     "vtkWindowToImageFilter",
     "vtk_to_numpy",

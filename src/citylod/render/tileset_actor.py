@@ -386,6 +386,7 @@ class TilesetLayer:
             props = _MeshProps(self.scene._count_actor)
             slot.meshes.append(props)
             self.scene.renderer.AddActor(props.actor)
+            self.scene._actor_created(props.actor)
         for props, mesh in zip(slot.meshes, prepared.meshes, strict=False):
             data = _vtk.vtkPolyData()
             data.SetPoints(_points(mesh.positions))
@@ -409,6 +410,7 @@ class TilesetLayer:
             if slot.points is None:
                 slot.points = _PointProps(self.scene._count_actor)
                 self.scene.renderer.AddActor(slot.points.actor)
+                self.scene._actor_created(slot.points.actor)
             data = _vtk.vtkPolyData()
             data.SetPoints(_points(prepared.points.positions))
             data.SetVerts(_cells(np.arange(len(prepared.points.positions), dtype=np.int64), 1))
@@ -514,6 +516,9 @@ class Scene:
         self.last_stats = FrameStats()
         self._free: list[_Slot] = []
         self._observer: int | None = None
+        # Semantic overlays (citylod.render.semantic) style every tile actor, present and future.
+        self._tile_actors: list[Any] = []
+        self._actor_hooks: list[Callable[[Any], None]] = []
         self._setup_renderer()
 
     def _setup_renderer(self) -> None:
@@ -568,6 +573,33 @@ class Scene:
     # -- pool -------------------------------------------------------------------------------------
     def _count_actor(self) -> None:
         self.actors_created += 1
+
+    def add_actor_hook(self, hook: Callable[[Any], None]) -> Callable[[], None]:
+        """Call ``hook(actor)`` for every tile actor: now for those that exist, then for each new one.
+
+        Actors are pooled, so a hook runs once per actor, not once per tile (used by
+        :class:`citylod.render.semantic.SemanticOverlay` to attach its shader). Returns a function that
+        removes the hook.
+        """
+        self._actor_hooks.append(hook)
+        for actor in self._tile_actors:
+            hook(actor)
+
+        def remove() -> None:
+            if hook in self._actor_hooks:
+                self._actor_hooks.remove(hook)
+
+        return remove
+
+    @property
+    def tile_actors(self) -> tuple[Any, ...]:
+        """Every tile actor created so far (shown, hidden or pooled)."""
+        return tuple(self._tile_actors)
+
+    def _actor_created(self, actor: Any) -> None:
+        self._tile_actors.append(actor)
+        for hook in list(self._actor_hooks):
+            hook(actor)
 
     def _take_slot(self) -> _Slot:
         return self._free.pop() if self._free else _Slot()
