@@ -33,7 +33,7 @@ def test_certifier_matches_dense_brute_force() -> None:
     def read(r, c, nr, nc):
         return z[r:r + nr, c:c + nc], valid[r:r + nr, c:c + nc]
 
-    err, cell_err, where = certify(read, (0, 0, 32, 28), pts[:, 0], pts[:, 1], vz, faces, (32, 28), 1, block=7)
+    err, cell_err, _where = certify(read, (0, 0, 32, 28), pts[:, 0], pts[:, 1], vz, faces, (32, 28), 1, block=7)
     # Brute force: sample every triangle densely (barycentric grid) and evaluate both surfaces.
     k = 120
     u, v = np.meshgrid(np.linspace(0, 1, k), np.linspace(0, 1, k))

@@ -543,7 +543,7 @@ class Document:
         for e in self.entries:
             if e.layer is None:
                 continue
-            for slot in e.layer._slots.values():  # noqa: SLF001 - the layer has no public actor list yet
+            for slot in e.layer._slots.values():
                 for actor in slot.actors():
                     prop = actor.GetProperty()
                     if prop.GetOpacity() != e.opacity:
@@ -576,7 +576,7 @@ class Document:
         """Byte budget of the tile cache; tiles that no longer fit are released."""
         self.lod.memory_mb = max(int(megabytes), 16)
         for key in self.scene.cache.set_budget(self.lod.memory_mb << 20):
-            self.scene._layer_of(key)._release(key)  # noqa: SLF001 - Scene has no public hook for this
+            self.scene._layer_of(key)._release(key)
         self._emit("lod")
 
     def set_frozen(self, on: bool) -> None:
@@ -600,7 +600,7 @@ class Document:
         if self.store is None:
             return {}
         groups: dict[str, list[tuple[str, str]]] = {}
-        for oid, typ, name in self.store._conn.execute(  # noqa: SLF001 - one read, no store API for it yet
+        for oid, typ, name in self.store._conn.execute(
                 "SELECT object_id, type, name FROM city_objects ORDER BY fid"):
             groups.setdefault(typ or "CityObject", []).append((oid, name or ""))
         return groups

@@ -28,7 +28,7 @@ def enabled() -> bool:
     return os.environ.get("CITYLOD_GUI_PROFILE", "") not in ("", "0")
 
 
-class timed:  # noqa: N801 - used as a context manager like a function
+class timed:
     """``with timed("name"):`` records the block's GUI-thread time."""
 
     def __init__(self, name: str) -> None:

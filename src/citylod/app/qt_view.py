@@ -35,7 +35,7 @@ from vtkmodules.qt.QVTKRenderWindowInteractor import QVTKRenderWindowInteractor 
 from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: E402
 from vtkmodules.vtkRenderingCore import vtkCellPicker, vtkTextActor  # noqa: E402
 
-from citylod.app.models import Document, Measurement, focus_on, fly, measure  # noqa: E402
+from citylod.app.models import Document, Measurement, fly, focus_on, measure  # noqa: E402
 from citylod.app.qt_profile import profiled, timed  # noqa: E402
 from citylod.core.camera import Camera  # noqa: E402
 from citylod.render import _vtk  # noqa: E402
@@ -121,7 +121,7 @@ class SceneView(QWidget):
         self._measure_text.SetPosition(12, 12)
         self._measure_text.SetPickable(False)
         self._measure_text.VisibilityOff()
-        self.renderer.AddActor2D(self._measure_text)
+        self.renderer.AddViewProp(self._measure_text)
         # Semantic overlay (fallback while citylod.render.semantic is absent)
         self._overlay_actors: list[Any] = []
         document.state.on_change(self._on_state)

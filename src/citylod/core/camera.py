@@ -69,8 +69,8 @@ class Camera:
         if np.linalg.norm(right) < 1e-9:  # looking along view_up: pick any perpendicular
             right = np.cross(fwd, [1.0, 0.0, 0.0] if abs(fwd[0]) < 0.9 else [0.0, 1.0, 0.0])
         right /= np.linalg.norm(right)
-        up = np.cross(right, fwd)
-        return right, up, fwd
+        up = np.cross(right, fwd).astype(np.float64)
+        return right.astype(np.float64), up, fwd
 
     def to_dict(self) -> dict[str, Any]:
         return {

@@ -72,7 +72,7 @@ class RasterSource:
         self.__dict__.update(state)
         self._ds = None
 
-    def _dataset(self):  # noqa: ANN202 - rasterio dataset
+    def _dataset(self):
         if self._ds is None:
             import rasterio
 
@@ -165,7 +165,7 @@ def check_has_data(src: RasterSource) -> None:
     info = src.info
     block = 1024
     for r in range(0, info.height, block):
-        h, v = src.read(r, 0, min(block, info.height - r), info.width)
+        _, v = src.read(r, 0, min(block, info.height - r), info.width)
         if v.any():
             return
     raise EmptyInputError("raster holds no valid samples (all no-data)", src.path)

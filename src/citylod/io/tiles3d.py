@@ -300,7 +300,7 @@ def _read_accessor(gltf: dict[str, Any], binary: bytes, index: int, source: str)
             rows = np.lib.stride_tricks.as_strided(raw, (count, dtype.itemsize * ncomp), (stride, 1))
             arr = np.ascontiguousarray(rows).view(dtype).reshape(count, ncomp)
         if acc.get("normalized") and dtype.kind in "ui" and acc["type"] != "SCALAR" and dtype != np.uint8:
-            arr = arr.astype(np.float32) / np.iinfo(dtype).max
+            arr = arr.astype(np.float32) / float(np.iinfo(dtype.type).max)  # type: ignore[type-var]
         return arr[:, 0] if ncomp == 1 else arr
     except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise InputError(f"glTF accessor {index} is invalid ({exc})", source) from exc

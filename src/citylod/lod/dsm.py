@@ -266,8 +266,8 @@ def build_tile(job: DsmJob) -> TileResult:
     lo[2] -= skirt_depth  # the skirt hangs below the surface; bounding volumes must hold it
     res.has_content = True
     res.center, res.lo, res.hi = center.tolist(), lo.tolist(), hi.tolist()
-    res.triangles = int(len(faces))
-    res.vertices = int(len(vij))
+    res.triangles = len(faces)
+    res.vertices = len(vij)
     res.samples = int(valid.sum()) * stride * stride
     r_, c_ = vij[:, 0], vij[:, 1]
     res.borders = {"n": sorted(int(v) for v in c_[r_ == 0]), "s": sorted(int(v) for v in c_[r_ == last_r]),

@@ -1000,14 +1000,14 @@ def eval_max_error(
                     t = (line - s0) / (s1 - s0)
                     if t <= 0.0 or t >= 1.0:
                         continue
-                    r = r0 + t * (r1 - r0)
-                    c = c0 + t * (c1 - c0)
-                    g = _grid_z(h, valid, r, c)
+                    rf = r0 + t * (r1 - r0)
+                    cf = c0 + t * (c1 - c0)
+                    g = _grid_z(h, valid, rf, cf)
                     if np.isnan(g):
                         continue
                     e = abs((z0 - g) + t * (z1 - z0))
                     if e > worst:
-                        worst, wr, wc = e, r, c
+                        worst, wr, wc = e, rf, cf
     return worst, wr, wc
 
 

@@ -1,0 +1,431 @@
+"""The main window: the 3D view in the centre, panels in docks, menus, shortcuts, status bar, settings.
+
+Opening: tilesets and city stores open at once (:meth:`Document.open`); rasters, LAS/LAZ and city models
+are built first in a subprocess (:class:`~citylod.app.qt_tasks.ProcessTask`, cancellable) and the result
+opens when the build ends. Recent files, window geometry, dock layout, query history and bookmarks persist
+in ``QSettings("citylod", "citylod")``.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import QByteArray, QRect, QSettings, Qt, QTimer, Signal
+from PySide6.QtGui import QAction, QGuiApplication, QImage, QKeySequence, QPainter
+from PySide6.QtWidgets import (
+    QDialog,
+    QDialogButtonBox,
+    QDockWidget,
+    QFileDialog,
+    QFormLayout,
+    QLabel,
+    QMainWindow,
+    QMessageBox,
+    QSpinBox,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from citylod.app.models import SHORTCUTS, Document, build_plan, format_status, source_kind
+from citylod.app.qt_panels import (
+    AttributePanel,
+    BookmarkPanel,
+    LayerPanel,
+    LodPanel,
+    MeasurePanel,
+    ObjectTreePanel,
+    QueryPanel,
+)
+from citylod.app.qt_profile import profiled
+from citylod.app.qt_tasks import ProcessTask
+from citylod.app.qt_view import SceneView
+from citylod.core.errors import CitylodError
+
+__all__ = ["MainWindow", "settings"]
+
+_FILTER = ("All supported (*.json *.gpkg *.tif *.tiff *.vrt *.las *.laz *.gml *.xml *.cityjson);;"
+           "Tileset (tileset.json);;City store (*.gpkg);;Raster DSM (*.tif *.tiff *.vrt);;"
+           "Point cloud (*.las *.laz);;City model (*.gml *.xml *.json *.cityjson);;All files (*)")
+_MAX_RECENT = 10
+
+
+def settings() -> QSettings:
+    return QSettings("citylod", "citylod")
+
+
+class MainWindow(QMainWindow):
+    """The citylod desktop window. ``opened(path)`` after a source is open; ``failed(message)``."""
+
+    opened = Signal(str)
+    failed = Signal(str)
+
+    def __init__(self, document: Document | None = None, *, settings_: QSettings | None = None,
+                 interactive: bool = True) -> None:
+        super().__init__()
+        self.setWindowTitle("citylod")
+        self.setAcceptDrops(True)
+        self.settings = settings_ if settings_ is not None else settings()
+        self.document = document if document is not None else Document()
+        self.interactive = interactive  # False: errors go to the status bar and stderr, no message boxes
+        self.tasks: list[ProcessTask] = []
+        self.errors: list[str] = []
+        self.view = SceneView(self.document, self)
+        self.setCentralWidget(self.view)
+        self.layers = LayerPanel(self.document)
+        self.tree = ObjectTreePanel(self.document)
+        self.inspector = AttributePanel(self.document)
+        self.query = QueryPanel(self.document, self.settings)
+        self.lod = LodPanel(self.document)
+        self.measure = MeasurePanel(self.start_measure, self.view.clear_measure)
+        self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, self.settings)
+        self.docks: dict[str, QDockWidget] = {}
+        left, right = Qt.DockWidgetArea.LeftDockWidgetArea, Qt.DockWidgetArea.RightDockWidgetArea
+        for name, title, widget, area in (
+                ("layers", "Layers", self.layers, left), ("lod", "Level of detail", self.lod, left),
+                ("objects", "City objects", self.tree, left), ("attributes", "Attributes", self.inspector, right),
+                ("query", "Query", self.query, right), ("measure", "Measure", self.measure, right),
+                ("bookmarks", "Bookmarks", self.bookmarks, right)):
+            dock = QDockWidget(title, self)
+            dock.setObjectName(f"dock_{name}")
+            dock.setWidget(widget)
+            self.addDockWidget(area, dock)
+            self.docks[name] = dock
+        self.tabifyDockWidget(self.docks["measure"], self.docks["bookmarks"])
+        self.docks["measure"].raise_()
+        self.status = QLabel("no data")
+        self.statusBar().addPermanentWidget(self.status, 1)
+        self.view.frame.connect(self._on_frame)
+        self.view.picked.connect(self._on_picked)
+        self.view.measured.connect(self.measure.show_measurement)
+        self.query.zoom_requested.connect(self.view.frame_objects)
+        self.actions: dict[str, QAction] = {}
+        self._build_menus()
+        self.resize(1400, 900)
+        geo = self.settings.value("window/geometry")
+        if isinstance(geo, QByteArray) and not geo.isEmpty():
+            self.restoreGeometry(geo)
+        state = self.settings.value("window/state")
+        if isinstance(state, QByteArray) and not state.isEmpty():
+            self.restoreState(state)
+        self._status_timer = QTimer(self)
+        self._status_timer.setInterval(250)
+        self._status_timer.timeout.connect(self._update_status)
+        self._status_timer.start()
+
+    # -- menus and shortcuts ----------------------------------------------------------------------
+    def _action(self, key: str, text: str, slot: Any, shortcut: str | None = None, menu: Any = None,
+                context: Qt.ShortcutContext = Qt.ShortcutContext.WindowShortcut) -> QAction:
+        act = QAction(text, self)
+        if shortcut:
+            act.setShortcut(QKeySequence(shortcut))
+            act.setShortcutContext(context)
+        act.triggered.connect(profiled(f"action.{key}")(lambda *_: slot()))
+        if menu is not None:
+            menu.addAction(act)
+        else:
+            self.addAction(act)
+        self.actions[key] = act
+        return act
+
+    def _build_menus(self) -> None:
+        mb = self.menuBar()
+        f = mb.addMenu("&File")
+        self._action("open", "&Open…", self.open_dialog, "Ctrl+O", f)
+        self._action("open_folder", "Open tileset &folder…", self.open_folder_dialog, None, f)
+        self.recent_menu = f.addMenu("Open &recent")
+        self._refresh_recent()
+        f.addSeparator()
+        self._action("save_camera", "Save &camera…", self.save_camera_dialog, "Ctrl+Shift+S", f)
+        self._action("export", "&Export image…", self.export_dialog, "Ctrl+E", f)
+        self._action("screenshot", "Save &window screenshot…", self.screenshot_dialog, None, f)
+        f.addSeparator()
+        self._action("quit", "&Quit", self.close, "Ctrl+Q", f)
+        v = mb.addMenu("&View")
+        self._action("reset", "&Reset view", self.view.reset_view, "R", v)
+        self._action("focus", "&Focus on point under cursor", self.view.focus_under_cursor, "F", v)
+        nav = v.addMenu("Fly")
+        for key, direction in (("W", "forward"), ("S", "backward"), ("A", "left"), ("D", "right"),
+                               ("E", "up"), ("Q", "down")):
+            act = self._action(f"fly_{direction}", f"Fly {direction}", lambda d=direction: self.view.fly(d), key,
+                               nav)
+            act.setAutoRepeat(True)
+        v.addSeparator()
+        self._action("bookmark", "Add &bookmark", lambda: self.bookmarks.add(None), "Ctrl+B", v)
+        v.addSeparator()
+        for dock in self.docks.values():
+            v.addAction(dock.toggleViewAction())
+        t = mb.addMenu("&Tools")
+        self._action("measure_distance", "Measure &distance", lambda: self.start_measure("distance"), "M", t)
+        self._action("measure_height", "Measure &height difference", lambda: self.start_measure("height"), "H", t)
+        self._action("measure_area", "Measure &area", lambda: self.start_measure("area"), "G", t)
+        self._action("escape", "End measurement", self._escape, "Esc", t)
+        t.addSeparator()
+        self._action("clear_state", "Clear highlight / hide / isolate", self.document.clear_state, None, t)
+        h = mb.addMenu("&Help")
+        self._action("shortcuts", "&Shortcuts", self.show_shortcuts, "F1", h)
+        self._action("about", "&About citylod", self._about, None, h)
+
+    def _escape(self) -> None:
+        self.view.escape()
+        self.measure.set_active(self.view.measure_kind)
+
+    def show_shortcuts(self) -> QDialog:
+        dlg = QDialog(self)
+        dlg.setWindowTitle("Keyboard shortcuts")
+        table = QTableWidget(len(SHORTCUTS), 2)
+        table.setHorizontalHeaderLabels(["keys", "action"])
+        table.verticalHeader().setVisible(False)
+        table.horizontalHeader().setStretchLastSection(True)
+        for r, (k, text) in enumerate(SHORTCUTS):
+            table.setItem(r, 0, QTableWidgetItem(k))
+            table.setItem(r, 1, QTableWidgetItem(text))
+        table.resizeColumnToContents(0)
+        lay = QVBoxLayout(dlg)
+        lay.addWidget(QLabel("Mouse: left drag orbits, middle drag pans, wheel zooms, click picks."))
+        lay.addWidget(table)
+        box = QDialogButtonBox(QDialogButtonBox.StandardButton.Close)
+        box.rejected.connect(dlg.reject)
+        lay.addWidget(box)
+        dlg.resize(520, 480)
+        dlg.show()
+        return dlg
+
+    def _about(self) -> None:
+        QMessageBox.about(self, "citylod", "citylod — level-of-detail rendering and semantic interaction for "
+                          "DSMs, LiDAR point clouds and city models.")
+
+    # -- status -----------------------------------------------------------------------------------
+    def _on_frame(self, ms: float) -> None:
+        self._last_frame_ms = ms
+
+    @profiled("MainWindow.status")
+    def _update_status(self) -> None:
+        if not self.document.entries:
+            return
+        self.status.setText(format_status(self.document.scene.last_stats, getattr(self, "_last_frame_ms", 0.0),
+                                          self.view.pending()))
+
+    # -- picking and measuring ----------------------------------------------------------------------
+    def _on_picked(self, object_id: str | None) -> None:
+        if object_id is not None:
+            self.statusBar().showMessage(f"picked {object_id}", 4000)
+
+    def start_measure(self, kind: str | None) -> None:
+        self.view.start_measure(kind)
+        self.measure.set_active(kind)
+        if kind is not None:
+            self.docks["measure"].raise_()
+            self.statusBar().showMessage(f"measure {kind}: click points in the view, Esc ends", 6000)
+
+    # -- opening ------------------------------------------------------------------------------------
+    def _error(self, message: str) -> None:
+        self.errors.append(message)
+        self.failed.emit(message)
+        self.statusBar().showMessage(message, 10000)
+        if self.interactive:
+            QMessageBox.warning(self, "citylod", message)
+        else:
+            import sys
+
+            print(f"citylod: error: {message}", file=sys.stderr)
+
+    def open_paths(self, paths: Sequence[str | os.PathLike[str]]) -> None:
+        for p in paths:
+            self.open_path(p)
+
+    @profiled("MainWindow.open_path")
+    def open_path(self, path: str | os.PathLike[str]) -> bool:
+        """Open a source; raw inputs start a build whose result opens when done. False on an error."""
+        p = Path(path)
+        kind = source_kind(p)
+        if kind in ("raster", "points", "citymodel"):
+            return self.build_and_open(p)
+        first = not self.document.entries
+        try:
+            self.document.open(p)
+        except (CitylodError, OSError, ValueError) as exc:
+            self._error(str(exc))
+            return False
+        self._add_recent(p)
+        if first or kind == "tileset" and len(self.document.scene.layers) == 1:
+            self.view.reset_view()
+        self.view.request_render()
+        self.opened.emit(str(p))
+        return True
+
+    def build_and_open(self, path: Path) -> bool:
+        try:
+            plan = build_plan(path)
+        except CitylodError as exc:
+            self._error(str(exc))
+            return False
+        if plan.output.exists():
+            target = plan.output
+            if source_kind(target) in ("tileset", "store"):
+                self.statusBar().showMessage(f"{path.name}: opening the existing {plan.label} {target}", 6000)
+                return self.open_path(target)
+        task = ProcessTask(plan.argv, plan.output, f"Building the {plan.label} of {path.name}…", self)
+        task.finished.connect(lambda ok, out, msg, t=task: self._build_done(t, ok, out, msg))
+        self.tasks.append(task)
+        task.start()
+        return True
+
+    def _build_done(self, task: ProcessTask, ok: bool, output: str, message: str) -> None:
+        if task in self.tasks:
+            self.tasks.remove(task)
+        if ok:
+            self.open_path(output)
+        elif message == "cancelled":
+            self.statusBar().showMessage("build cancelled", 6000)
+        else:
+            self._error(f"build of {output} failed: {message}")
+        task.deleteLater()
+
+    def open_dialog(self) -> None:
+        last = self.settings.value("last_dir", str(Path.home()))
+        files, _ = QFileDialog.getOpenFileNames(self, "Open", str(last), _FILTER)
+        if files:
+            self.settings.setValue("last_dir", str(Path(files[0]).parent))
+            self.open_paths(files)
+
+    def open_folder_dialog(self) -> None:
+        folder = QFileDialog.getExistingDirectory(self, "Open tileset folder",
+                                                  str(self.settings.value("last_dir", str(Path.home()))))
+        if folder:
+            self.open_path(folder)
+
+    def recent_files(self) -> list[str]:
+        val = self.settings.value("recent", [])
+        return [str(v) for v in (val if isinstance(val, list) else [val]) if v]
+
+    def _add_recent(self, path: Path) -> None:
+        p = str(path.resolve())
+        items = [p] + [r for r in self.recent_files() if r != p]
+        self.settings.setValue("recent", items[:_MAX_RECENT])
+        self._refresh_recent()
+
+    def _refresh_recent(self) -> None:
+        self.recent_menu.clear()
+        for r in self.recent_files():
+            act = self.recent_menu.addAction(r)
+            act.triggered.connect(lambda *_, r=r: self.open_path(r))
+        self.recent_menu.setEnabled(bool(self.recent_files()))
+
+    # -- drag and drop ------------------------------------------------------------------------------
+    def dragEnterEvent(self, event: Any) -> None:  # noqa: N802 - Qt override
+        if event.mimeData().hasUrls():
+            event.acceptProposedAction()
+
+    def dropEvent(self, event: Any) -> None:  # noqa: N802 - Qt override
+        paths = [u.toLocalFile() for u in event.mimeData().urls() if u.isLocalFile()]
+        if paths:
+            event.acceptProposedAction()
+            QTimer.singleShot(0, lambda: self.open_paths(paths))
+
+    # -- camera and images ----------------------------------------------------------------------------
+    def save_camera(self, path: str | os.PathLike[str]) -> bool:
+        cam = self.view.camera()
+        if cam is None:
+            return False
+        cam.save(path)
+        return True
+
+    def save_camera_dialog(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(self, "Save camera", "camera.json", "Camera (*.json)")
+        if path and self.save_camera(path):
+            self.statusBar().showMessage(f"camera saved to {path} (for citylod render --camera)", 6000)
+
+    def grab_window(self) -> QImage:
+        """The whole window as an image, with the 3D view's framebuffer composited in (a plain grab of a
+        native GL child is black)."""
+        frame = self.view.framebuffer()
+        image = self.grab().toImage().convertToFormat(QImage.Format.Format_RGB32)
+        painter = QPainter(image)
+        # Logical rectangle: QPainter scales the device-pixel framebuffer on high-DPI screens.
+        painter.drawImage(QRect(self.view.origin_in(self), self.view.vtk.size()), frame)
+        painter.end()
+        return image
+
+    def save_screenshot(self, path: str | os.PathLike[str]) -> Path:
+        p = Path(path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_name(f".{p.name}.tmp{os.getpid()}{p.suffix or '.png'}")
+        if not self.grab_window().save(str(tmp)):
+            raise CitylodError("cannot write the screenshot", p)
+        os.replace(tmp, p)
+        return p
+
+    def screenshot_dialog(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(self, "Save window screenshot", "citylod.png", "PNG (*.png)")
+        if path:
+            self.save_screenshot(path)
+
+    def export_image(self, path: str | os.PathLike[str], width: int, height: int) -> ProcessTask | None:
+        """Render the current view at width × height off screen (``citylod render`` in a subprocess)."""
+        cam = self.view.camera()
+        tilesets = [str(e.path) for e in self.document.entries if e.kind == "tileset"]
+        if cam is None or not tilesets:
+            self._error("nothing to export: open a tileset first")
+            return None
+        cam_file = Path(tempfile.mkstemp(prefix="citylod_camera_", suffix=".json")[1])
+        cam.save(cam_file)
+        mode = "level" if self.document.lod.color_by_level else self.document.entries[0].color_by
+        import sys
+
+        argv = [sys.executable, "-m", "citylod.cli", "render", *tilesets, "-o", str(path), "--camera",
+                str(cam_file), "--size", f"{width}x{height}", "--tau", f"{self.document.lod.tau_px:g}",
+                "--color-by", mode]
+        task = ProcessTask(argv, path, f"Rendering {width}×{height}…", self)
+
+        def done(ok: bool, out: str, msg: str) -> None:
+            cam_file.unlink(missing_ok=True)
+            if ok:
+                self.statusBar().showMessage(f"image written to {out}", 8000)
+            elif msg != "cancelled":
+                self._error(f"export failed: {msg}")
+
+        task.finished.connect(done)
+        self.tasks.append(task)
+        task.start()
+        return task
+
+    def export_dialog(self) -> None:
+        dlg = QDialog(self)
+        dlg.setWindowTitle("Export image")
+        form = QFormLayout(dlg)
+        w, h = QSpinBox(), QSpinBox()
+        for s, v in ((w, self.view.vtk.width() * 2), (h, self.view.vtk.height() * 2)):
+            s.setRange(16, 16384)
+            s.setValue(v)
+        form.addRow("width", w)
+        form.addRow("height", h)
+        box = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel)
+        box.accepted.connect(dlg.accept)
+        box.rejected.connect(dlg.reject)
+        form.addRow(box)
+        if dlg.exec() != QDialog.DialogCode.Accepted:
+            return
+        path, _ = QFileDialog.getSaveFileName(self, "Export image", "citylod.png", "PNG (*.png)")
+        if path:
+            self.export_image(path, w.value(), h.value())
+
+    # -- closing --------------------------------------------------------------------------------------
+    def closeEvent(self, event: Any) -> None:  # noqa: N802 - Qt override
+        self.settings.setValue("window/geometry", self.saveGeometry())
+        self.settings.setValue("window/state", self.saveState())
+        self.settings.sync()
+        for t in list(self.tasks):
+            t.cancel()
+        self._status_timer.stop()
+        self.view.shutdown()
+        self.document.close()
+        super().closeEvent(event)
+
+    def copy_text(self, text: str) -> None:
+        QGuiApplication.clipboard().setText(text)

@@ -1,0 +1,543 @@
+"""Semantic shading: highlight, hide, hover and thematic colours on any drawn geometry, by volume.
+
+Design decision 7 (Wahl & Klein 2007, "Towards semantic interaction in high-detail realtime terrain and city
+visualization"): city objects are linked to what is drawn (DSM tile meshes, point tiles, any mesh) only by
+volume, never by labels. For the scene this module builds, once, Wahl & Klein's top-down *contour maps*
+from the store's proxies: a footprint-ID map over the objects' extent plus, per texel, the proxy's lower
+and upper contour (for LoD2 objects the upper contour follows the roof faces + inflate, so a glass roof or
+a tree crown above a flat roof is *not* inside). Together with a per-object state table they live in two
+GPU textures:
+
+* ``citylodMap`` (W, H) RGBA32F: proxy index (-1 none), zmin, zmax relative to the scene origin;
+* ``citylodState`` RGBA8, one texel per object (index = fid - 1): highlight rgb, a = 0 nothing,
+  1..254 tint weight, 255 hidden.
+
+A vertex-shader replacement passes each vertex's position, mapped by one per-actor matrix (the actor's
+model matrix composed with the map's placement) into map texel units, to the fragment stage; the fragment
+shader fetches the texel under the fragment, tests z against its interval, and tints or ``discard``\\ s. A
+frame therefore costs two texel fetches per drawn fragment: the cost depends on the pixels drawn, not on
+the size of the dataset or the number of objects highlighted or hidden. A state change re-uploads the
+state table (4 bytes per object); tiles streaming in get the shader through
+:meth:`~citylod.render.tileset_actor.Scene.add_actor_hook`.
+
+Picking reads the depth buffer under the cursor (so a hidden object's discarded fragments are looked
+through), turns it into a point in the data's CRS and asks the proxies which object contains it.
+
+This module creates and changes VTK objects and must run on the thread that owns the GL context. No Qt.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import shapely
+
+from citylod.core.errors import CitylodError
+from citylod.render import _vtk
+from citylod.semantics.state import FeatureState, StateChange, parse_color
+from citylod.semantics.store import CityStore
+
+__all__ = ["AttributeLegend", "ContourMap", "PickResult", "SemanticOverlay", "build_contour_map",
+           "semantic_hook"]
+
+F64 = npt.NDArray[np.float64]
+
+#: Colour and tint weight of the selection and of the hovered object.
+SELECTION_RGBA = (0.15, 0.85, 1.0, 0.7)
+HOVER_RGBA = (1.0, 1.0, 1.0, 0.45)
+_HIDDEN = 255
+_LUT_WIDTH = 4096  # objects per row of the state table (GL textures are at least 4096 wide)
+
+_VS_DEC = """//VTK::PositionVC::Dec
+uniform mat4 citylodToMap;
+out vec3 citylodG;
+"""
+_VS_IMPL = """//VTK::PositionVC::Impl
+citylodG = (citylodToMap * vertexMC).xyz;
+"""
+_FS_DEC = """//VTK::PositionVC::Dec
+in vec3 citylodG;
+uniform sampler2D citylodMap;
+uniform sampler2D citylodState;
+uniform int citylodOn;
+uniform int citylodLutWidth;
+"""
+# After the texture is applied (TCoord::Impl follows Light::Impl in VTK's fragment template), so the tint
+# goes over orthophotos and point colours alike.
+_FS_IMPL = """//VTK::TCoord::Impl
+if (citylodOn != 0) {
+  ivec2 clIJ = ivec2(floor(citylodG.xy));
+  ivec2 clSize = textureSize(citylodMap, 0);
+  if (clIJ.x >= 0 && clIJ.y >= 0 && clIJ.x < clSize.x && clIJ.y < clSize.y) {
+    vec4 clM = texelFetch(citylodMap, clIJ, 0);
+    if (clM.r >= 0.0 && citylodG.z >= clM.g && citylodG.z <= clM.b) {
+      int clId = int(clM.r + 0.5);
+      vec4 clS = texelFetch(citylodState, ivec2(clId % citylodLutWidth, clId / citylodLutWidth), 0);
+      float clA = clS.a * 255.0;
+      if (clA > 254.5) discard;
+      if (clA > 0.5) {
+        float clL = dot(gl_FragData[0].rgb, vec3(0.299, 0.587, 0.114));
+        gl_FragData[0].rgb = mix(gl_FragData[0].rgb, clS.rgb * (0.55 + 0.45 * clL), clA / 254.0);
+      }
+    }
+  }
+}
+"""
+
+
+# ------------------------------------------------------------------------------------------ contour map
+@dataclass(frozen=True)
+class ContourMap:
+    """Wahl & Klein's contour maps of a scene, as uploaded.
+
+    Attributes
+    ----------
+    texels
+        (H, W, 4) float32: proxy index (-1 none), lower and upper contour (z minus ``z_ref``), 0. Row 0 is
+        the northern edge.
+    x0, y1
+        West and north edge of the grid in the data's CRS.
+    resolution
+        Texel size in metres.
+    z_ref
+        Height subtracted from the contours (the scene origin's z).
+    """
+
+    texels: npt.NDArray[np.float32]
+    x0: float
+    y1: float
+    resolution: float
+    z_ref: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self.texels.shape[0]), int(self.texels.shape[1])
+
+    def world_to_texel(self, origin: npt.ArrayLike) -> F64:
+        """(4, 4) matrix from scene-relative coordinates (data CRS minus ``origin``) to (column, row, z - z_ref)
+        in texel units, the frame of the shader's lookup."""
+        o = np.asarray(origin, np.float64)
+        r = self.resolution
+        g = np.zeros((4, 4))
+        g[0, 0], g[0, 3] = 1.0 / r, (o[0] - self.x0) / r
+        g[1, 1], g[1, 3] = -1.0 / r, (self.y1 - o[1]) / r
+        g[2, 2], g[2, 3] = 1.0, o[2] - self.z_ref
+        g[3, 3] = 1.0
+        return g
+
+
+def build_contour_map(store: CityStore, *, resolution: float = 0.5, max_texels: int = 2048 * 2048,
+                      bounds: Sequence[float] | None = None, z_ref: float = 0.0) -> ContourMap:
+    """Rasterise the store's proxies into the footprint-ID map with per-texel lower and upper contours.
+
+    Parameters
+    ----------
+    store
+        The city store.
+    resolution
+        Wanted texel size in metres; coarsened when the extent would need more than ``max_texels``.
+    bounds
+        (xmin, ymin, xmax, ymax) to cover; default: every proxy (inflated footprints).
+    z_ref
+        Subtracted from the heights (keep float32 contours near zero, decision 6).
+
+    Returns
+    -------
+    ContourMap
+    """
+    proxies = store.proxies
+    has = np.isfinite(proxies.zmin)
+    if not has.any():
+        raise CitylodError("the city store has no object with a proxy", store.path)
+    x0, y0, x1, y1 = shapely.total_bounds(proxies.shapes[has])
+    if bounds is not None:
+        x0, y0 = max(x0, float(bounds[0])), max(y0, float(bounds[1]))
+        x1, y1 = min(x1, float(bounds[2])), min(y1, float(bounds[3]))
+        if x1 <= x0 or y1 <= y0:
+            raise CitylodError("the city store does not overlap the scene", store.path)
+    pad = float(resolution)
+    x0, y0, x1, y1 = x0 - pad, y0 - pad, x1 + pad, y1 + pad
+    res = max(float(resolution), math.sqrt((x1 - x0) * (y1 - y0) / max_texels))
+    fmap = proxies.rasterize_footprints((x0, y0, x1, y1), res)
+    ids, zmin, zmax = fmap.id_map, fmap.zmin.astype(np.float64), fmap.zmax.astype(np.float64)
+    h, w = ids.shape
+    top = zmax.copy()
+    if len(proxies.roof_owner):
+        # LoD2: the upper contour follows the roof + inflate (as ProxySet.contains does). Sampled at the
+        # texel's centre and corners and the highest kept, so a sloped roof is never cut inside a texel.
+        rows, cols = np.nonzero(ids >= 0)
+        owner = ids[rows, cols].astype(np.int64)
+        roof = np.full(len(rows), -np.inf)
+        for du, dv in ((0.5, 0.5), (0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)):
+            xy = np.column_stack([x0 + (cols + du) * res, y1 - (rows + dv) * res])
+            t = proxies.roof_top(xy, owner)
+            roof = np.fmax(roof, np.where(np.isnan(t), -np.inf, t))
+        ok = np.isfinite(roof)
+        sel = (rows[ok], cols[ok])
+        top[sel] = np.minimum(zmax[sel], roof[ok] + proxies.inflate)
+    texels = np.zeros((h, w, 4), np.float32)
+    texels[..., 0] = ids
+    inside = ids >= 0
+    texels[..., 1] = np.where(inside, zmin - z_ref, 0.0)
+    texels[..., 2] = np.where(inside, top - z_ref, -1.0)
+    return ContourMap(texels, float(x0), float(fmap.bounds[3]), float(res), float(z_ref))
+
+
+# ------------------------------------------------------------------------------------------ results
+@dataclass(frozen=True)
+class PickResult:
+    """What lies under a pixel: ``point_xyz`` (3,) in the data's CRS (None over the background), the
+    ``object_id`` whose proxy contains it (None when none), and that object's ``attributes``."""
+
+    point_xyz: F64 | None
+    object_id: str | None
+    attributes: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class AttributeLegend:
+    """How :meth:`SemanticOverlay.color_by_attribute` mapped values to colours.
+
+    ``kind`` is "numeric" (``vmin``..``vmax`` through ``cmap``) or "category" (``categories``: value to
+    RGB in 0..1); ``missing`` counts objects without a value (left uncoloured).
+    """
+
+    column: str
+    kind: str
+    cmap: str
+    vmin: float = float("nan")
+    vmax: float = float("nan")
+    categories: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    missing: int = 0
+
+
+# ------------------------------------------------------------------------------------------ overlay
+class SemanticOverlay:
+    """Keeps every tile actor of a :class:`~citylod.render.tileset_actor.Scene` shaded by a
+    :class:`~citylod.semantics.state.FeatureState` through the proxies of a :class:`CityStore`.
+
+    Parameters
+    ----------
+    scene
+        The scene; its present and future tile actors get the shader.
+    store
+        The city store whose proxies define the objects' volumes.
+    state
+        The feature state (a new one when omitted); the overlay follows its changes.
+    resolution
+        Texel size of the contour map in metres (0.25 to 0.5 is enough for inflated proxies).
+    max_texels
+        Cap on the contour map's size; a larger extent gets coarser texels.
+
+    Examples
+    --------
+    >>> overlay = SemanticOverlay(scene, store)                    # doctest: +SKIP
+    >>> overlay.state.highlight(store.query("measured_height > 20"))  # doctest: +SKIP
+    >>> overlay.pick(scene.renderer, 400, 300).object_id            # doctest: +SKIP
+    """
+
+    def __init__(self, scene: Any, store: CityStore, state: FeatureState | None = None, *,
+                 resolution: float = 0.5, max_texels: int = 2048 * 2048) -> None:
+        if scene.origin is None:
+            raise CitylodError("add a tileset to the scene before the semantic overlay")
+        self.scene = scene
+        self.store = store
+        self.state = state if state is not None else FeatureState()
+        self.enabled = True
+        origin = np.asarray(scene.origin, np.float64)
+        self._origin = origin
+        bounds = None
+        if scene.layers:
+            lo, hi = scene.bounds
+            bounds = (lo[0], lo[1], hi[0], hi[1])
+        self.map = build_contour_map(store, resolution=resolution, max_texels=max_texels, bounds=bounds,
+                                     z_ref=float(origin[2]))
+        self._to_map = self.map.world_to_texel(origin)
+        n = len(store.ids)
+        self._lut_h = max(1, -(-n // _LUT_WIDTH))
+        self._lut_w = _LUT_WIDTH if n > _LUT_WIDTH else max(n, 1)
+        self._theme = np.zeros((n, 4), np.float32)  # thematic colour, weight in alpha
+        self._lut = np.zeros((self._lut_h * self._lut_w, 4), np.uint8)
+        self._lut_version = 0
+        self._any_state = False
+        self._rebuild_lut()
+        self._map_tex: Any = None
+        self._lut_tex: Any = None
+        self._uploaded_lut = -1
+        self._window: Any = None
+        self._actors: list[tuple[Any, int, Any]] = []  # (actor, observer tag, shader property)
+        self._unsubscribe = self.state.on_change(self._on_state)
+        self._remove_hook = scene.add_actor_hook(self._attach)
+
+    # -- public -----------------------------------------------------------------------------------
+    def set_hover(self, object_id: str | None) -> None:
+        """Mark the object under the cursor (None for none); shown as a light tint."""
+        self.state.set_hover(object_id)
+
+    def set_enabled(self, on: bool) -> None:
+        """Switch the semantic shading off (the shader then returns at its first test) or on."""
+        self.enabled = bool(on)
+
+    def color_by_attribute(self, column: str | None, cmap: str = "viridis", *, weight: float = 0.85,
+                           vmin: float | None = None, vmax: float | None = None) -> AttributeLegend | None:
+        """Tint each object's proxy region by an attribute (Buchholz et al.'s thematic styling).
+
+        Parameters
+        ----------
+        column
+            A column of ``city_objects`` (``measured_height``, ``function``, ...) or a source attribute;
+            None removes the thematic colours.
+        cmap
+            A matplotlib colour map: continuous for numbers, its first colours for categories (a
+            qualitative map such as ``tab10`` is used when ``cmap`` is the default and the values are not
+            numbers).
+        weight
+            Blend weight of the colour over the drawn geometry's own.
+        vmin, vmax
+            Range of the numeric map (default: the values' range).
+        """
+        n = len(self.store.ids)
+        self._theme = np.zeros((n, 4), np.float32)
+        if column is None:
+            self._rebuild_lut()
+            return None
+        from matplotlib import colormaps
+
+        values = []
+        for oid in self.store.ids:
+            v = self.store.attributes(oid).get(column)
+            values.append(v)
+        present = np.array([v is not None and v != "" for v in values])
+        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                      for v, p in zip(values, present, strict=True) if p)
+        if numeric and present.any():
+            x = np.array([float(v) if p else np.nan for v, p in zip(values, present, strict=True)])
+            ok = np.isfinite(x)
+            lo = float(np.nanmin(x[ok])) if vmin is None else float(vmin)
+            hi = float(np.nanmax(x[ok])) if vmax is None else float(vmax)
+            t = np.clip((x - lo) / (hi - lo if hi > lo else 1.0), 0.0, 1.0)
+            rgb = colormaps[cmap](np.where(ok, t, 0.0))[:, :3]
+            self._theme[ok, :3] = rgb[ok]
+            self._theme[ok, 3] = weight
+            legend = AttributeLegend(column, "numeric", cmap, lo, hi, missing=int((~ok).sum()))
+        else:
+            cats = sorted({str(v) for v, p in zip(values, present, strict=True) if p})
+            cm = colormaps["tab10" if cmap == "viridis" else cmap]
+            k = max(len(cats), 1)
+            table = {c: tuple(float(u) for u in (cm(i % cm.N) if cm.N < 256 else cm(i / max(k - 1, 1)))[:3])
+                     for i, c in enumerate(cats)}
+            for i, (v, p) in enumerate(zip(values, present, strict=True)):
+                if p:
+                    self._theme[i, :3] = table[str(v)]
+                    self._theme[i, 3] = weight
+            legend = AttributeLegend(column, "category", cm.name, categories=table,  # type: ignore[arg-type]
+                                     missing=int((~present).sum()))
+        self._rebuild_lut()
+        return legend
+
+    def pick(self, renderer: Any, x_px: int, y_px: int) -> PickResult:
+        """The point and object under a pixel of the last rendered frame.
+
+        Parameters
+        ----------
+        renderer
+            The renderer the scene draws into (its window must have rendered).
+        x_px, y_px
+            Display coordinates, origin at the bottom left (VTK's, as ``GetEventPosition`` gives them).
+
+        Returns
+        -------
+        PickResult
+            The depth-buffer point in the data's CRS (so hidden objects, whose fragments were discarded, are
+            looked through), the object whose proxy contains it and its attributes.
+        """
+        window = renderer.GetRenderWindow()
+        z = float(window.GetZbufferDataAtPoint(int(x_px), int(y_px)))
+        if not z < 1.0:
+            return PickResult(None, None, {})
+        renderer.SetDisplayPoint(float(x_px), float(y_px), z)
+        renderer.DisplayToWorld()
+        w = np.asarray(renderer.GetWorldPoint(), np.float64)
+        xyz = w[:3] / w[3] + self._origin
+        idx = int(self.store.proxies.contains(xyz[None, :])[0])
+        if idx < 0:
+            return PickResult(xyz, None, {})
+        oid = self.store.ids[idx]
+        if not self.state.is_visible(oid):
+            return PickResult(xyz, None, {})
+        return PickResult(xyz, oid, self.store.attributes(oid))
+
+    def close(self) -> None:
+        """Detach from the scene and the state, and free the GPU textures."""
+        self._unsubscribe()
+        self._remove_hook()
+        for actor, tag, sp in self._actors:
+            actor.GetMapper().RemoveObserver(tag)
+            sp.ClearAllShaderReplacements()
+        self._actors.clear()
+        for tex in (self._map_tex, self._lut_tex):
+            if tex is not None:
+                tex.Deactivate()
+                if self._window is not None:
+                    tex.ReleaseGraphicsResources(self._window)
+        self._map_tex = self._lut_tex = None
+
+    # -- state table ------------------------------------------------------------------------------
+    def _on_state(self, change: StateChange) -> None:
+        if change.kind in ("hover", "highlight", "hide", "select") and len(change.ids) < 64:
+            for oid in change.ids:
+                try:
+                    i = self.store.proxies.index_of(oid)
+                except KeyError:
+                    continue
+                self._lut[i] = self._row(oid, self._theme[i])
+            self._any_state = self._has_state()
+            self._lut_version += 1
+        else:
+            self._rebuild_lut()
+
+    def _has_state(self) -> bool:
+        s = self.state
+        return bool(s.colors or s.hidden or s.selection or s.hover is not None or s.isolated is not None
+                    or self._theme[:, 3].any())
+
+    def _row(self, oid: str, theme: npt.NDArray[np.float32]) -> npt.NDArray[np.uint8]:
+        s = self.state
+        if not s.is_visible(oid):
+            return np.array([0, 0, 0, _HIDDEN], np.uint8)
+        rgb, w = theme[:3].astype(np.float64), float(theme[3])
+        hl = s.colors.get(oid)
+        if hl is not None:
+            rgb, w = np.asarray(hl[:3]), float(hl[3])
+        if oid in s.selection:
+            rgb, w = np.asarray(SELECTION_RGBA[:3]), SELECTION_RGBA[3]
+        if oid == s.hover:
+            hv = np.asarray(HOVER_RGBA[:3])
+            rgb = hv if w == 0.0 else 0.5 * (rgb + hv)
+            w = max(w, HOVER_RGBA[3])
+        return np.array([*np.round(np.clip(rgb, 0, 1) * 255), round(min(max(w, 0.0), 1.0) * 254)], np.uint8)
+
+    def _rebuild_lut(self) -> None:
+        n = len(self.store.ids)
+        rgba, visible, selected = self.state.as_arrays(self.store.ids)
+        rgb = self._theme[:, :3].astype(np.float64)
+        w = self._theme[:, 3].astype(np.float64)
+        has = rgba[:, 3] > 0
+        rgb[has], w[has] = rgba[has, :3], rgba[has, 3]
+        rgb[selected], w[selected] = SELECTION_RGBA[:3], SELECTION_RGBA[3]
+        lut = np.zeros((self._lut_h * self._lut_w, 4), np.uint8)
+        lut[:n, :3] = np.round(np.clip(rgb, 0, 1) * 255)
+        lut[:n, 3] = np.round(np.clip(w, 0, 1) * 254)
+        lut[:n][~visible] = (0, 0, 0, _HIDDEN)
+        self._lut = lut
+        hover = self.state.hover
+        if hover is not None and self.state.is_visible(hover):
+            try:
+                i = self.store.proxies.index_of(hover)
+            except KeyError:
+                i = -1
+            if i >= 0:
+                self._lut[i] = self._row(hover, self._theme[i])
+        self._any_state = self._has_state()
+        self._lut_version += 1
+
+    # -- GL ---------------------------------------------------------------------------------------
+    def _attach(self, actor: Any) -> None:
+        sp = actor.GetShaderProperty()
+        sp.AddVertexShaderReplacement("//VTK::PositionVC::Dec", True, _VS_DEC, False)
+        sp.AddVertexShaderReplacement("//VTK::PositionVC::Impl", True, _VS_IMPL, False)
+        sp.AddFragmentShaderReplacement("//VTK::PositionVC::Dec", True, _FS_DEC, False)
+        sp.AddFragmentShaderReplacement("//VTK::TCoord::Impl", True, _FS_IMPL, False)
+        tag = actor.GetMapper().AddObserver(_vtk.vtkCommand.UpdateShaderEvent, self._callback(actor))
+        self._actors.append((actor, tag, sp))
+
+    def _callback(self, actor: Any) -> Callable[..., None]:
+        cache: dict[str, Any] = {"mtime": -1, "matrix": _vtk.vtkMatrix4x4()}
+
+        @_vtk.calldata_type(_vtk.VTK_OBJECT)
+        def update(_mapper: Any, _event: str, program: Any) -> None:
+            if program is None:
+                return
+            self._bind(actor)
+            on = self.enabled and self._any_state
+            program.SetUniformi("citylodOn", 1 if on else 0)
+            program.SetUniformi("citylodMap", self._map_tex.GetTextureUnit())
+            program.SetUniformi("citylodState", self._lut_tex.GetTextureUnit())
+            program.SetUniformi("citylodLutWidth", self._lut_w)
+            m = actor.GetMatrix()
+            if m.GetMTime() != cache["mtime"]:
+                model = np.array([m.GetElement(i, j) for i in range(4) for j in range(4)]).reshape(4, 4)
+                # GLSL reads the 16 values column by column: hand it the transpose.
+                cache["matrix"].DeepCopy((self._to_map @ model).T.ravel().tolist())
+                cache["mtime"] = m.GetMTime()
+            program.SetUniformMatrix("citylodToMap", cache["matrix"])
+
+        return update
+
+    def _bind(self, actor: Any) -> None:
+        """Create the textures on first use (the GL context is current during a render) and bind them."""
+        if self._map_tex is None:
+            self._window = self.scene.renderer.GetRenderWindow()
+            tex = _vtk.vtkTextureObject()
+            tex.SetContext(self._window)
+            h, w = self.map.shape
+            if not tex.Create2DFromRaw(w, h, 4, _vtk.VTK_FLOAT, np.ascontiguousarray(self.map.texels)):
+                raise CitylodError("cannot create the semantic contour-map texture")
+            self._nearest(tex)
+            self._map_tex = tex
+            lut = _vtk.vtkTextureObject()
+            lut.SetContext(self._window)
+            self._lut_tex = lut
+        if self._uploaded_lut != self._lut_version:
+            if not self._lut_tex.Create2DFromRaw(self._lut_w, self._lut_h, 4, _vtk.VTK_UNSIGNED_CHAR,
+                                                 np.ascontiguousarray(self._lut)):
+                raise CitylodError("cannot create the semantic state texture")
+            self._nearest(self._lut_tex)
+            self._uploaded_lut = self._lut_version
+        self._map_tex.Activate()
+        self._lut_tex.Activate()
+
+    @staticmethod
+    def _nearest(tex: Any) -> None:
+        tex.SetMinificationFilter(_vtk.vtkTextureObject.Nearest)
+        tex.SetMagnificationFilter(_vtk.vtkTextureObject.Nearest)
+        tex.SetWrapS(_vtk.vtkTextureObject.ClampToEdge)
+        tex.SetWrapT(_vtk.vtkTextureObject.ClampToEdge)
+
+
+# ------------------------------------------------------------------------------------------ command line
+def semantic_hook(scene: Any, city: str | os.PathLike[str] | None = None, highlight: str | None = None,
+                  hide: str | None = None, *, color: str = "#ffcc00") -> SemanticOverlay:
+    """``citylod render --city STORE.gpkg --highlight SQL --hide SQL``: attach an overlay to ``scene``.
+
+    Parameters
+    ----------
+    scene
+        The off-screen renderer's scene (tilesets added).
+    city
+        The city store (a ``.gpkg`` written by ``citylod build city``).
+    highlight, hide
+        WHERE clauses over ``city_objects`` (see :meth:`CityStore.query`).
+    color
+        Highlight colour.
+
+    Returns
+    -------
+    SemanticOverlay
+        Kept alive by the scene's actor hooks for as long as the scene lives.
+    """
+    if city is None:
+        raise CitylodError("--highlight and --hide need a city store: pass --city STORE.gpkg")
+    store = CityStore.open(city)
+    overlay = SemanticOverlay(scene, store)
+    if highlight:
+        overlay.state.highlight(store.query(highlight), parse_color(color))
+    if hide:
+        overlay.state.hide(store.query(hide))
+    return overlay
