@@ -261,3 +261,23 @@ def test_tileset_is_standard_3dtiles(tmp_path) -> None:
         stack.extend(t.get("children", []))
     assert doc["extras"]["citylod"]["kind"] == "dsm"
     assert pyproj.CRS.from_wkt(doc["extras"]["citylod"]["crs"]).to_epsg() == 32632
+
+
+def test_dask_localcluster_builds_the_same_tileset(tmp_path) -> None:
+    """The --scheduler path for real: a Dask LocalCluster on loopback gives the same tiles as inline."""
+    distributed = pytest.importorskip("distributed")
+    z = city_like(140, 140, seed=9)
+    write_raster(tmp_path / "dsm.tif", z)
+    build_dsm(tmp_path / "dsm.tif", tmp_path / "inline", tile_size=65, workers=0, progress=False)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://",
+                                  host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        build_dsm(tmp_path / "dsm.tif", tmp_path / "dask", tile_size=65, scheduler=cluster.scheduler_address,
+                  progress=False)
+    a = open_tileset(tmp_path / "inline")
+    b = open_tileset(tmp_path / "dask")
+    ta, tb = list(a.walk()), list(b.walk())
+    assert [t.geometric_error for t in ta] == [t.geometric_error for t in tb]
+    for x, y in zip(ta, tb, strict=True):
+        if x.content_uri:
+            assert (tmp_path / "inline" / x.content_uri).read_bytes() == (tmp_path / "dask" / y.content_uri).read_bytes()

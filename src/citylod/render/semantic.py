@@ -458,29 +458,39 @@ class SemanticOverlay:
         self._actors.append((actor, tag, sp))
 
     def _callback(self, actor: Any) -> Callable[..., None]:
-        cache: dict[str, Any] = {"mtime": -1, "matrix": _vtk.vtkMatrix4x4()}
+        cache: dict[str, Any] = {"key": None, "matrix": _vtk.vtkMatrix4x4()}
 
         @_vtk.calldata_type(_vtk.VTK_OBJECT)
-        def update(_mapper: Any, _event: str, program: Any) -> None:
+        def update(mapper: Any, _event: str, program: Any) -> None:
             if program is None:
                 return
-            self._bind(actor)
+            self._bind()
             on = self.enabled and self._any_state
             program.SetUniformi("citylodOn", 1 if on else 0)
             program.SetUniformi("citylodMap", self._map_tex.GetTextureUnit())
             program.SetUniformi("citylodState", self._lut_tex.GetTextureUnit())
             program.SetUniformi("citylodLutWidth", self._lut_w)
             m = actor.GetMatrix()
-            if m.GetMTime() != cache["mtime"]:
+            # VTK may upload positions shifted and scaled (vtkOpenGLVertexBufferObject's coordinate
+            # shift/scale): vertexMC = (p - shift) * scale, so undo it before the model matrix.
+            vbo = mapper.GetVBOs().GetVBO("vertexMC")
+            shift, scale = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+            if vbo is not None and vbo.GetCoordShiftAndScaleEnabled():
+                shift, scale = tuple(vbo.GetShift()), tuple(vbo.GetScale())
+            key = (m.GetMTime(), shift, scale)
+            if key != cache["key"]:
                 model = np.array([m.GetElement(i, j) for i in range(4) for j in range(4)]).reshape(4, 4)
+                unshift = np.eye(4)
+                unshift[:3, :3] = np.diag(1.0 / np.asarray(scale, np.float64))
+                unshift[:3, 3] = shift
                 # GLSL reads the 16 values column by column: hand it the transpose.
-                cache["matrix"].DeepCopy((self._to_map @ model).T.ravel().tolist())
-                cache["mtime"] = m.GetMTime()
+                cache["matrix"].DeepCopy((self._to_map @ model @ unshift).T.ravel().tolist())
+                cache["key"] = key
             program.SetUniformMatrix("citylodToMap", cache["matrix"])
 
         return update
 
-    def _bind(self, actor: Any) -> None:
+    def _bind(self) -> None:
         """Create the textures on first use (the GL context is current during a render) and bind them."""
         if self._map_tex is None:
             self._window = self.scene.renderer.GetRenderWindow()
