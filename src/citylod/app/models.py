@@ -23,6 +23,7 @@ import math
 import os
 import re
 import sys
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -456,6 +457,10 @@ class Document:
             entry = LayerEntry(layer.name if p.is_dir() else p.parent.name, "tileset", p, layer)
             if p.is_dir():
                 entry.name = p.name
+            self.entries.append(entry)
+            self._attach_semantics()
+            self._emit("layers")
+            return entry
         elif kind == "store":
             if self.store is not None:
                 raise CitylodError("a city store is already open; close the window to open another", p)
@@ -476,17 +481,19 @@ class Document:
         return entry
 
     def _attach_semantics(self) -> None:
-        """Semantic shading of the drawn geometry inside proxies, when the renderer side exists."""
+        """Semantic shading of the drawn geometry inside proxies (``citylod.render.semantic``), once a store
+        and a tileset are both open. Without it the view falls back to drawing proxies."""
+        if self.semantic is not None or self.store is None or not self.scene.layers:
+            return
         try:
-            from citylod.render import semantic  # type: ignore[attr-defined]
+            from citylod.render.semantic import SemanticOverlay
         except ImportError:
             return
-        attach = getattr(semantic, "attach", None)
-        if callable(attach):
-            try:
-                self.semantic = attach(self.scene, self.store, self.state)
-            except TypeError:
-                self.semantic = None
+        try:
+            self.semantic = SemanticOverlay(self.scene, self.store, self.state)
+        except Exception as exc:  # a renderer-side failure must not stop the viewer: fall back
+            warnings.warn(f"semantic shading unavailable: {type(exc).__name__}: {exc}", stacklevel=2)
+            self.semantic = None
 
     @property
     def geographic(self) -> bool:
@@ -520,6 +527,8 @@ class Document:
         e.visible = bool(on)
         if e.layer is not None:
             e.layer.visible = e.visible
+        elif self.semantic is not None:
+            self.semantic.set_enabled(e.visible)
         self._emit("style")
 
     def set_opacity(self, index: int, opacity: float) -> None:
@@ -679,6 +688,9 @@ class Document:
         self.state.clear()
 
     def close(self) -> None:
+        if self.semantic is not None:
+            self.semantic.close()
+            self.semantic = None
         self.scene.close()
         if self.store is not None:
             self.store.close()

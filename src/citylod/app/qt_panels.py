@@ -83,8 +83,11 @@ class LayerPanel(QWidget):
     def rebuild(self) -> None:
         while self._layout.count() > 2:
             item = self._layout.takeAt(1)
-            if item.widget() is not None:
-                item.widget().deleteLater()
+            w = item.widget()
+            if w is not None:
+                w.hide()
+                w.setParent(None)
+                w.deleteLater()
         self.rows = []
         self._empty.setVisible(not self.document.entries)
         for i, e in enumerate(self.document.entries):

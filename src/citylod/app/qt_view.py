@@ -270,6 +270,14 @@ class SceneView(QWidget):
 
     def click_display(self, x: int, y: int) -> None:
         """A click at VTK display position (x, y): a measurement point or a pick."""
+        sem = self.document.semantic
+        if self.measure_kind is None and sem is not None:
+            # The semantic overlay reads the depth buffer, so hidden (discarded) objects are looked through.
+            res = sem.pick(self.renderer, x, y)
+            oid = res.object_id
+            self.document.select([] if oid is None else [oid])
+            self.picked.emit(oid)
+            return
         point = self.pick_point(x, y, display=True)
         if self.measure_kind is not None:
             if point is not None:
@@ -387,7 +395,7 @@ class SceneView(QWidget):
             prop = actor.GetProperty()
             prop.SetColor(*rgba[:3])
             prop.SetOpacity(rgba[3])
-            prop.SetAmbient(0.5)
+            prop.LightingOff()
             actor.SetPickable(False)
             self.renderer.AddActor(actor)
             self._overlay_actors.append(actor)

@@ -66,6 +66,10 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
                      f"(`citylod bench-suite {out}`{' --quick' if quick else ''}).", ""]
     results: dict[str, Any] = {}
 
+    def flush() -> None:  # results so far, so a long run can be read while it goes on
+        (out / "RESULTS.md").write_text("\n".join(md) + "\n")
+        (out / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
+
     _section("sample city")
     size = 257 if quick else 513
     sample = make_sample(out / "sample", size=size, seed=7)
@@ -78,17 +82,18 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
     results["dsm"] = dsm_results
     md.append("## DSM tile tree\n")
     md.append(dsm_markdown(dsm_results))
+    flush()
 
     _section("speed against error: sample city")
     tiles = out / "sample_tiles"
     build_dsm(sample.files["dsm"], tiles, ortho=sample.files["ortho"], progress=progress)
     cams = load_cameras(sample.files["path"])
-    if quick:
-        cams = cams[::4]
+    cams = cams[::4] if quick else cams[::2]
     taus = [0.5, 1, 2, 4, 8]
     rep = run_bench([tiles], cams, taus, (960, 540), out / "render_sample", progress)
     md.append(_render_md("Sample city DSM tiles, camera path of the sample", rep))
     results["render_sample"] = _render_json(rep)
+    flush()
 
     if not quick:
         _section("speed against error: 4097×4097 raster")
@@ -103,10 +108,12 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
                          repeats=1)
         md.append(_render_md("4097×4097 raster, default flight (approach, low pass, orbit)", rep4))
         results["render_4097"] = _render_json(rep4)
+        flush()
 
     if (SHARED / "delft").exists():
         _section("points: Delft AHN3")
         md.append(_points_section(out, progress, results, quick))
+        flush()
     else:
         md.append(f"Points: `{SHARED}` not found; the Delft section was skipped.\n")
 
@@ -122,8 +129,7 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
         md.append("## Semantics\n")
         md.append(sem if isinstance(sem, str) else getattr(sem, "markdown", str(sem)))
 
-    (out / "RESULTS.md").write_text("\n".join(md) + "\n")
-    (out / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
+    flush()
     print(f"\nresults: {out / 'RESULTS.md'}")
     return 0
 
