@@ -16,8 +16,8 @@ import pytest
 pytest.importorskip("PySide6")
 pytest.importorskip("pytestqt")
 
-from citylod.app.models import Document  # noqa: E402
-from citylod.core.camera import Camera, load_cameras  # noqa: E402
+from citylod.app.models import Document
+from citylod.core.camera import Camera, load_cameras
 
 needs_display = pytest.mark.skipif(not os.environ.get("DISPLAY"), reason="needs an X display (xvfb-run)")
 
@@ -123,7 +123,7 @@ def test_document_queries_and_picking(sample) -> None:
         doc.highlight()
         assert set(doc.state.colors) == set(ids)
         doc.isolate(ids[:1])
-        assert doc.state.is_visible(ids[0]) and not doc.state.is_visible(ids[-1]) or len(ids) == 1
+        assert (doc.state.is_visible(ids[0]) and not doc.state.is_visible(ids[-1])) or len(ids) == 1
         doc.clear_state()
         tallest = doc.tallest_building()
         assert tallest in ids

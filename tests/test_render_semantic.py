@@ -14,6 +14,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import shapely
 from scipy import ndimage
 
 from citylod.core.camera import Camera
@@ -133,6 +134,8 @@ def test_pick_returns_the_building_under_its_roof_centre(city: SimpleNamespace) 
             ren = r.renderer
             cx, cy = b.center
             cz = float(city.truth.roof_height(np.array([cx]), np.array([cy]))[0])
+            if not np.isfinite(cz):  # an L-shaped building's centre can lie outside it
+                continue
             ren.SetWorldPoint(*(np.array([cx, cy, cz]) - r.scene.origin), 1.0)
             ren.WorldToDisplay()
             x, y, _ = ren.GetDisplayPoint()
@@ -161,10 +164,13 @@ def test_hiding_a_building_reveals_what_is_behind(city: SimpleNamespace, tmp_pat
     # Outside the building (away from its silhouette) nothing changed.
     far = ~ndimage.binary_dilation(inside, np.ones((3, 3), bool), iterations=2)
     assert np.array_equal(after.depth[far], before.depth[far])
-    # Nothing seen now lies inside the hidden building's proxy.
-    pts = points_from_distance(after.depth, cam, relative=False)
-    ok = np.isfinite(after.depth)
-    assert (store.proxies.contains(pts[ok]) == store.proxies.index_of(b.id)).sum() == 0
+    # Nothing seen now lies inside the hidden building's proxy, but within the contour map's texel
+    # quantisation of its outline (half a texel diagonal).
+    pts = points_from_distance(after.depth, cam, relative=False)[np.isfinite(after.depth)]
+    idx = store.proxies.index_of(b.id)
+    seen = pts[store.proxies.contains(pts) == idx]
+    edge = shapely.distance(store.proxies.shapes[idx].boundary, shapely.points(seen[:, :2]))
+    assert np.all(edge <= overlay.map.resolution * 0.71)
 
 
 def test_points_inside_the_proxy_are_tinted(city: SimpleNamespace, tmp_path: Path) -> None:
@@ -236,20 +242,22 @@ def test_render_command_with_city_among_sources(city: SimpleNamespace, tmp_path:
     b = city.truth.buildings[3]
     cam_file = tmp_path / "cam.json"
     cam_file.write_text(json.dumps(oblique(city.truth, b).to_dict()))
-    common = dict(camera=cam_file, tau=1.0, size=list(SIZE), depth=None, color_by="auto")
-    plain = argparse.Namespace(sources=[str(city.dir / "dsm")], output=str(tmp_path / "plain.png"), **common)
+    common = dict(camera=cam_file, tau=1.0, size=list(SIZE), color_by="auto")
+    plain = argparse.Namespace(sources=[str(city.dir / "dsm")], output=str(tmp_path / "plain.png"),
+                               depth=str(tmp_path / "plain.npy"), **common)
     render_command(plain, progress=False)
     lit = argparse.Namespace(sources=[str(city.dir / "dsm"), str(city.gpkg)], output=str(tmp_path / "lit.png"),
-                             highlight=f"object_id = '{b.id}'", hide=None, **common)
+                             depth=None, highlight=f"object_id = '{b.id}'", hide=None, **common)
     render_command(lit, progress=False)
     hid = argparse.Namespace(sources=[str(city.dir / "dsm")], city=str(city.gpkg), output=str(tmp_path / "hid.png"),
-                             highlight=None, hide="measured_height > 0", **common)
+                             depth=str(tmp_path / "hid.npy"), highlight=None, hide="measured_height > 0", **common)
     render_command(hid, progress=False)
     a, lit_rgb, hid_rgb = (read_png(tmp_path / n) for n in ("plain.png", "lit.png", "hid.png"))
     assert tinted(lit_rgb, a).sum() > 1000
-    # Hiding every building shows the sky through them: many pixels become the background colour.
-    sky = np.all(hid_rgb == hid_rgb[0, 0], axis=-1).sum()
-    assert sky > np.all(a == a[0, 0], axis=-1).sum() + 1000
+    # Hiding every building looks through them: many pixels now show something farther away.
+    d0, d1 = np.load(tmp_path / "plain.npy"), np.load(tmp_path / "hid.npy")
+    assert (d1 > d0 + 1.0).sum() > 2000
+    assert tinted(hid_rgb, a).sum() > 2000
 
 
 def read_png(path: Path) -> np.ndarray:

@@ -68,7 +68,7 @@ def run_app(sources: Sequence[str | os.PathLike[str]] = (), *, screenshot: str |
         try:
             win.view.set_camera(load_cameras(camera)[0])
         except CitylodError as exc:
-            win._error(str(exc))  # noqa: SLF001
+            win._error(str(exc))
     elif win.document.entries:
         win.view.reset_view()
     if highlight_first:

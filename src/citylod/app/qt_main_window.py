@@ -29,7 +29,6 @@ from PySide6.QtWidgets import (
     QTableWidget,
     QTableWidgetItem,
     QVBoxLayout,
-    QWidget,
 )
 
 from citylod.app.models import SHORTCUTS, Document, build_plan, format_status, source_kind
@@ -253,7 +252,7 @@ class MainWindow(QMainWindow):
             self._error(str(exc))
             return False
         self._add_recent(p)
-        if first or kind == "tileset" and len(self.document.scene.layers) == 1:
+        if first or (kind == "tileset" and len(self.document.scene.layers) == 1):
             self.view.reset_view()
         self.view.request_render()
         self.opened.emit(str(p))
@@ -318,11 +317,11 @@ class MainWindow(QMainWindow):
         self.recent_menu.setEnabled(bool(self.recent_files()))
 
     # -- drag and drop ------------------------------------------------------------------------------
-    def dragEnterEvent(self, event: Any) -> None:  # noqa: N802 - Qt override
+    def dragEnterEvent(self, event: Any) -> None:
         if event.mimeData().hasUrls():
             event.acceptProposedAction()
 
-    def dropEvent(self, event: Any) -> None:  # noqa: N802 - Qt override
+    def dropEvent(self, event: Any) -> None:
         paths = [u.toLocalFile() for u in event.mimeData().urls() if u.isLocalFile()]
         if paths:
             event.acceptProposedAction()
@@ -416,7 +415,7 @@ class MainWindow(QMainWindow):
             self.export_image(path, w.value(), h.value())
 
     # -- closing --------------------------------------------------------------------------------------
-    def closeEvent(self, event: Any) -> None:  # noqa: N802 - Qt override
+    def closeEvent(self, event: Any) -> None:
         self.settings.setValue("window/geometry", self.saveGeometry())
         self.settings.setValue("window/state", self.saveState())
         self.settings.sync()

@@ -338,7 +338,7 @@ class QueryPanel(QWidget):
             return None
         self.results.clear()
         self.results.addItems(ids[:10000])
-        more = f" (first 10000 listed)" if len(ids) > 10000 else ""
+        more = " (first 10000 listed)" if len(ids) > 10000 else ""
         self.message.setText(f"{len(ids)} objects{more}")
         return ids
 
