@@ -42,10 +42,28 @@ def quantize(xyz: F64, cube_lo: F64, cube_size: float) -> I64:
     (N, 3) int64 in [0, 2^QBITS), clamped, so a point on the upper face or a header that understated the
     bounds still lands in the cube.
     """
-    scale = float(1 << QBITS) / cube_size
-    q = np.floor((xyz - cube_lo) * scale).astype(np.int64)
-    np.clip(q, 0, (1 << QBITS) - 1, out=q)
+    return _quantize(np.asarray(xyz, np.float64), np.asarray(cube_lo, np.float64), float(1 << QBITS) / cube_size)
+
+
+@numba.njit(cache=True)
+def _quantize(xyz: F64, cube_lo: F64, scale: float) -> I64:  # pragma: no cover - compiled
+    n = xyz.shape[0]
+    q = np.empty((n, 3), np.int64)
+    top = (1 << QBITS) - 1
+    for i in range(n):
+        for a in range(3):
+            v = np.floor((xyz[i, a] - cube_lo[a]) * scale)
+            q[i, a] = 0 if not v > 0 else top if v > top else np.int64(v)
     return q
+
+
+def bounds(xyz: F64) -> tuple[F64, F64]:
+    """(3,) float64 lower and upper corner of (N, 3) positions, N > 0.
+
+    Column by column: numpy reduces an (N, 3) array along axis 0 about 20 times slower than each
+    column on its own (measured on 849k points: 32 ms against 1.4 ms).
+    """
+    return (np.array([xyz[:, a].min() for a in range(3)]), np.array([xyz[:, a].max() for a in range(3)]))
 
 
 @numba.njit(cache=True)
@@ -215,6 +233,100 @@ def batch_shuffle(n: int, seed: int, batch: int = 32) -> I64:
     return np.repeat(starts - out_start, lens) + np.arange(n)
 
 
+@numba.njit(cache=True)
+def partition(q: I64, level: int, idx: tuple[int, int, int], max_leaf_points: int, max_level: int
+              ) -> tuple[I64, I64]:  # pragma: no cover - compiled
+    """The octree under one node, partitioned in one compiled pass (PotreeConverter 2's counting sort).
+
+    A node with at most ``max_leaf_points`` points, or at ``max_level``, is a leaf; any other node is
+    split into its 8 octants by a stable counting sort, so the points of every node are one contiguous
+    run of the returned order and, within a leaf, keep their input order.
+
+    Parameters
+    ----------
+    q
+        (N, 3) int64 grid coordinates of the node's points.
+    level, idx
+        The node's level and integer index (x, y, z).
+    max_leaf_points, max_level
+        The leaf rule.
+
+    Returns
+    -------
+    order
+        (N,) int64 permutation of the points: node ``k`` holds ``order[nodes[k, 4]:nodes[k, 5]]``.
+    nodes
+        (M, 7) int64 rows (level, x, y, z, start, end, parent), in pre-order (children after their
+        parent, siblings in octant order); the parent of the first row is -1.
+    """
+    n = q.shape[0]
+    order = np.arange(n)
+    tmp = np.empty(n, np.int64)
+    out = np.empty((64, 7), np.int64)
+    m = 0
+    stack = np.empty((8 * (max_level + 2) + 8, 7), np.int64)
+    stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3] = level, idx[0], idx[1], idx[2]
+    stack[0, 4], stack[0, 5], stack[0, 6] = 0, n, -1
+    sp = 1
+    cnt = np.zeros(9, np.int64)
+    fill = np.zeros(8, np.int64)
+    while sp > 0:
+        sp -= 1
+        if m == out.shape[0]:
+            grown = np.empty((2 * m, 7), np.int64)
+            grown[:m] = out
+            out = grown
+        for c in range(7):
+            out[m, c] = stack[sp, c]
+        me = m
+        m += 1
+        lv, x, y, z, a, b = out[me, 0], out[me, 1], out[me, 2], out[me, 3], out[me, 4], out[me, 5]
+        if b - a <= max_leaf_points or lv >= max_level:
+            continue
+        s = QBITS - lv - 1
+        cnt[:] = 0
+        for t in range(a, b):
+            i = order[t]
+            cnt[1 + (((q[i, 0] >> s) & 1) | (((q[i, 1] >> s) & 1) << 1) | (((q[i, 2] >> s) & 1) << 2))] += 1
+        for o in range(8):
+            cnt[o + 1] += cnt[o]
+            fill[o] = a + cnt[o]
+        for t in range(a, b):
+            i = order[t]
+            o = ((q[i, 0] >> s) & 1) | (((q[i, 1] >> s) & 1) << 1) | (((q[i, 2] >> s) & 1) << 2)
+            tmp[fill[o]] = i
+            fill[o] += 1
+        order[a:b] = tmp[a:b]
+        for o in range(7, -1, -1):  # pushed in reverse, so popped (numbered) in octant order
+            if cnt[o + 1] > cnt[o]:
+                stack[sp, 0], stack[sp, 1] = lv + 1, 2 * x + (o & 1)
+                stack[sp, 2], stack[sp, 3] = 2 * y + ((o >> 1) & 1), 2 * z + ((o >> 2) & 1)
+                stack[sp, 4], stack[sp, 5], stack[sp, 6] = a + cnt[o], a + cnt[o + 1], me
+                sp += 1
+    return order, out[:m]
+
+
+@numba.njit(cache=True)
+def _lookup_error(q: I64, xyz: F64, shift: int, cells: I64, elem: F64) -> float:  # pragma: no cover - compiled
+    # A dense table over the 64³ grid (1 MiB) instead of a binary search per point.
+    lut = np.full(1 << (3 * CLUSTER_BITS), -1, np.int32)
+    for c in range(cells.shape[0]):
+        lut[cells[c]] = c
+    mask = (1 << CLUSTER_BITS) - 1
+    best = 0.0
+    for i in range(q.shape[0]):
+        k = (((q[i, 0] >> shift) & mask) | (((q[i, 1] >> shift) & mask) << CLUSTER_BITS)
+             | (((q[i, 2] >> shift) & mask) << (2 * CLUSTER_BITS)))
+        e = lut[k]
+        if e < 0:
+            return -1.0
+        dx, dy, dz = xyz[i, 0] - elem[e, 0], xyz[i, 1] - elem[e, 1], xyz[i, 2] - elem[e, 2]
+        d = dx * dx + dy * dy + dz * dz
+        if d > best:
+            best = d
+    return np.sqrt(best)
+
+
 def lookup_error(q: I64, xyz: F64, level: int, cells: I64, elem: F64) -> float:
     """Exact max distance from input points to the element standing for their cell.
 
@@ -225,7 +337,7 @@ def lookup_error(q: I64, xyz: F64, level: int, cells: I64, elem: F64) -> float:
     level
         The node's level.
     cells
-        (C,) int64 sorted occupied cells of the node's 64³ grid.
+        (C,) int64 occupied cells of the node's 64³ grid.
     elem
         (C, 3) float64 what the node draws for each cell: the representative point, or the centre of the
         quad texel the representative was splatted into.
@@ -237,9 +349,8 @@ def lookup_error(q: I64, xyz: F64, level: int, cells: I64, elem: F64) -> float:
     """
     if len(q) == 0:
         return 0.0
-    k = cell_keys(q, level)
-    pos = np.searchsorted(cells, k)
-    if np.any(pos >= len(cells)) or np.any(cells[np.minimum(pos, len(cells) - 1)] != k):
+    err = _lookup_error(q, xyz, QBITS - level - CLUSTER_BITS, np.asarray(cells, np.int64),
+                        np.asarray(elem, np.float64))
+    if err < 0:
         raise AssertionError("an input point's cell has no representative (octree invariant broken)")
-    d = xyz - elem[pos]
-    return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
+    return float(err)

@@ -13,8 +13,6 @@ into bytes; no VTK, no Qt.
 
 from __future__ import annotations
 
-import os
-import tempfile
 import zlib
 from dataclasses import dataclass
 
@@ -179,106 +177,284 @@ def find_planes(p: F64, colors: U8, texel: float, *, phi: float = 8.0, seed: int
     -------
     PlaneResult
     """
-    from scipy import ndimage
-
-    k = len(p)
-    replaced = np.zeros(k, bool)
-    elem = p.copy()
-    quads: list[Quad] = []
-    active = np.arange(k)
-    thr = 0.5 * texel
-    failures = 0
-    state = np.int64(seed & 0x7FFFFFFFFFFF)
-    for attempt in range(max_planes + max_failures * max_planes):
-        if len(quads) >= max_planes or failures >= max_failures or len(active) < min_inliers:
-            break
-        pa = np.ascontiguousarray(p[active])
-        n, d, cnt = _best_plane(pa, n_candidates, window, thr, int(state) + 7919 * attempt)
-        if cnt < min_inliers:
-            break
-        inl = np.abs(pa @ n + d) <= thr
-        # Least-squares refit (PCA of the inliers), kept when it does not lose inliers.
-        c = pa[inl].mean(axis=0)
-        _, v = np.linalg.eigh(np.cov((pa[inl] - c).T))
-        n2 = v[:, 0]
-        inl2 = np.abs((pa - c) @ n2) <= thr
-        if inl2.sum() >= inl.sum():
-            n, inl = n2, inl2
-        else:
-            c = pa[inl].mean(axis=0)
-            c = c - ((c @ n) + d) * n  # project the centroid onto the RANSAC plane
-        u = v[:, 2] - (v[:, 2] @ n) * n  # in-plane long axis (PCA), orthogonalised against the final normal
-        u /= np.linalg.norm(u)
-        vv = np.cross(n, u)
-        idx = np.flatnonzero(inl)
-        rel = pa[idx] - c
-        s, t = rel @ u, rel @ vv
-        s0, t0 = s.min(), t.min()
-        i = np.floor((s - s0) / texel).astype(np.int64)
-        j = np.floor((t - t0) / texel).astype(np.int64)
-        occ = np.zeros((j.max() + 1, i.max() + 1), bool)
-        occ[j, i] = True
-        # Inliers of an infinite plane can lie in several separate patches (coplanar roofs, terraces):
-        # keep the largest 8-connected patch so the quad's rectangle is not mostly empty.
-        lab, nlab = ndimage.label(occ, structure=np.ones((3, 3), bool))
-        pl = lab[j, i]
-        if nlab > 1:
-            keep_lab = np.argmax(np.bincount(pl, minlength=nlab + 1)[1:]) + 1
-            sel = pl == keep_lab
-            idx, i, j = idx[sel], i[sel], j[sel]
-        i0, i1, j0, j1 = i.min(), i.max() + 1, j.min(), j.max() + 1
-        texels = (i1 - i0) * (j1 - j0)
-        ninl = len(idx)
-        if ninl < min_inliers or not texels < phi * (ninl - 4):
-            failures += 1
-            # Not worth a quad: these points stay points; do not sample them again.
-            active = np.delete(active, idx)
-            continue
-        failures = 0
-        gi = active[idx]
-        # Texel (i, j) of the W×H quad texture plus a one-texel border (the quad enlarged by one texel
-        # against cracks, the border filled by dilation).
-        ww, hh = i1 - i0 + 2, j1 - j0 + 2
-        ti, tj = i - i0 + 1, j - j0 + 1
-        flat = tj * ww + ti
-        cnt_t = np.bincount(flat, minlength=ww * hh)
-        rgba = np.zeros((hh * ww, 4), np.float64)
-        for ch in range(3):
-            rgba[:, ch] = np.bincount(flat, weights=colors[gi, ch].astype(np.float64), minlength=ww * hh)
-        filled = cnt_t > 0
-        rgba[filled, :3] /= cnt_t[filled, None]
-        rgba[filled, 3] = 255.0
-        img = _dilate(rgba.reshape(hh, ww, 4))
-        origin = c + (s0 + (i0 - 1) * texel) * u + (t0 + (j0 - 1) * texel) * vv
-        corners = np.array([origin, origin + ww * texel * u, origin + ww * texel * u + hh * texel * vv,
-                            origin + hh * texel * vv])
-        elem[gi] = origin + ((ti + 0.5) * texel)[:, None] * u + ((tj + 0.5) * texel)[:, None] * vv
-        replaced[gi] = True
-        quads.append(Quad(corners, np.clip(np.rint(img), 0, 255).astype(np.uint8), texel, ninl))
-        active = np.delete(active, idx)
+    res = _planes(np.ascontiguousarray(p, np.float64), np.ascontiguousarray(colors, np.uint8), float(texel),
+                  float(phi), int(seed & 0x7FFFFFFFFFFF), int(n_candidates), int(max_planes), int(min_inliers),
+                  int(max_failures), int(window))
+    replaced, elem, corners, size, inliers, tex, tex_off = res
+    quads = [Quad(corners[q].copy(), tex[tex_off[q]:tex_off[q + 1]].reshape(int(size[q, 1]), int(size[q, 0]), 4),
+                  float(texel), int(inliers[q])) for q in range(len(inliers))]
     return PlaneResult(quads, replaced, elem)
 
 
-def _dilate(img: F64) -> F64:
-    """Fill transparent texels next to opaque ones with the mean of their opaque 8-neighbours."""
-    h, w, _ = img.shape
-    pad = np.zeros((h + 2, w + 2, 4))
-    pad[1:-1, 1:-1] = img
-    opaque = (pad[..., 3] > 0).astype(np.float64)
-    acc = np.zeros((h, w, 3))
-    num = np.zeros((h, w))
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy == 0 and dx == 0:
+@numba.njit(cache=True)
+def _label8(occ: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], int]:  # pragma: no cover - compiled
+    """8-connected components of ``occ``, numbered from 1 in raster order of their first pixel (as
+    ``scipy.ndimage.label`` numbers them)."""
+    h, w = occ.shape
+    parent = np.arange(h * w)
+    for y in range(h):
+        for x in range(w):
+            if not occ[y, x]:
                 continue
-            o = opaque[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
-            acc += pad[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx, :3] * o[..., None]
-            num += o
-    out = img.copy()
-    grow = (img[..., 3] == 0) & (num > 0)
-    out[grow, :3] = acc[grow] / num[grow, None]
-    out[grow, 3] = 255.0
+            a = y * w + x
+            for dy, dx in ((-1, -1), (-1, 0), (-1, 1), (0, -1)):
+                yy, xx = y + dy, x + dx
+                if 0 <= yy and 0 <= xx < w and occ[yy, xx]:
+                    b = yy * w + xx
+                    while parent[a] != a:
+                        a = parent[a]
+                    while parent[b] != b:
+                        b = parent[b]
+                    if a != b:
+                        if a < b:
+                            parent[b] = a
+                        else:
+                            parent[a] = b
+                    a = y * w + x
+    lab = np.zeros((h, w), np.int64)
+    root_label = np.zeros(h * w, np.int64)
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            if not occ[y, x]:
+                continue
+            r = y * w + x
+            while parent[r] != r:
+                r = parent[r]
+            if root_label[r] == 0:
+                n += 1
+                root_label[r] = n
+            lab[y, x] = root_label[r]
+    return lab, n
+
+
+@numba.njit(cache=True)
+def _dilate_u8(img: F64) -> U8:  # pragma: no cover - compiled
+    """Fill transparent texels next to opaque ones with the mean of their opaque 8-neighbours; round to
+    uint8 (H, W, 4)."""
+    h, w, _ = img.shape
+    out = np.empty((h, w, 4), np.uint8)
+    for y in range(h):
+        for x in range(w):
+            if img[y, x, 3] > 0:
+                for ch in range(4):
+                    out[y, x, ch] = np.uint8(min(max(np.rint(img[y, x, ch]), 0.0), 255.0))
+                continue
+            r = g = b = 0.0
+            num = 0
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    if dy == 0 and dx == 0:
+                        continue
+                    yy, xx = y + dy, x + dx
+                    if 0 <= yy < h and 0 <= xx < w and img[yy, xx, 3] > 0:
+                        r += img[yy, xx, 0]
+                        g += img[yy, xx, 1]
+                        b += img[yy, xx, 2]
+                        num += 1
+            if num > 0:
+                out[y, x, 0] = np.uint8(min(max(np.rint(r / num), 0.0), 255.0))
+                out[y, x, 1] = np.uint8(min(max(np.rint(g / num), 0.0), 255.0))
+                out[y, x, 2] = np.uint8(min(max(np.rint(b / num), 0.0), 255.0))
+                out[y, x, 3] = 255
+            else:
+                out[y, x, 0] = out[y, x, 1] = out[y, x, 2] = out[y, x, 3] = 0
     return out
+
+
+@numba.njit(cache=True)
+def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidates: int, max_planes: int,
+            min_inliers: int, max_failures: int, window: int
+            ) -> tuple[npt.NDArray[np.bool_], F64, F64, npt.NDArray[np.int64], npt.NDArray[np.int64], U8,
+                       npt.NDArray[np.int64]]:  # pragma: no cover - compiled
+    """The RANSAC loop of :func:`find_planes`, compiled (no Python work per plane or per point).
+
+    Returns replaced (K,), elem (K, 3), and per quad: corners (Q, 4, 3), texture (width, height) (Q, 2),
+    inliers (Q,), the textures' RGBA bytes one after the other and their offsets (Q + 1,).
+    """
+    k = p.shape[0]
+    replaced = np.zeros(k, np.bool_)
+    elem = p.copy()
+    active = np.arange(k)
+    na = k
+    pa = np.empty((k, 3))
+    thr = 0.5 * texel
+    failures = 0
+    q_corners = np.zeros((max_planes, 4, 3))
+    q_size = np.zeros((max_planes, 2), np.int64)
+    q_inl = np.zeros(max_planes, np.int64)
+    tex = np.empty(1 << 16, np.uint8)
+    tex_off = np.zeros(max_planes + 1, np.int64)
+    nq = 0
+    inl = np.empty(k, np.bool_)
+    inl2 = np.empty(k, np.bool_)
+    for attempt in range(max_planes + max_failures * max_planes):
+        if nq >= max_planes or failures >= max_failures or na < min_inliers:
+            break
+        for t in range(na):
+            a = active[t]
+            pa[t, 0], pa[t, 1], pa[t, 2] = p[a, 0], p[a, 1], p[a, 2]
+        sub = pa[:na]
+        n, d, cnt = _best_plane(sub, n_candidates, window, thr, seed + 7919 * attempt)
+        if cnt < min_inliers:
+            break
+        nx, ny, nz = n[0], n[1], n[2]
+        ninl = 0
+        cx = cy = cz = 0.0
+        for t in range(na):
+            ok = abs(nx * sub[t, 0] + ny * sub[t, 1] + nz * sub[t, 2] + d) <= thr
+            inl[t] = ok
+            if ok:
+                ninl += 1
+                cx += sub[t, 0]
+                cy += sub[t, 1]
+                cz += sub[t, 2]
+        cx, cy, cz = cx / ninl, cy / ninl, cz / ninl
+        # Least-squares refit (PCA of the inliers), kept when it does not lose inliers.
+        cov = np.zeros((3, 3))
+        for t in range(na):
+            if inl[t]:
+                dx, dy, dz = sub[t, 0] - cx, sub[t, 1] - cy, sub[t, 2] - cz
+                cov[0, 0] += dx * dx
+                cov[0, 1] += dx * dy
+                cov[0, 2] += dx * dz
+                cov[1, 1] += dy * dy
+                cov[1, 2] += dy * dz
+                cov[2, 2] += dz * dz
+        cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
+        _, v = np.linalg.eigh(cov / max(ninl - 1, 1))
+        mx, my, mz = v[0, 0], v[1, 0], v[2, 0]
+        ninl2 = 0
+        for t in range(na):
+            ok = abs((sub[t, 0] - cx) * mx + (sub[t, 1] - cy) * my + (sub[t, 2] - cz) * mz) <= thr
+            inl2[t] = ok
+            if ok:
+                ninl2 += 1
+        if ninl2 >= ninl:
+            nx, ny, nz = mx, my, mz
+            for t in range(na):
+                inl[t] = inl2[t]
+        else:
+            off = cx * nx + cy * ny + cz * nz + d  # project the centroid onto the RANSAC plane
+            cx, cy, cz = cx - off * nx, cy - off * ny, cz - off * nz
+        # In-plane long axis (PCA), orthogonalised against the final normal.
+        lx, ly, lz = v[0, 2], v[1, 2], v[2, 2]
+        dot = lx * nx + ly * ny + lz * nz
+        ux, uy, uz = lx - dot * nx, ly - dot * ny, lz - dot * nz
+        un = np.sqrt(ux * ux + uy * uy + uz * uz)
+        ux, uy, uz = ux / un, uy / un, uz / un
+        vx, vy, vz = ny * uz - nz * uy, nz * ux - nx * uz, nx * uy - ny * ux
+        m = 0
+        for t in range(na):
+            if inl[t]:
+                m += 1
+        idx = np.empty(m, np.int64)
+        s = np.empty(m)
+        tt = np.empty(m)
+        m = 0
+        s0 = t0 = np.inf
+        for t in range(na):
+            if inl[t]:
+                idx[m] = t
+                rx, ry, rz = sub[t, 0] - cx, sub[t, 1] - cy, sub[t, 2] - cz
+                s[m] = rx * ux + ry * uy + rz * uz
+                tt[m] = rx * vx + ry * vy + rz * vz
+                s0, t0 = min(s0, s[m]), min(t0, tt[m])
+                m += 1
+        gi_ = np.empty(m, np.int64)
+        gj_ = np.empty(m, np.int64)
+        imax = jmax = 0
+        for e in range(m):
+            gi_[e] = np.int64(np.floor((s[e] - s0) / texel))
+            gj_[e] = np.int64(np.floor((tt[e] - t0) / texel))
+            imax, jmax = max(imax, gi_[e]), max(jmax, gj_[e])
+        occ = np.zeros((jmax + 1, imax + 1), np.bool_)
+        for e in range(m):
+            occ[gj_[e], gi_[e]] = True
+        # Inliers of an infinite plane can lie in several separate patches (coplanar roofs, terraces):
+        # keep the largest 8-connected patch so the quad's rectangle is not mostly empty.
+        lab, nlab = _label8(occ)
+        keep_lab = 1
+        if nlab > 1:
+            lc = np.zeros(nlab + 1, np.int64)
+            for e in range(m):
+                lc[lab[gj_[e], gi_[e]]] += 1
+            for lb in range(2, nlab + 1):
+                if lc[lb] > lc[keep_lab]:
+                    keep_lab = lb
+        sel = np.empty(m, np.int64)
+        ns = 0
+        i0 = j0 = np.int64(1 << 62)
+        i1 = j1 = np.int64(-1)
+        for e in range(m):
+            if nlab <= 1 or lab[gj_[e], gi_[e]] == keep_lab:
+                sel[ns] = e
+                ns += 1
+                i0, i1 = min(i0, gi_[e]), max(i1, gi_[e] + 1)
+                j0, j1 = min(j0, gj_[e]), max(j1, gj_[e] + 1)
+        sel = sel[:ns]
+        texels = (i1 - i0) * (j1 - j0)
+        accept = ns >= min_inliers and texels < phi * (ns - 4)
+        if accept:
+            ww, hh = i1 - i0 + 2, j1 - j0 + 2
+            # Texel (i, j) of the W×H texture plus a one-texel border (the quad enlarged by one texel
+            # against cracks, the border filled by dilation).
+            img = np.zeros((hh, ww, 4))
+            ox = cx + (s0 + (i0 - 1) * texel) * ux + (t0 + (j0 - 1) * texel) * vx
+            oy = cy + (s0 + (i0 - 1) * texel) * uy + (t0 + (j0 - 1) * texel) * vy
+            oz = cz + (s0 + (i0 - 1) * texel) * uz + (t0 + (j0 - 1) * texel) * vz
+            for e in sel:
+                ti, tj = gi_[e] - i0 + 1, gj_[e] - j0 + 1
+                g = active[idx[e]]
+                img[tj, ti, 0] += colors[g, 0]
+                img[tj, ti, 1] += colors[g, 1]
+                img[tj, ti, 2] += colors[g, 2]
+                img[tj, ti, 3] += 1.0
+                a_ = (ti + 0.5) * texel
+                b_ = (tj + 0.5) * texel
+                elem[g, 0] = ox + a_ * ux + b_ * vx
+                elem[g, 1] = oy + a_ * uy + b_ * vy
+                elem[g, 2] = oz + a_ * uz + b_ * vz
+                replaced[g] = True
+            for y in range(hh):
+                for x in range(ww):
+                    c_ = img[y, x, 3]
+                    if c_ > 0:
+                        img[y, x, 0] /= c_
+                        img[y, x, 1] /= c_
+                        img[y, x, 2] /= c_
+                        img[y, x, 3] = 255.0
+            rgba = _dilate_u8(img).reshape(-1)
+            end = tex_off[nq] + rgba.shape[0]
+            if end > tex.shape[0]:
+                grown = np.empty(max(2 * tex.shape[0], end), np.uint8)
+                grown[:tex_off[nq]] = tex[:tex_off[nq]]
+                tex = grown
+            tex[tex_off[nq]:end] = rgba
+            tex_off[nq + 1] = end
+            wx, wy, wz = ww * texel * ux, ww * texel * uy, ww * texel * uz
+            hx, hy, hz = hh * texel * vx, hh * texel * vy, hh * texel * vz
+            q_corners[nq, 0, 0], q_corners[nq, 0, 1], q_corners[nq, 0, 2] = ox, oy, oz
+            q_corners[nq, 1, 0], q_corners[nq, 1, 1], q_corners[nq, 1, 2] = ox + wx, oy + wy, oz + wz
+            q_corners[nq, 2, 0], q_corners[nq, 2, 1], q_corners[nq, 2, 2] = ox + wx + hx, oy + wy + hy, oz + wz + hz
+            q_corners[nq, 3, 0], q_corners[nq, 3, 1], q_corners[nq, 3, 2] = ox + hx, oy + hy, oz + hz
+            q_size[nq, 0], q_size[nq, 1] = ww, hh
+            q_inl[nq] = ns
+            nq += 1
+            failures = 0
+        else:
+            failures += 1  # not worth a quad: these points stay points; do not sample them again
+        # Drop the patch's points from the active set either way.
+        rm = np.zeros(na, np.bool_)
+        for e in sel:
+            rm[idx[e]] = True
+        w_ = 0
+        for t in range(na):
+            if not rm[t]:
+                active[w_] = active[t]
+                w_ += 1
+        na = w_
+    return (replaced, elem, q_corners[:nq], q_size[:nq], q_inl[:nq], tex[:tex_off[nq]], tex_off[:nq + 1])
 
 
 def pack_atlas(quads: list[Quad]) -> tuple[U8, list[tuple[int, int]]]:
@@ -340,25 +516,12 @@ def quad_mesh_arrays(quads: list[Quad]) -> tuple[npt.NDArray[np.float32], npt.ND
 
 
 def encode_png(rgba: U8) -> bytes:
-    """PNG bytes of an (H, W, 4) uint8 image: OpenImageIO when installed, else a minimal zlib writer."""
-    try:
-        import OpenImageIO as oiio
-    except ImportError:
-        return png_zlib(rgba)
-    h, w = rgba.shape[:2]
-    fd, name = tempfile.mkstemp(suffix=".png")
-    os.close(fd)
-    try:
-        out = oiio.ImageOutput.create(name)
-        if out is None:
-            return png_zlib(rgba)
-        out.open(name, oiio.ImageSpec(w, h, 4, "uint8"))
-        out.write_image(np.ascontiguousarray(rgba))
-        out.close()
-        with open(name, "rb") as f:
-            return f.read()
-    finally:
-        os.unlink(name)
+    """PNG bytes of an (H, W, 4) uint8 image.
+
+    The minimal zlib writer (:func:`png_zlib`), not OpenImageIO: on quad atlases it measured twice as
+    fast as OpenImageIO (which can only write through a temporary file) and the files were no larger.
+    """
+    return png_zlib(rgba)
 
 
 def png_zlib(rgba: U8) -> bytes:

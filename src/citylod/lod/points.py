@@ -59,11 +59,12 @@ from citylod.lod.octree import (
     MAX_LEVEL,
     QBITS,
     batch_shuffle,
+    bounds,
     cluster,
     counting_sort,
     lookup_error,
     morton_order,
-    octant_keys,
+    partition,
     quantize,
 )
 from citylod.lod.planes import encode_png, find_planes, quad_mesh_arrays, splat_colors
@@ -159,6 +160,7 @@ class _Summary:
     spec: TileSpec
     recs: Recs           # (K,) POINT_DTYPE representatives (a leaf: all its points)
     q: I64               # (K, 3)
+    xyz: F64             # (K, 3) their positions
     sums: F64            # (K, 3) sum of the input positions each representative stands for
     counts: I64          # (K,)
     lo: F64
@@ -192,8 +194,11 @@ class _ChunkResult:
 
 # ------------------------------------------------------------------------------------------ node kernels
 def _xyz(recs: Recs) -> F64:
-    """(N, 3) float64 positions of POINT_DTYPE records."""
-    return np.stack([recs["x"], recs["y"], recs["z"]], axis=1)
+    """(N, 3) float64 positions of POINT_DTYPE records (one strided copy: x, y, z are adjacent fields)."""
+    if len(recs) == 0:
+        return np.zeros((0, 3))
+    x = recs["x"]
+    return np.lib.stride_tricks.as_strided(x, (len(recs), 3), (x.strides[0], 8), writeable=False).copy()
 
 
 def _key(level: int, idx: tuple[int, int, int]) -> str:
@@ -204,11 +209,11 @@ def _seed(key: str) -> int:
     return zlib.crc32(key.encode())
 
 
-def _point_data(recs: Recs, center: F64, has_rgb: bool) -> PointData:
+def _point_data(recs: Recs, xyz: F64, center: F64, has_rgb: bool) -> PointData:
     rgb = np.stack([recs["red"], recs["green"], recs["blue"]], axis=1) if has_rgb else None
-    return PointData(positions=(_xyz(recs) - center).astype(np.float32), rgb=rgb,
-                     intensity=recs["intensity"].copy(), classification=recs["classification"].copy(),
-                     return_number=recs["return_number"].copy())
+    return PointData(positions=(xyz - center).astype(np.float32), rgb=rgb,
+                     intensity=recs["intensity"], classification=recs["classification"],
+                     return_number=recs["return_number"])
 
 
 def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
@@ -221,20 +226,20 @@ def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
     return uri
 
 
-def _leaf(p: _Params, recs: Recs, q: I64, level: int, idx: tuple[int, int, int], stats: _Stats) -> _Summary:
+def _leaf(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, int, int],
+          stats: _Stats) -> _Summary:
     key = _key(level, idx)
-    xyz = _xyz(recs)
-    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    lo, hi = bounds(xyz)
     center = (lo + hi) / 2.0
     order = morton_order(q, level)
     order = order[batch_shuffle(len(order), _seed(key))]
-    uri = _write(p, key, TileContent(points=_point_data(recs[order], center, p.has_rgb)), stats)
+    uri = _write(p, key, TileContent(points=_point_data(recs[order], xyz[order], center, p.has_rgb)), stats)
     stats.nodes += 1
     stats.leaves += 1
     stats.max_level = max(stats.max_level, level)
     spec = TileSpec(key=key, level=level, center=center, lo=lo, hi=hi, geometric_error=0.0, content=uri,
                     extras={"points": len(recs), "triangles": 0, "quads": 0})
-    return _Summary(level, idx, spec, recs, q, xyz, np.ones(len(recs), np.int64), lo, hi)
+    return _Summary(level, idx, spec, recs, q, xyz, xyz, np.ones(len(recs), np.int64), lo, hi)
 
 
 def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[_Summary],
@@ -247,17 +252,17 @@ def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[
     key = _key(level, idx)
     recs = np.concatenate([c.recs for c in children])
     q = np.concatenate([c.q for c in children])
+    xyz = np.concatenate([c.xyz for c in children])
     sums = np.concatenate([c.sums for c in children])
     counts = np.concatenate([c.counts for c in children])
-    cells, rep, csums, ccounts = cluster(q, _xyz(recs), sums, counts, level)
-    rrecs, rq = recs[rep], q[rep]
-    rxyz = _xyz(rrecs)
+    cells, rep, csums, ccounts = cluster(q, xyz, sums, counts, level)
+    rrecs, rq, rxyz = recs[rep], q[rep], xyz[rep]
     lo = np.min([c.lo for c in children], axis=0)
     hi = np.max([c.hi for c in children], axis=0)
     center = (lo + hi) / 2.0
     texel = p.node_size(level) / (1 << CLUSTER_BITS)
     m = morton_order(rq, level)
-    elem = rxyz.copy()
+    elem = rxyz
     drawn = m
     meshes: list[MeshData] = []
     nquads = 0
@@ -266,6 +271,7 @@ def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[
                               else None, rrecs["classification"][m], rrecs["intensity"][m], p.intensity_scale)
         res = find_planes(rxyz[m] - center, colors, texel, phi=p.phi, seed=_seed(key))
         if res.quads:
+            elem = rxyz.copy()
             elem[m] = res.elem + center
             drawn = m[~res.replaced]
             pos, faces, uv, atlas = quad_mesh_arrays(res.quads)
@@ -276,34 +282,43 @@ def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[
             stats.quads += nquads
             stats.quad_points += int(res.replaced.sum())
     drawn = drawn[batch_shuffle(len(drawn), _seed(key))]
-    points = _point_data(rrecs[drawn], center, p.has_rgb) if len(drawn) else None
+    points = _point_data(rrecs[drawn], rxyz[drawn], center, p.has_rgb) if len(drawn) else None
     uri = _write(p, key, TileContent(meshes=meshes, points=points), stats)
     stats.nodes += 1
     spec = TileSpec(key=key, level=level, center=center, lo=lo, hi=hi, geometric_error=0.0, content=uri,
                     children=[c.spec for c in children],
                     extras={"points": len(drawn), "triangles": 2 * nquads, "quads": nquads,
                             "texel_m": texel})
-    return _Summary(level, idx, spec, rrecs, rq, csums, ccounts, lo, hi), cells, elem
+    return _Summary(level, idx, spec, rrecs, rq, rxyz, csums, ccounts, lo, hi), cells, elem
 
 
-def _subtree(p: _Params, recs: Recs, q: I64, level: int, idx: tuple[int, int, int], stats: _Stats) -> _Summary:
-    """Build the octree under one node from all its points (in memory: the points of one chunk)."""
-    if len(recs) <= p.max_leaf_points or level >= MAX_LEVEL:
-        return _leaf(p, recs, q, level, idx, stats)
-    # Counting sort into the 8 octants (PotreeConverter 2's partitioning, one pass, stable).
-    order, offs = counting_sort(octant_keys(q, level), 8)
-    recs, q = recs[order], q[order]
-    children = []
-    for o in range(8):
-        a, b = offs[o], offs[o + 1]
-        if a == b:
+def _subtree(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, int, int],
+             stats: _Stats) -> _Summary:
+    """Build the octree under one node from all its points (in memory: the points of one chunk).
+
+    One compiled pass partitions the points (:func:`~citylod.lod.octree.partition`), after which every
+    node is a contiguous slice; nodes are then built children first, without recursion.
+    """
+    order, nodes = partition(q, level, idx, p.max_leaf_points, MAX_LEVEL)
+    recs, q, xyz = recs[order], q[order], xyz[order]
+    children: list[list[int]] = [[] for _ in range(len(nodes))]
+    for k in range(1, len(nodes)):
+        children[int(nodes[k, 6])].append(k)
+    built: list[_Summary | None] = [None] * len(nodes)
+    for k in range(len(nodes) - 1, -1, -1):  # pre-order reversed: children before their parent
+        lv, x, y, z, a, b, _ = (int(v) for v in nodes[k])
+        if not children[k]:
+            built[k] = _leaf(p, recs[a:b], q[a:b], xyz[a:b], lv, (x, y, z), stats)
             continue
-        cidx = (2 * idx[0] + (o & 1), 2 * idx[1] + ((o >> 1) & 1), 2 * idx[2] + ((o >> 2) & 1))
-        children.append(_subtree(p, recs[a:b], q[a:b], level + 1, cidx, stats))
-    node, cells, elem = _internal(p, level, idx, children, stats)
-    exact = lookup_error(q, _xyz(recs), level, cells, elem)
-    _set_error(node.spec, exact)
-    return node
+        kids = [built[c] for c in children[k]]
+        node, cells, elem = _internal(p, lv, (x, y, z), kids, stats)  # type: ignore[arg-type]
+        for c in children[k]:
+            built[c] = None  # the children's representatives are not needed any more
+        _set_error(node.spec, lookup_error(q[a:b], xyz[a:b], lv, cells, elem))
+        built[k] = node
+    root = built[0]
+    assert root is not None
+    return root
 
 
 def _set_error(spec: TileSpec, exact: float) -> None:
@@ -328,9 +343,10 @@ def _scan_segment(cube_lo: tuple[float, float, float], cube_size: float, path: s
     xyz = _xyz(recs)
     g = quantize(xyz, np.asarray(cube_lo), cube_size) >> (QBITS - SCAN_BITS)
     flat = g[:, 0] | (g[:, 1] << SCAN_BITS) | (g[:, 2] << (2 * SCAN_BITS))
-    cells, cnt = np.unique(flat, return_counts=True)
+    cnt = np.bincount(flat, minlength=1 << (3 * SCAN_BITS))
+    cells = np.flatnonzero(cnt)
     p99 = float(np.percentile(recs["intensity"], 99)) if len(recs) else 0.0
-    return cells, cnt.astype(np.int64), len(recs), xyz.min(axis=0), xyz.max(axis=0), p99
+    return cells, cnt[cells].astype(np.int64), len(recs), *bounds(xyz), p99
 
 
 def _distribute_segment(p: _Params, raw: str, sid: int, lut_path: str) -> int:
@@ -361,9 +377,10 @@ def _build_chunk(p: _Params, cid: int, level: int, idx: tuple[int, int, int]) ->
             res: _ChunkResult = pickle.load(f)
         return res
     recs = _load_chunk(p, cid)
-    q = quantize(_xyz(recs), np.asarray(p.cube_lo), p.cube_size)
+    xyz = _xyz(recs)
+    q = quantize(xyz, np.asarray(p.cube_lo), p.cube_size)
     stats = _Stats()
-    root = _subtree(p, recs, q, level, idx, stats)
+    root = _subtree(p, recs, q, xyz, level, idx, stats)
     res = _ChunkResult(cid, root, stats)
     _atomic_bytes(done, pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
     return res
