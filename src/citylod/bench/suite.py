@@ -47,6 +47,26 @@ def _dsm_from_city(size: int, path: Path) -> Path:
     return path
 
 
+def _terrain_raster(size: int, path: Path, seed: int = 5) -> Path:
+    """Natural terrain, no buildings: fractal (spectral fBm, β = 2.2) hills, 1 m samples, UTM 32N."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    rng = np.random.default_rng(seed)
+    n = 1 << int(np.ceil(np.log2(size)))
+    k = np.fft.fftfreq(n)[:, None] ** 2 + np.fft.rfftfreq(n)[None, :] ** 2
+    k[0, 0] = np.inf
+    spec = (rng.normal(size=k.shape) + 1j * rng.normal(size=k.shape)) * k ** (-2.2 / 2)
+    z = np.fft.irfft2(spec, s=(n, n))[:size, :size]
+    z = (z - z.min()) / (z.max() - z.min()) * 300.0 + 100.0
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with rasterio.open(path, "w", driver="GTiff", width=size, height=size, count=1, dtype="float32",
+                       crs="EPSG:32632", transform=from_origin(480_000.0, 5_420_000.0, 1.0, 1.0), tiled=True,
+                       blockxsize=256, blockysize=256, compress="deflate") as ds:
+        ds.write(z.astype(np.float32), 1)
+    return path
+
+
 def _section(title: str) -> None:
     print(f"\n=== {title}", flush=True)
 
@@ -108,6 +128,17 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
                          repeats=1)
         md.append(_render_md("4097×4097 raster, default flight (approach, low pass, orbit)", rep4))
         results["render_4097"] = _render_json(rep4)
+        flush()
+
+    if not quick:
+        _section("speed against error: 4097×4097 natural terrain")
+        terr = _terrain_raster(4097, out / "terrain4097" / "dsm.tif")
+        trep = build_dsm(terr, out / "terrain_tiles", workers=2, progress=progress)
+        md.append(f"4097×4097 natural terrain built on 2 workers in {trep.seconds:.0f} s ({trep.tiles} tiles).\n")
+        rept = run_bench([out / "terrain_tiles"], None, taus, (960, 540), out / "render_terrain", progress,
+                         repeats=1)
+        md.append(_render_md("4097×4097 natural terrain (no façades), default flight", rept))
+        results["render_terrain"] = _render_json(rept)
         flush()
 
     if (SHARED / "delft").exists():
