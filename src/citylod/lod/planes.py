@@ -51,16 +51,19 @@ def splat_colors(rgb: U8 | None, classification: U8, intensity: npt.NDArray[np.u
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _next(state: int) -> int:  # pragma: no cover - compiled
     # 64-bit LCG (Knuth MMIX); int64 arithmetic wraps, which is what we want.
     return state * 6364136223846793005 + 1442695040888963407
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _best_plane(p: F64, n_candidates: int, window: int, thr: float, seed: int
                 ) -> tuple[F64, float, int]:  # pragma: no cover - compiled
-    """Best of ``n_candidates`` 3-point planes by inlier count (|n·p + d| ≤ thr); returns its full count.
+    """Best of ``n_candidates`` 3-point planes by inlier count (|n·p + d| ≤ thr) on a subsample.
+
+    Returns the plane (n, d) and its subsample count, -1 when every candidate was degenerate; the caller
+    counts the winner's inliers on all points.
 
     ``p`` is in Morton order, so the 2nd and 3rd sample are drawn within ``window`` positions of the first:
     localised sampling (as in Schnabel et al. 2007) makes three points from the same surface likely even
@@ -70,6 +73,11 @@ def _best_plane(p: F64, n_candidates: int, window: int, thr: float, seed: int
     # Score candidates on a regular subsample of about 512 points (the points are in Morton order, so a
     # stride is a spatially even subsample), count the winner on all points: ranking needs only estimates.
     step = max(1, k // 512)
+    # The subsample as three contiguous columns, so the scoring loop below vectorises.
+    ns = (k + step - 1) // step
+    sx, sy, sz = np.empty(ns), np.empty(ns), np.empty(ns)
+    for t in range(ns):
+        sx[t], sy[t], sz[t] = p[t * step, 0], p[t * step, 1], p[t * step, 2]
     state = seed
     best_n = np.zeros(3)
     best_d = 0.0
@@ -92,20 +100,13 @@ def _best_plane(p: F64, n_candidates: int, window: int, thr: float, seed: int
         nx, ny, nz = nx / nn, ny / nn, nz / nn
         d = -(nx * p[i, 0] + ny * p[i, 1] + nz * p[i, 2])
         cnt = 0
-        for t in range(0, k, step):
-            if abs(nx * p[t, 0] + ny * p[t, 1] + nz * p[t, 2] + d) <= thr:
-                cnt += 1
+        for t in range(ns):
+            cnt += abs(nx * sx[t] + ny * sy[t] + nz * sz[t] + d) <= thr
         if cnt > best:
             best = cnt
             best_n[0], best_n[1], best_n[2] = nx, ny, nz
             best_d = d
-    if best < 0:
-        return best_n, best_d, -1
-    cnt = 0
-    for t in range(k):
-        if abs(best_n[0] * p[t, 0] + best_n[1] * p[t, 1] + best_n[2] * p[t, 2] + best_d) <= thr:
-            cnt += 1
-    return best_n, best_d, cnt
+    return best_n, best_d, best
 
 
 @dataclass(frozen=True)
@@ -186,7 +187,7 @@ def find_planes(p: F64, colors: U8, texel: float, *, phi: float = 8.0, seed: int
     return PlaneResult(quads, replaced, elem)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _label8(occ: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], int]:  # pragma: no cover - compiled
     """8-connected components of ``occ``, numbered from 1 in raster order of their first pixel (as
     ``scipy.ndimage.label`` numbers them)."""
@@ -228,7 +229,7 @@ def _label8(occ: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], int]:  #
     return lab, n
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _dilate_u8(img: F64) -> U8:  # pragma: no cover - compiled
     """Fill transparent texels next to opaque ones with the mean of their opaque 8-neighbours; round to
     uint8 (H, W, 4)."""
@@ -262,7 +263,7 @@ def _dilate_u8(img: F64) -> U8:  # pragma: no cover - compiled
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidates: int, max_planes: int,
             min_inliers: int, max_failures: int, window: int
             ) -> tuple[npt.NDArray[np.bool_], F64, F64, npt.NDArray[np.int64], npt.NDArray[np.int64], U8,
@@ -277,7 +278,7 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
     elem = p.copy()
     active = np.arange(k)
     na = k
-    pa = np.empty((k, 3))
+    pa = p.copy()
     thr = 0.5 * texel
     failures = 0
     q_corners = np.zeros((max_planes, 4, 3))
@@ -291,12 +292,9 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
     for attempt in range(max_planes + max_failures * max_planes):
         if nq >= max_planes or failures >= max_failures or na < min_inliers:
             break
-        for t in range(na):
-            a = active[t]
-            pa[t, 0], pa[t, 1], pa[t, 2] = p[a, 0], p[a, 1], p[a, 2]
-        sub = pa[:na]
-        n, d, cnt = _best_plane(sub, n_candidates, window, thr, seed + 7919 * attempt)
-        if cnt < min_inliers:
+        sub = pa[:na]  # the active points, kept compacted below
+        n, d, sampled = _best_plane(sub, n_candidates, window, thr, seed + 7919 * attempt)
+        if sampled < 0:
             break
         nx, ny, nz = n[0], n[1], n[2]
         ninl = 0
@@ -309,6 +307,8 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
                 cx += sub[t, 0]
                 cy += sub[t, 1]
                 cz += sub[t, 2]
+        if ninl < min_inliers:
+            break
         cx, cy, cz = cx / ninl, cy / ninl, cz / ninl
         # Least-squares refit (PCA of the inliers), kept when it does not lose inliers.
         cov = np.zeros((3, 3))
@@ -403,9 +403,9 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
             ox = cx + (s0 + (i0 - 1) * texel) * ux + (t0 + (j0 - 1) * texel) * vx
             oy = cy + (s0 + (i0 - 1) * texel) * uy + (t0 + (j0 - 1) * texel) * vy
             oz = cz + (s0 + (i0 - 1) * texel) * uz + (t0 + (j0 - 1) * texel) * vz
-            for e in sel:
-                ti, tj = gi_[e] - i0 + 1, gj_[e] - j0 + 1
-                g = active[idx[e]]
+            for e_ in sel:
+                ti, tj = gi_[e_] - i0 + 1, gj_[e_] - j0 + 1
+                g = active[idx[e_]]
                 img[tj, ti, 0] += colors[g, 0]
                 img[tj, ti, 1] += colors[g, 1]
                 img[tj, ti, 2] += colors[g, 2]
@@ -446,12 +446,13 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
             failures += 1  # not worth a quad: these points stay points; do not sample them again
         # Drop the patch's points from the active set either way.
         rm = np.zeros(na, np.bool_)
-        for e in sel:
-            rm[idx[e]] = True
+        for e_ in sel:
+            rm[idx[e_]] = True
         w_ = 0
         for t in range(na):
             if not rm[t]:
                 active[w_] = active[t]
+                pa[w_, 0], pa[w_, 1], pa[w_, 2] = pa[t, 0], pa[t, 1], pa[t, 2]
                 w_ += 1
         na = w_
     return (replaced, elem, q_corners[:nq], q_size[:nq], q_inl[:nq], tex[:tex_off[nq]], tex_off[:nq + 1])

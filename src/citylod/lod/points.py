@@ -7,8 +7,11 @@ octree generation for massive point clouds", 2020):
    cube and park the decoded segments as raw ``.npy`` (so LAZ is decoded once, not twice);
 2. *chunking* — cells are merged top-down into octree nodes ("chunks") of at most ``max_chunk_points``
    points (counting sort over the count pyramid);
-3. *distribution* — tasks counting-sort each segment by chunk and write per-chunk pieces;
-4. *subtrees* — one independent task per chunk builds the chunk's subtree in memory;
+3. *distribution* — tasks counting-sort each parked segment by chunk, in place, so a chunk is one slice
+   of each segment file (one file per segment, not one per segment and chunk: creating files is slow);
+4. *subtrees* — one independent task per chunk builds the chunk's subtree in memory: one compiled
+   counting-sort pass partitions the chunk so every node is a contiguous slice, then nodes are built
+   children first;
 5. *upper levels* — the nodes above the chunks are built from the chunks' representatives;
 6. *upper errors* — one task per chunk measures the exact error of its ancestors on its input points.
 
@@ -22,7 +25,8 @@ draws for it (the representative of its cell, or the quad texel that representat
 raised to its children's errors so errors never grow downwards.
 
 Output is written in ``<out>.partial/`` and renamed when complete; an interrupted build resumes there
-(a finished chunk is not redone). No VTK, no Qt.
+(a finished chunk is not redone). Node contents are ``tiles/<level>/<x>-<y>-<z>.glb`` (one folder per
+level). No VTK, no Qt.
 """
 
 from __future__ import annotations
@@ -201,8 +205,26 @@ def _xyz(recs: Recs) -> F64:
     return np.lib.stride_tricks.as_strided(x, (len(recs), 3), (x.strides[0], 8), writeable=False).copy()
 
 
+def _take(a: np.ndarray, idx: I64) -> np.ndarray:
+    """``a[idx]`` along the first axis, for (N,) records or (N, k) arrays.
+
+    numpy's fancy indexing copies record by record through the dtype's fields, and (N, 3) rows
+    element by element; gathering the records as opaque bytes, and rows with ``take``, measured 3-8×
+    faster on the Delft cloud.
+    """
+    if a.dtype.names is not None:
+        return np.ascontiguousarray(a).view(np.dtype((np.void, a.dtype.itemsize)))[idx].view(a.dtype)
+    return np.take(a, idx, axis=0)
+
+
 def _key(level: int, idx: tuple[int, int, int]) -> str:
     return f"{level}/{idx[0]}/{idx[1]}/{idx[2]}"
+
+
+def _file_key(level: int, idx: tuple[int, int, int]) -> str:
+    # One folder per level, not per (level, x, y) as the key would give: creating a folder costs as much
+    # as writing a node (≈0.5 ms on ext4 here), and a deep octree has nearly a folder per node.
+    return f"{level}/{idx[0]}-{idx[1]}-{idx[2]}"
 
 
 def _seed(key: str) -> int:
@@ -233,7 +255,8 @@ def _leaf(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, 
     center = (lo + hi) / 2.0
     order = morton_order(q, level)
     order = order[batch_shuffle(len(order), _seed(key))]
-    uri = _write(p, key, TileContent(points=_point_data(recs[order], xyz[order], center, p.has_rgb)), stats)
+    content = TileContent(points=_point_data(_take(recs, order), _take(xyz, order), center, p.has_rgb))
+    uri = _write(p, _file_key(level, idx), content, stats)
     stats.nodes += 1
     stats.leaves += 1
     stats.max_level = max(stats.max_level, level)
@@ -243,20 +266,24 @@ def _leaf(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, 
 
 
 def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[_Summary],
-              stats: _Stats) -> tuple[_Summary, I64, F64]:
+              stats: _Stats, candidates: tuple[Recs, I64, F64, F64, I64] | None = None
+              ) -> tuple[_Summary, I64, F64]:
     """Build an internal node from its children's representatives; write its content.
+
+    ``candidates`` (records, q, xyz, sums, counts) are the children's representatives concatenated in
+    order, when the caller has them without copying (the points of leaf children lying side by side).
 
     Returns the node's summary (its ``geometric_error`` still to be set by the caller), and its error
     table: the sorted occupied cells (C,) of its 64³ grid and what it draws for each, (C, 3) float64.
     """
     key = _key(level, idx)
-    recs = np.concatenate([c.recs for c in children])
-    q = np.concatenate([c.q for c in children])
-    xyz = np.concatenate([c.xyz for c in children])
-    sums = np.concatenate([c.sums for c in children])
-    counts = np.concatenate([c.counts for c in children])
+    if candidates is None:
+        candidates = (np.concatenate([c.recs for c in children]), np.concatenate([c.q for c in children]),
+                      np.concatenate([c.xyz for c in children]), np.concatenate([c.sums for c in children]),
+                      np.concatenate([c.counts for c in children]))
+    recs, q, xyz, sums, counts = candidates
     cells, rep, csums, ccounts = cluster(q, xyz, sums, counts, level)
-    rrecs, rq, rxyz = recs[rep], q[rep], xyz[rep]
+    rrecs, rq, rxyz = _take(recs, rep), _take(q, rep), _take(xyz, rep)
     lo = np.min([c.lo for c in children], axis=0)
     hi = np.max([c.hi for c in children], axis=0)
     center = (lo + hi) / 2.0
@@ -269,7 +296,7 @@ def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[
     if p.hybrid and len(m) >= 32:
         colors = splat_colors(np.stack([rrecs["red"], rrecs["green"], rrecs["blue"]], axis=1)[m] if p.has_rgb
                               else None, rrecs["classification"][m], rrecs["intensity"][m], p.intensity_scale)
-        res = find_planes(rxyz[m] - center, colors, texel, phi=p.phi, seed=_seed(key))
+        res = find_planes(_take(rxyz, m) - center, colors, texel, phi=p.phi, seed=_seed(key))
         if res.quads:
             elem = rxyz.copy()
             elem[m] = res.elem + center
@@ -282,8 +309,8 @@ def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[
             stats.quads += nquads
             stats.quad_points += int(res.replaced.sum())
     drawn = drawn[batch_shuffle(len(drawn), _seed(key))]
-    points = _point_data(rrecs[drawn], rxyz[drawn], center, p.has_rgb) if len(drawn) else None
-    uri = _write(p, key, TileContent(meshes=meshes, points=points), stats)
+    points = _point_data(_take(rrecs, drawn), _take(rxyz, drawn), center, p.has_rgb) if len(drawn) else None
+    uri = _write(p, _file_key(level, idx), TileContent(meshes=meshes, points=points), stats)
     stats.nodes += 1
     spec = TileSpec(key=key, level=level, center=center, lo=lo, hi=hi, geometric_error=0.0, content=uri,
                     children=[c.spec for c in children],
@@ -300,7 +327,7 @@ def _subtree(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[in
     node is a contiguous slice; nodes are then built children first, without recursion.
     """
     order, nodes = partition(q, level, idx, p.max_leaf_points, MAX_LEVEL)
-    recs, q, xyz = recs[order], q[order], xyz[order]
+    recs, q, xyz = _take(recs, order), _take(q, order), _take(xyz, order)
     children: list[list[int]] = [[] for _ in range(len(nodes))]
     for k in range(1, len(nodes)):
         children[int(nodes[k, 6])].append(k)
@@ -311,7 +338,10 @@ def _subtree(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[in
             built[k] = _leaf(p, recs[a:b], q[a:b], xyz[a:b], lv, (x, y, z), stats)
             continue
         kids = [built[c] for c in children[k]]
-        node, cells, elem = _internal(p, lv, (x, y, z), kids, stats)  # type: ignore[arg-type]
+        # Leaf children hold all their points, side by side in [a, b): their concatenation is a slice.
+        cand = ((recs[a:b], q[a:b], xyz[a:b], xyz[a:b], np.ones(b - a, np.int64))
+                if all(not children[c] for c in children[k]) else None)
+        node, cells, elem = _internal(p, lv, (x, y, z), kids, stats, cand)  # type: ignore[arg-type]
         for c in children[k]:
             built[c] = None  # the children's representatives are not needed any more
         _set_error(node.spec, lookup_error(q[a:b], xyz[a:b], lv, cells, elem))
@@ -349,24 +379,37 @@ def _scan_segment(cube_lo: tuple[float, float, float], cube_size: float, path: s
     return cells, cnt[cells].astype(np.int64), len(recs), *bounds(xyz), p99
 
 
-def _distribute_segment(p: _Params, raw: str, sid: int, lut_path: str) -> int:
-    """Pass 2: counting-sort a parked segment by chunk and write one piece per chunk."""
+def _segment_path(p: _Params, sid: int) -> Path:
+    return Path(p.tmp) / "raw" / f"{sid:06d}.npy"
+
+
+def _distribute_segment(p: _Params, sid: int, lut_path: str, n_chunks: int) -> tuple[int, I64]:
+    """Pass 2: counting-sort a parked segment by chunk, in place.
+
+    The segment file is replaced by its records sorted by chunk (one file per segment rather than one per
+    segment and chunk: file creation is what this pass spent its time on); a chunk is then one slice of
+    each segment. Sorting a sorted segment again changes nothing, so an interrupted pass is simply rerun.
+
+    Returns the segment id and the offsets (n_chunks + 1,) of the chunks' slices.
+    """
+    raw = _segment_path(p, sid)
     recs = np.load(raw)
     lut = np.load(lut_path, mmap_mode="r")
     g = quantize(_xyz(recs), np.asarray(p.cube_lo), p.cube_size) >> (QBITS - SCAN_BITS)
     cid = np.asarray(lut[g[:, 0] | (g[:, 1] << SCAN_BITS) | (g[:, 2] << (2 * SCAN_BITS))], np.int64)
-    nch = int(cid.max()) + 1
-    order, offs = counting_sort(cid, nch)
-    recs = recs[order]
-    for c in np.flatnonzero(np.diff(offs)):
-        _save_npy(os.path.join(p.tmp, "chunks", str(c), f"{sid:06d}.npy"), recs[offs[c]:offs[c + 1]])
-    return len(recs)
+    order, offs = counting_sort(cid, n_chunks)
+    if np.any(np.diff(order) < 0):
+        _save_npy(raw, _take(recs, order))
+    return sid, offs
 
 
 def _load_chunk(p: _Params, cid: int) -> Recs:
-    d = Path(p.tmp) / "chunks" / str(cid)
-    parts = [np.load(f) for f in sorted(d.glob("*.npy"))]
-    return np.concatenate(parts) if len(parts) > 1 else parts[0]
+    offs = np.load(Path(p.tmp) / "pieces.npy")
+    parts = []
+    for sid in np.flatnonzero(offs[:, cid + 1] > offs[:, cid]):
+        seg = np.load(_segment_path(p, int(sid)), mmap_mode="r")
+        parts.append(seg[offs[sid, cid]:offs[sid, cid + 1]])
+    return np.concatenate(parts) if len(parts) > 1 else np.array(parts[0])
 
 
 def _build_chunk(p: _Params, cid: int, level: int, idx: tuple[int, int, int]) -> _ChunkResult:
@@ -549,10 +592,13 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
                                                           progress=progress, desc="scan"):
                 counts[cells] += cnt
                 lo, hi, p99 = np.minimum(lo, slo), np.maximum(hi, shi), max(p99, sp)
-            np.savez(tmp / "scan.tmp.npz", counts=counts, lo=lo, hi=hi, p99=p99)
+            occupied = np.flatnonzero(counts)  # sparse: the dense grid is 16 MB
+            np.savez(tmp / "scan.tmp.npz", cells=occupied, counts=counts[occupied], lo=lo, hi=hi, p99=p99)
             os.replace(tmp / "scan.tmp.npz", scan)
         s = np.load(scan)
-        counts, p99 = s["counts"], float(s["p99"])
+        counts = np.zeros(1 << (3 * SCAN_BITS), np.int64)
+        counts[s["cells"]] = s["counts"]
+        p99 = float(s["p99"])
         params = _Params(out=str(partial), tmp=str(tmp),
                          cube_lo=(float(cube_lo[0]), float(cube_lo[1]), float(cube_lo[2])),
                          cube_size=cube_size, has_rgb=meta.has_rgb, hybrid=hybrid, phi=phi,
@@ -566,13 +612,13 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
                 w = 1 << (SCAN_BITS - lv)
                 lut[z * w:(z + 1) * w, y * w:(y + 1) * w, x * w:(x + 1) * w] = cid
             _save_npy(tmp / "lut.npy", lut.reshape(-1))
-            shutil.rmtree(tmp / "chunks", ignore_errors=True)
-            for _ in run_tasks(ex, _distribute_segment,
-                               [(params, seg[3], sid, str(tmp / "lut.npy")) for sid, seg in enumerate(segments)],
-                               progress=progress, desc="distribute"):
-                pass
+            pieces = np.zeros((len(segments), len(chunks) + 1), np.int64)
+            for sid, offs in run_tasks(ex, _distribute_segment,
+                                       [(params, sid, str(tmp / "lut.npy"), len(chunks))
+                                        for sid in range(len(segments))], progress=progress, desc="distribute"):
+                pieces[sid] = offs
+            _save_npy(tmp / "pieces.npy", pieces)
             (tmp / "distributed.done").touch()
-            shutil.rmtree(tmp / "raw", ignore_errors=True)
         # Pass 3: one subtree per chunk.
         stats = _Stats()
         roots: dict[tuple[int, tuple[int, int, int]], _Summary] = {}

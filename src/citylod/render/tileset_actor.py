@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,11 +51,16 @@ from citylod.render import _vtk
 from citylod.render.colors import COLOR_MODES, classification_rgb, intensity_rgb, level_color, ramp_rgb
 from citylod.render.tile_data import PreparedMesh, PreparedTile, prepare_tile
 
-__all__ = ["SKIRT_ARRAY", "FrameStats", "Scene", "TilesetLayer", "camera_to_vtk", "is_skirt_cell",
+__all__ = ["DEFAULT_POINT_BUDGET", "SKIRT_ARRAY", "FrameStats", "Scene", "TilesetLayer", "camera_to_vtk", "is_skirt_cell",
            "view_from_renderer"]
 
 #: Name of the uint8 cell array that marks skirt triangles (1) in a tile's polydata.
 SKIRT_ARRAY = "citylod_skirt"
+
+#: Point budget given to point layers (tilesets whose ``extras.citylod.kind`` is "points") when they are
+#: added: what this machine (llvmpipe, 2 cores) draws at interactive rates. Change it per layer through
+#: ``layer.budget``.
+DEFAULT_POINT_BUDGET = 1_000_000
 
 _SURFACE_RGB = (0.86, 0.83, 0.76)  # untextured, uncoloured surfaces: light stone, so shading reads well
 _BACKGROUND = (0.72, 0.80, 0.90)
@@ -81,9 +87,10 @@ class _Node:
         self.content_uri = tile.content_uri
         self.content_bytes = tile.content_bytes
         self.children: list[_Node] = []
-        # Unknown until loaded; the loader reads them when it puts the tile in the cache.
-        self.point_count = 0
-        self.triangle_count = 0
+        # The tile's hints (extras "points" / "triangles", 0 when absent) until it is loaded, when the
+        # loader replaces them with the loaded counts: a point budget must count a tile before loading it.
+        self.point_count = int(tile.point_count)
+        self.triangle_count = int(tile.triangle_count)
 
 
 def _proxy_tree(root: Tile, prefix: str) -> tuple[_Node, dict[str, _Node]]:
@@ -194,6 +201,18 @@ class _PointProps:
         self.actor.VisibilityOff()
         self.actor.GetProperty().LightingOff()
         self.data: Any = None
+        # Smooth refinement draws a prefix of the tile's points: builders store them in shuffled Morton
+        # batches, so any prefix is a uniform subsample (citylod.lod.octree.batch_shuffle).
+        self.total = 0
+        self.drawn = 0
+        self.fade_start_s: float | None = None
+
+    def draw_first(self, k: int) -> None:
+        """Draw the first ``k`` points of the tile (clamped to 1..total)."""
+        k = max(1, min(int(k), self.total))
+        if k != self.drawn and self.data is not None:
+            self.data.SetVerts(_cells(np.arange(k, dtype=np.int64), 1))
+            self.drawn = k
 
 
 class _Slot:
@@ -253,8 +272,9 @@ class TilesetLayer:
     """One opened tileset in a :class:`Scene`: its selection, shown tiles and style.
 
     Created by :meth:`Scene.add`. Attributes that scripts change: ``visible``, ``tau_px`` (None → the
-    scene's), ``budget`` (a :class:`~citylod.lod.selection.Budget`), ``color_by`` (None → the scene's),
-    ``point_size_px``.
+    scene's), ``budget`` (a :class:`~citylod.lod.selection.Budget`; point layers start with
+    :data:`DEFAULT_POINT_BUDGET` points), ``color_by`` (None → the scene's), ``point_size_px``,
+    ``smooth_refinement`` (point nodes that appear fade in over ``Scene.fade_s``; on for point layers).
     """
 
     def __init__(self, scene: Scene, tileset: Tileset, index: int) -> None:
@@ -265,7 +285,11 @@ class TilesetLayer:
         self.root, self._nodes = _proxy_tree(tileset.root, self.prefix)
         self.visible = True
         self.tau_px: float | None = None
-        self.budget: Budget | None = None
+        cl = tileset.extras.get("citylod", {}) if isinstance(tileset.extras, dict) else {}
+        self.kind = str(cl.get("kind", "")) if isinstance(cl, dict) else ""
+        is_points = self.kind == "points"
+        self.budget: Budget | None = Budget(max_points=DEFAULT_POINT_BUDGET) if is_points else None
+        self.smooth_refinement = is_points
         self.color_by: str | None = None
         self.point_size_px = 2.0
         self.selection: Selection | None = None
@@ -415,6 +439,8 @@ class TilesetLayer:
             data.SetPoints(_points(prepared.points.positions))
             data.SetVerts(_cells(np.arange(len(prepared.points.positions), dtype=np.int64), 1))
             slot.points.data = data
+            slot.points.total = slot.points.drawn = len(prepared.points.positions)
+            slot.points.fade_start_s = None
             slot.points.mapper.SetInputData(data)
             slot.points.actor.SetUserMatrix(user)
         elif slot.points is not None:
@@ -431,14 +457,19 @@ class TilesetLayer:
             self.scene._return_slot(slot)
 
     # -- frame ------------------------------------------------------------------------------------
-    def _show(self, render: Sequence[Any]) -> None:
-        """Show exactly the tiles of ``render``: upload what is new, hide what left."""
+    def _show(self, render: Sequence[Any], now_s: float | None = None) -> None:
+        """Show exactly the tiles of ``render``: upload what is new, hide what left.
+
+        ``now_s`` (the scene clock, from :meth:`Scene.update`) lets point tiles that appear fade in
+        (``smooth_refinement``); without it every shown tile draws all its points.
+        """
         want = {n.key for n in render} if self.visible else set()
         for key in self._shown - want:
             slot = self._slots.get(key)
             if slot is not None:
                 slot.set_visible(False)
         shown: set[str] = set()
+        fade = now_s is not None and self.smooth_refinement
         for node in render if self.visible else ():
             slot = self._slots.get(node.key)
             if slot is None:
@@ -446,8 +477,22 @@ class TilesetLayer:
                 if prepared is None:
                     continue
                 slot = self._upload(node, prepared)
+            appears = not slot.visible
             slot.set_visible(True)
             shown.add(node.key)
+            pts = slot.points
+            if pts is not None and pts.data is not None:
+                if fade and appears:
+                    pts.fade_start_s = now_s
+                if fade and pts.fade_start_s is not None:
+                    assert now_s is not None
+                    f = fade_fraction(now_s - pts.fade_start_s, self.scene.fade_s, self.scene.fade_from)
+                    if f >= 1.0:
+                        pts.fade_start_s = None
+                    pts.draw_first(math.ceil(f * pts.total))
+                else:
+                    pts.fade_start_s = None
+                    pts.draw_first(pts.total)
         self._shown = shown
 
     def show_leaves(self, keys: Iterable[str] | None = None) -> None:
@@ -458,6 +503,14 @@ class TilesetLayer:
 
 
 _EMPTY = _vtk.vtkPolyData()
+
+
+def fade_fraction(age_s: float, fade_s: float, start: float) -> float:
+    """Share of a point tile's points drawn ``age_s`` after it appeared: ``start`` growing linearly to 1
+    over ``fade_s`` (smooth refinement, Kehl et al.: new detail fades in instead of popping)."""
+    if fade_s <= 0.0 or age_s >= fade_s:
+        return 1.0
+    return min(1.0, max(start, start + (1.0 - start) * max(age_s, 0.0) / fade_s))
 
 
 def _image(rgb: npt.NDArray[np.uint8]) -> Any:
@@ -507,6 +560,11 @@ class Scene:
         self.layers: list[TilesetLayer] = []
         self.frozen = False
         self.tau_controller = TauController(self.tau_px) if adaptive_tau else None
+        # Smooth refinement of point layers in update(): a point tile that appears draws fade_from of
+        # its points, growing to all of them over fade_s seconds of clock() (replaceable in tests).
+        self.fade_s = 0.3
+        self.fade_from = 0.2
+        self.clock: Callable[[], float] = time.monotonic
         self.crs: Any = None
         self.elevation_range = (0.0, 1.0)
         # Counters that tests and the HUD read.
@@ -622,6 +680,12 @@ class Scene:
     def slots_in_use(self) -> int:
         return sum(len(layer._slots) for layer in self.layers)
 
+    @property
+    def fading(self) -> bool:
+        """True while a shown point tile is still fading in: a view should keep rendering frames."""
+        return any(slot.visible and slot.points is not None and slot.points.fade_start_s is not None
+                   for layer in self.layers for slot in layer._slots.values())
+
     def _layer_of(self, key: str) -> TilesetLayer:
         return self.layers[int(key.split(":", 1)[0])]
 
@@ -692,9 +756,10 @@ class Scene:
         sels = self.select_all(view)
         self._pin_and_request(sels)
         self._release_evicted()
+        now_s = self.clock()
         for layer, sel in zip(self.layers, sels, strict=True):
             layer.selection = sel
-            layer._show(sel.render)
+            layer._show(sel.render, now_s)
         self.frame += 1
         self.last_stats = self._stats(sels, view)
         return self.last_stats
