@@ -83,5 +83,18 @@ def _describe_las(p: Path) -> str:
 def _describe_store(p: Path) -> str:
     from citylod.semantics.store import CityStore
 
-    store = CityStore.open(p)
-    return f"{p}: city store, {store.describe()}" if hasattr(store, "describe") else f"{p}: city store"
+    import pyproj
+
+    with CityStore.open(p) as store:
+        x0, y0, z0, x1, y1, z1 = store.bounds
+        n = len(store)
+        buildings = len(store.query("type IN ('Building', 'BuildingPart')"))
+        lon, lat = pyproj.Transformer.from_crs(store.crs, "EPSG:4326", always_xy=True).transform(
+            (x0 + x1) / 2, (y0 + y1) / 2)
+        epsg = store.crs.to_epsg()
+        return "\n".join([
+            f"{p}: city store (GeoPackage), {n} objects, {buildings} buildings",
+            f"  crs      {store.crs.name}" + (f" (EPSG:{epsg})" if epsg else ""),
+            f"  bounds   x {x0:.2f} … {x1:.2f}, y {y0:.2f} … {y1:.2f}, z {z0:.2f} … {z1:.2f}",
+            f"  centre   {lat:.5f}° N, {lon:.5f}° E",
+        ])

@@ -1,0 +1,38 @@
+"""The command line: info on each kind of source, and errors as one line with exit code 2."""
+
+from __future__ import annotations
+
+import numpy as np
+import rasterio
+from rasterio.transform import from_origin
+
+from citylod.cli import main
+
+
+def _raster(path):
+    z = np.add.outer(np.arange(40.0), np.arange(50.0)).astype(np.float32)
+    with rasterio.open(path, "w", driver="GTiff", width=50, height=40, count=1, dtype="float32",
+                       crs="EPSG:32632", transform=from_origin(500_000, 5_400_000, 1, 1)) as ds:
+        ds.write(z, 1)
+    return path
+
+
+def test_info_on_raster_and_tileset(tmp_path, capsys) -> None:
+    r = _raster(tmp_path / "d.tif")
+    assert main(["info", str(r)]) == 0
+    assert "50×40" in capsys.readouterr().out
+    assert main(["-q", "build", "dsm", str(r), "-o", str(tmp_path / "t"), "--workers", "0"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "t")]) == 0
+    out = capsys.readouterr().out
+    assert "kind dsm" in out and "EPSG:32632" in out
+
+
+def test_errors_are_one_line_with_exit_code_2(tmp_path, capsys) -> None:
+    assert main(["info", str(tmp_path / "missing.tif")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing.tif" in err[0] and "Traceback" not in err[0]
+    (tmp_path / "bad.laz").write_bytes(b"LASF" + b"\0" * 50)
+    assert main(["build", "points", str(tmp_path / "bad.laz"), "-o", str(tmp_path / "p")]) == 2
+    assert "bad.laz" in capsys.readouterr().err
+    assert not (tmp_path / "p").exists()
