@@ -84,6 +84,10 @@ def run_app(sources: Sequence[str | os.PathLike[str]] = (), *, screenshot: str |
         def check() -> None:
             if win.tasks:  # builds still running
                 return
+            if win.document.semantics_pending:  # the semantic overlay's map is still being built
+                if win.document.poll_semantics():
+                    win.view.render_now()
+                return
             win.view.render_now()
             stable[0] = stable[0] + 1 if win.view.is_resolved() else 0
             timed_out = time.monotonic() - t0 > _RESOLVE_TIMEOUT_S

@@ -430,6 +430,10 @@ class Document:
         self.state = FeatureState()
         self.results: list[str] = []
         self.semantic: Any = None
+        # In the GUI the semantic overlay's height map (hundreds of ms for a city) is built on a worker
+        # thread and attached by poll_semantics() on the GUI thread; scripts and tests attach at once.
+        self.async_semantics = False
+        self._semantic_future: Any = None
         self._listeners: list[Listener] = []
 
     # -- events -----------------------------------------------------------------------------------
@@ -489,11 +493,45 @@ class Document:
             from citylod.render.semantic import SemanticOverlay
         except ImportError:
             return
+        if self.async_semantics:
+            if self._semantic_future is None:
+                import concurrent.futures
+
+                from citylod.render.semantic import build_contour_map, overlay_map_args
+
+                pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="citylod-map")
+                self._semantic_future = pool.submit(build_contour_map, self.store, **overlay_map_args(self.scene))
+                pool.shutdown(wait=False)
+            return
         try:
             self.semantic = SemanticOverlay(self.scene, self.store, self.state)
         except Exception as exc:  # a renderer-side failure must not stop the viewer: fall back
             warnings.warn(f"semantic shading unavailable: {type(exc).__name__}: {exc}", stacklevel=2)
             self.semantic = None
+
+    @property
+    def semantics_pending(self) -> bool:
+        """The overlay's map is still being built in the background."""
+        return self._semantic_future is not None
+
+    def poll_semantics(self) -> bool:
+        """Attach the overlay once its map, built in the background, is ready; True when it attached."""
+        fut = self._semantic_future
+        if fut is None or not fut.done():
+            return False
+        self._semantic_future = None
+        if self.store is None or self.semantic is not None:
+            return False
+        from citylod.render.semantic import SemanticOverlay
+
+        try:
+            self.semantic = SemanticOverlay(self.scene, self.store, self.state, contour_map=fut.result())
+        except Exception as exc:  # a renderer-side failure must not stop the viewer: fall back
+            warnings.warn(f"semantic shading unavailable: {type(exc).__name__}: {exc}", stacklevel=2)
+            self.semantic = None
+            return False
+        self._emit("semantics")
+        return True
 
     @property
     def geographic(self) -> bool:

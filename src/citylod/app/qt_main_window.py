@@ -71,6 +71,8 @@ class MainWindow(QMainWindow):
         self.setAcceptDrops(True)
         self.settings = settings_ if settings_ is not None else settings()
         self.document = document if document is not None else Document()
+        # the semantic overlay's height map is built off the GUI thread (100 ms rule)
+        self.document.async_semantics = True
         self.interactive = interactive  # False: errors go to the status bar and stderr, no message boxes
         self.tasks: list[ProcessTask] = []
         self.errors: list[str] = []

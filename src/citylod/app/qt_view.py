@@ -158,9 +158,11 @@ class SceneView(QWidget):
         if not self.isVisible():
             return
         newly = self.scene.loader.poll() if self.scene.layers else []
+        if self.document.poll_semantics():
+            self._dirty = True
         mtime = self.renderer.GetActiveCamera().GetMTime()
         moved = mtime != self._camera_mtime
-        if newly or moved or self._dirty:
+        if newly or moved or self._dirty or getattr(self.scene, "fading", False):
             self._camera_mtime = mtime
             self.render_now()
             self._camera_mtime = self.renderer.GetActiveCamera().GetMTime()

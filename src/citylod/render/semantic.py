@@ -218,6 +218,19 @@ class AttributeLegend:
 
 
 # ------------------------------------------------------------------------------------------ overlay
+def overlay_map_args(scene: Any, *, resolution: float = 0.5, max_texels: int = 2048 * 2048) -> dict[str, Any]:
+    """The keyword arguments of :func:`build_contour_map` that :class:`SemanticOverlay` uses for ``scene``.
+
+    The map is pure numpy, so a GUI can build it on a worker thread and pass it in as ``contour_map``.
+    """
+    bounds = None
+    if scene.layers:
+        lo, hi = scene.bounds
+        bounds = (lo[0], lo[1], hi[0], hi[1])
+    return {"resolution": resolution, "max_texels": max_texels, "bounds": bounds,
+            "z_ref": float(np.asarray(scene.origin, np.float64)[2])}
+
+
 class SemanticOverlay:
     """Keeps every tile actor of a :class:`~citylod.render.tileset_actor.Scene` shaded by a
     :class:`~citylod.semantics.state.FeatureState` through the proxies of a :class:`CityStore`.
@@ -243,7 +256,7 @@ class SemanticOverlay:
     """
 
     def __init__(self, scene: Any, store: CityStore, state: FeatureState | None = None, *,
-                 resolution: float = 0.5, max_texels: int = 2048 * 2048) -> None:
+                 resolution: float = 0.5, max_texels: int = 2048 * 2048, contour_map: Any = None) -> None:
         if scene.origin is None:
             raise CitylodError("add a tileset to the scene before the semantic overlay")
         self.scene = scene
@@ -256,8 +269,9 @@ class SemanticOverlay:
         if scene.layers:
             lo, hi = scene.bounds
             bounds = (lo[0], lo[1], hi[0], hi[1])
-        self.map = build_contour_map(store, resolution=resolution, max_texels=max_texels, bounds=bounds,
-                                     z_ref=float(origin[2]))
+        # A map built beforehand (e.g. on a worker thread by the GUI; see overlay_map_args) is used as is.
+        self.map = contour_map if contour_map is not None else build_contour_map(
+            store, **overlay_map_args(scene, resolution=resolution, max_texels=max_texels))
         self._to_map = self.map.world_to_texel(origin)
         n = len(store.ids)
         self._lut_h = max(1, -(-n // _LUT_WIDTH))
