@@ -158,7 +158,12 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
         build_city(sample.files["city"], out / "city.gpkg", progress=progress)
         sem = run_semantic_bench(tiles, out / "city.gpkg", cams[:8], (960, 540), out / "semantics")
         md.append("## Semantics\n")
-        md.append(sem if isinstance(sem, str) else getattr(sem, "markdown", str(sem)))
+        md_path = sem.get("paths", {}).get("md") if isinstance(sem, dict) else None
+        if md_path is not None and Path(md_path).exists():
+            md.append(Path(md_path).read_text())
+        else:
+            md.append(f"picking median {sem['pick_ms_median']:.2f} ms, p95 {sem['pick_ms_p95']:.2f} ms\n")
+        results["semantics"] = {k: v for k, v in sem.items() if k in ("summary", "pick_ms_median", "pick_ms_p95")}
 
     flush()
     print(f"\nresults: {out / 'RESULTS.md'}")
