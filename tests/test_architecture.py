@@ -27,3 +27,14 @@ def test_pure_layers_import_without_vtk_or_qt() -> None:
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
+
+
+def test_no_process_wide_vtk_render_state() -> None:
+    """VTK's SetResolveCoincidentTopology* are static: one call shifts the depth of every mapper in the
+    process (it broke off-screen point renders after the GUI drew a measurement). Per-mapper
+    SetRelativeCoincidentTopology* parameters are the way."""
+    import re
+
+    bad = [str(p.relative_to(ROOT)) for p in (ROOT / "src").rglob("*.py")
+           if re.search(r"\.SetResolveCoincidentTopology\w*\(", p.read_text())]
+    assert not bad, bad

@@ -342,8 +342,11 @@ class SceneView(QWidget):
             prop.RenderPointsAsSpheresOn()
             prop.LightingOff()
             actor.SetPickable(False)
-            # Drawn over the terrain: a measurement on a roof must not vanish behind the roof edge.
-            mapper.SetResolveCoincidentTopologyToPolygonOffset()
+            # Drawn over the terrain: a measurement on a roof must not vanish behind the roof edge. The
+            # offsets are this mapper's own (SetResolveCoincidentTopology* is static and would shift
+            # every mapper in the process, off-screen renders included).
+            mapper.SetRelativeCoincidentTopologyLineOffsetParameters(0.0, -66000.0)
+            mapper.SetRelativeCoincidentTopologyPointOffsetParameter(-66000.0)
             self._measure_actor = actor
             self.renderer.AddActor(actor)
         if self.measurement is not None:
