@@ -81,9 +81,9 @@ def _describe_las(p: Path) -> str:
 
 
 def _describe_store(p: Path) -> str:
-    from citylod.semantics.store import CityStore
-
     import pyproj
+
+    from citylod.semantics.store import CityStore
 
     with CityStore.open(p) as store:
         x0, y0, z0, x1, y1, z1 = store.bounds

@@ -265,10 +265,6 @@ class SemanticOverlay:
         self.enabled = True
         origin = np.asarray(scene.origin, np.float64)
         self._origin = origin
-        bounds = None
-        if scene.layers:
-            lo, hi = scene.bounds
-            bounds = (lo[0], lo[1], hi[0], hi[1])
         # A map built beforehand (e.g. on a worker thread by the GUI; see overlay_map_args) is used as is.
         self.map = contour_map if contour_map is not None else build_contour_map(
             store, **overlay_map_args(scene, resolution=resolution, max_texels=max_texels))

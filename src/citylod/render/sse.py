@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-
 from numba import njit
 
 from citylod.core.camera import Camera
@@ -97,7 +96,7 @@ def measure_error(depth_lod: npt.ArrayLike, depth_full: npt.ArrayLike, camera: C
 
 
 @njit(cache=True)
-def _point_triangle_distance(p, a, b, c):  # noqa: ANN001, ANN202 - numba kernel
+def _point_triangle_distance(p, a, b, c):
     # Distance from point p to triangle abc (Ericson, Real-Time Collision Detection, 5.1.5).
     ab = b - a
     ac = c - a
@@ -138,7 +137,7 @@ def _point_triangle_distance(p, a, b, c):  # noqa: ANN001, ANN202 - numba kernel
 
 
 @njit(cache=True)
-def _near_surface(p_lod, p_full, d_full, radius):  # noqa: ANN001, ANN202 - numba kernel
+def _near_surface(p_lod, p_full, d_full, radius):
     h, w = d_full.shape
     best = np.full((h, w), np.inf)
     for y in range(h):
