@@ -38,3 +38,9 @@ def test_no_process_wide_vtk_render_state() -> None:
     bad = [str(p.relative_to(ROOT)) for p in (ROOT / "src").rglob("*.py")
            if re.search(r"\.SetResolveCoincidentTopology\w*\(", p.read_text())]
     assert not bad, bad
+
+
+def test_ruff_is_clean() -> None:
+    exe = Path(sys.executable).with_name("ruff")
+    result = subprocess.run([str(exe), "check", "src", "tests"], cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout[-3000:]
