@@ -351,12 +351,24 @@ def _subtree(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[in
     return root
 
 
+# How far a drawn quad texel can be from the input (the other direction of the Hausdorff distance): a
+# texel filled by the one-texel dilation against cracks lies within a texel diagonal of a splatted texel,
+# whose inliers are within half a texel diagonal in the plane and half a texel off it; any point of the
+# drawn texel's square adds half a diagonal: (√2/2 + √2 + √(1/2 + 1/4)) · texel ≈ 2.99 · texel.
+QUAD_DRAWN_BOUND_TEXELS = 3.0
+
+
 def _set_error(spec: TileSpec, exact: float) -> None:
-    # The exact error of this node's content; raised to the children's so that refining never increases
-    # the error a view sees (3D Tiles clients assume errors shrink downwards). Both are true bounds.
-    spec.geometric_error = max([exact, *(c.geometric_error for c in spec.children)])
+    # The exact error of this node's content (input → what is drawn), and for nodes with quads the bound
+    # of what is drawn → input; raised to the children's so that refining never increases the error a
+    # view sees (3D Tiles clients assume errors shrink downwards). All are true bounds.
     assert spec.extras is not None
+    drawn = 0.0
+    if spec.extras.get("quads", 0):
+        drawn = QUAD_DRAWN_BOUND_TEXELS * float(spec.extras["texel_m"])
+    spec.geometric_error = max([exact, drawn, *(c.geometric_error for c in spec.children)])
     spec.extras["exact_error_m"] = exact
+    spec.extras["quad_drawn_bound_m"] = drawn
 
 
 # ----------------------------------------------------------------------------------------------- tasks
