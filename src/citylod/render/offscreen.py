@@ -205,22 +205,20 @@ def render_images(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[C
 # ------------------------------------------------------------------------------------------ writing
 def save_png(path: str | os.PathLike[str], rgb: npt.NDArray[np.uint8]) -> Path:
     """Write (H, W, 3|4) uint8 as PNG atomically (temporary name, then rename)."""
+    from citylod.render.tile_data import encode_png
+
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    h, w, c = rgb.shape
-    img = _vtk.vtkImageData()
-    img.SetDimensions(w, h, 1)
-    arr = _vtk.numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, c), deep=True,
-                            array_type=_vtk.VTK_UNSIGNED_CHAR)
-    img.GetPointData().SetScalars(arr)
+    data = encode_png(np.asarray(rgb, np.uint8))
+    if not data:
+        raise CitylodError("cannot encode PNG", p)
     tmp = p.with_name(f".{p.name}.tmp{os.getpid()}.png")
-    writer = _vtk.vtkPNGWriter()
-    writer.SetFileName(str(tmp))
-    writer.SetInputData(img)
-    writer.Write()
-    if not tmp.exists():
-        raise CitylodError("cannot write PNG", p)
-    os.replace(tmp, p)
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, p)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise CitylodError(f"cannot write PNG ({exc.strerror})", p) from exc
     return p
 
 
