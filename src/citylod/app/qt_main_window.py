@@ -354,13 +354,16 @@ class MainWindow(QMainWindow):
         return image
 
     def save_screenshot(self, path: str | os.PathLike[str]) -> Path:
+        from citylod.core.fileio import atomic_write
+
         p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(f".{p.name}.tmp{os.getpid()}{p.suffix or '.png'}")
-        if not self.grab_window().save(str(tmp)):
-            raise CitylodError("cannot write the screenshot", p)
-        os.replace(tmp, p)
-        return p
+        image = self.grab_window()
+
+        def write(tmp: Path) -> None:
+            if not image.save(str(tmp)):
+                raise CitylodError("cannot write the screenshot", p)
+
+        return atomic_write(p, write, suffix=p.suffix or ".png")
 
     def screenshot_dialog(self) -> None:
         path, _ = QFileDialog.getSaveFileName(self, "Save window screenshot", "citylod.png", "PNG (*.png)")

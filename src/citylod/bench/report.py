@@ -28,6 +28,7 @@ import numpy as np
 from citylod.bench.flight import default_flight
 from citylod.core.camera import Camera, load_cameras
 from citylod.core.errors import CitylodError
+from citylod.core.fileio import atomic_write_bytes
 from citylod.render import _vtk
 from citylod.render.offscreen import OffscreenRenderer, save_png
 from citylod.render.sse import measure_error
@@ -99,12 +100,6 @@ class BenchResult:
                                                           and abs(r.tau_px - tau_px) < 1e-9):
                 return r
         raise KeyError(tau_px)
-
-
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
 
 
 def _summarise(label: str, tau: float, frames: list[FrameRow]) -> TauRow:
@@ -225,7 +220,7 @@ def _write_csv(path: Path, rows: list[dict[str, object]]) -> None:
     writer.writeheader()
     for row in rows:
         writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-    _atomic_bytes(path, buf.getvalue().encode())
+    atomic_write_bytes(path, buf.getvalue().encode())
 
 
 def _plot(path: Path, rows: list[TauRow]) -> Path:
@@ -257,7 +252,7 @@ def _plot(path: Path, rows: list[TauRow]) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
-    _atomic_bytes(path, buf.getvalue())
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
 
@@ -296,7 +291,7 @@ def _write_md(path: Path, res: BenchResult, sources: list[str]) -> Path:
             "",
         ]
     lines += ["Per-frame numbers: [frames.csv](frames.csv); summary: [report.csv](report.csv).", ""]
-    _atomic_bytes(path, "\n".join(lines).encode())
+    atomic_write_bytes(path, "\n".join(lines).encode())
     return path
 
 

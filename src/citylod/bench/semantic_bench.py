@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from citylod.core.camera import Camera, load_cameras
+from citylod.core.fileio import atomic_write_text
 from citylod.render.offscreen import OffscreenRenderer
 from citylod.render.semantic import SemanticOverlay
 from citylod.semantics.store import CityStore
@@ -51,12 +52,6 @@ def _paired(r: OffscreenRenderer, overlay: SemanticOverlay, repeats: int) -> tup
             times.append(r.draw())
     overlay.set_enabled(True)
     return 1000.0 * float(np.median(off)), 1000.0 * float(np.median(on))
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def run_semantic_bench(dsm_tiles: str | os.PathLike[str], store: CityStore | str | os.PathLike[str],
@@ -177,8 +172,8 @@ def run_semantic_bench(dsm_tiles: str | os.PathLike[str], store: CityStore | str
     writer.writeheader()
     for row in rows:
         writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-    _atomic_text(csv_path, buf.getvalue())
-    _atomic_text(md_path, _markdown(result))
+    atomic_write_text(csv_path, buf.getvalue())
+    atomic_write_text(md_path, _markdown(result))
     result["paths"] = {"csv": csv_path, "md": md_path}
     return result
 

@@ -116,30 +116,21 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
     flush()
 
     if not quick:
-        _section("speed against error: 4097×4097 raster")
-        big = _dsm_from_city(4097, out / "raster4097" / "dsm.tif")
-        t0 = time.perf_counter()
-        brep = build_dsm(big, out / "tiles4097", workers=2, progress=progress)
-        results["build4097"] = {"seconds": time.perf_counter() - t0, "tiles": brep.tiles,
-                                "per_level": brep.per_level, "peak_rss_mb": brep.peak_rss_mb}
-        md.append(f"4097×4097 raster built on 2 workers in {brep.seconds:.0f} s ({brep.tiles} tiles, "
-                  f"peak {brep.peak_rss_mb:.0f} MB).\n")
-        rep4 = run_bench([out / "tiles4097"], None, taus, (960, 540), out / "render_4097", progress,
-                         repeats=1)
-        md.append(_render_md("4097×4097 raster, default flight (approach, low pass, orbit)", rep4))
-        results["render_4097"] = _render_json(rep4)
-        flush()
-
-    if not quick:
-        _section("speed against error: 4097×4097 natural terrain")
-        terr = _terrain_raster(4097, out / "terrain4097" / "dsm.tif")
-        trep = build_dsm(terr, out / "terrain_tiles", workers=2, progress=progress)
-        md.append(f"4097×4097 natural terrain built on 2 workers in {trep.seconds:.0f} s ({trep.tiles} tiles).\n")
-        rept = run_bench([out / "terrain_tiles"], None, taus, (960, 540), out / "render_terrain", progress,
-                         repeats=1)
-        md.append(_render_md("4097×4097 natural terrain (no façades), default flight", rept))
-        results["render_terrain"] = _render_json(rept)
-        flush()
+        for name, title, make in (
+                ("4097", "4097×4097 city raster", lambda p: _dsm_from_city(4097, p)),
+                ("terrain", "4097×4097 natural terrain (no façades)", lambda p: _terrain_raster(4097, p))):
+            _section(f"speed against error: {title}")
+            raster = make(out / f"raster_{name}" / "dsm.tif")
+            brep = build_dsm(raster, out / f"tiles_{name}", workers=2, progress=progress)
+            results[f"build_{name}"] = {"seconds": brep.seconds, "tiles": brep.tiles,
+                                        "per_level": brep.per_level, "peak_rss_mb": brep.peak_rss_mb}
+            md.append(f"{title} built on 2 workers in {brep.seconds:.0f} s ({brep.tiles} tiles, "
+                      f"peak {brep.peak_rss_mb:.0f} MB).\n")
+            rep4 = run_bench([out / f"tiles_{name}"], None, taus, (960, 540), out / f"render_{name}", progress,
+                             repeats=1)
+            md.append(_render_md(f"{title}, default flight (approach, low pass, orbit)", rep4))
+            results[f"render_{name}"] = _render_json(rep4)
+            flush()
 
     if (SHARED / "delft").exists():
         _section("points: Delft AHN3")

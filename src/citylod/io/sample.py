@@ -38,6 +38,7 @@ import numpy.typing as npt
 
 from citylod.core.camera import Camera
 from citylod.core.errors import CitylodError, InputError
+from citylod.core.fileio import atomic_write
 from citylod.io.sample_city import (
     CRS,
     KIND_BRIDGE,
@@ -139,14 +140,10 @@ def make_sample(out_dir: str | os.PathLike[str], size: int = 513, seed: int = 7,
 
 def _atomic(path: Path, write: Callable[[Path], object]) -> None:
     """Run ``write`` on a temporary name beside ``path`` and rename it into place when it succeeds."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.part")
     try:
-        write(tmp)
-        os.replace(tmp, path)
+        atomic_write(path, write, suffix=".part")
     except OSError as exc:
         raise InputError(f"cannot write ({exc.strerror or exc})", path) from exc
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 @dataclass(frozen=True)

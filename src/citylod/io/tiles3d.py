@@ -35,6 +35,7 @@ import pyproj
 
 from citylod import __version__
 from citylod.core.errors import InputError, UnsafePathError
+from citylod.core.fileio import atomic_write_bytes, atomic_write_text
 from citylod.core.frames import geodetic_to_ecef
 from citylod.core.geometry import F64, Box, translation
 from citylod.io.crs import ecef_from_local, parse_crs
@@ -529,18 +530,6 @@ def _decode_pnts(data: bytes, source: str) -> TileContent:
 
 
 # --------------------------------------------------------------------------------------- atomic writing
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
 def content_path(out_dir: str | os.PathLike[str], key: str) -> Path:
     """Where :func:`write_content` puts the content of tile ``key``."""
     return Path(out_dir) / "tiles" / f"{key}.glb"
@@ -551,7 +540,7 @@ def write_content(out_dir: str | os.PathLike[str], key: str, content: TileConten
     if ".." in key.split("/") or key.startswith("/"):
         raise ValueError(f"tile key {key!r} must not leave the tileset folder")
     path = content_path(out_dir, key)
-    _atomic_write(path, encode_glb(content))
+    atomic_write_bytes(path, encode_glb(content))
     return path.relative_to(Path(out_dir)).as_posix()
 
 
@@ -620,7 +609,7 @@ def write_tileset(out_dir: str | os.PathLike[str], root: TileSpec, crs: Any,
         "extras": {**{k: v for k, v in (extras or {}).items() if k != "citylod"}, "citylod": cl_extras},
     }
     path = out / "tileset.json"
-    _atomic_write(path, (json.dumps(doc, indent=1) + "\n").encode())
+    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
     return path
 
 
@@ -745,9 +734,7 @@ class Tileset:
             self.crs = parse_crs(self.citylod["crs"], str(path))
             self.origin = np.asarray(self.citylod.get("origin", [0, 0, 0]), np.float64)
             # crs_from_ecef: undo the root's placement on the globe, then add the local origin.
-            ecef_from_root = root_m
-            root_center = self.origin
-            self._crs_from_world = translation(root_center) @ np.linalg.inv(ecef_from_root)
+            self._crs_from_world = translation(self.origin) @ np.linalg.inv(root_m)
         else:
             self.crs = pyproj.CRS.from_epsg(4978)
             self.origin = np.zeros(3)
@@ -766,9 +753,10 @@ class Tileset:
             if not isinstance(tj, dict) or "boundingVolume" not in tj or "geometricError" not in tj:
                 raise InputError(f"tile {key} lacks boundingVolume or geometricError", source)
             matrix = self._crs_from_world @ world
-            box = _bounding_box(tj["boundingVolume"], source, key).transformed(matrix) \
-                if "region" not in tj["boundingVolume"] else \
-                _bounding_box(tj["boundingVolume"], source, key).transformed(self._crs_from_world)
+            # A region is in ECEF whatever the tile's transform; boxes and spheres live in the tile's frame.
+            in_ecef = "region" in tj["boundingVolume"]
+            box = _bounding_box(tj["boundingVolume"], source, key).transformed(
+                self._crs_from_world if in_ecef else matrix)
             refine = str(tj.get("refine", parent.refine if parent else "REPLACE")).upper()
             uri = None
             cpath = None

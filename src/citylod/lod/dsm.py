@@ -31,9 +31,7 @@ import dataclasses
 import json
 import math
 import os
-import shutil
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,6 +40,7 @@ import numpy as np
 import pyproj
 
 from citylod.core.errors import InputError
+from citylod.core.fileio import atomic_write_text, publish_dir
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod.certify import certify
@@ -169,8 +168,18 @@ def build_tile(job: DsmJob) -> TileResult:
         return res
     footprint = (int(rpos[0]), int(cpos[0]), int(rpos[-1]), int(cpos[-1]))
 
+    # Certification passes (refinement, coarsening) read the same full-resolution blocks again: keep a
+    # few in memory (8 blocks of 1025² ≈ 75 MB at most) so a tile reads its footprint from disk once when
+    # it is small enough, and memory stays bounded when it is not.
+    blocks: dict[tuple[int, int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+
     def read_block(r: int, c: int, nr: int, nc: int) -> tuple[np.ndarray, np.ndarray]:
-        return src.read(r, c, nr, nc)
+        k = (r, c, nr, nc)
+        if k not in blocks:
+            if len(blocks) >= 8:
+                blocks.pop(next(iter(blocks)))
+            blocks[k] = src.read(r, c, nr, nc)
+        return blocks[k]
 
     # Geographic rasters: vertical errors are metres already; vertices are projected afterwards.
     to_metric = None
@@ -397,11 +406,7 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
 
 
 def _write_sidecar(out_dir: str, key: str, res: TileResult) -> None:
-    p = Path(out_dir) / "tiles" / f"{key}.json"
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(asdict(res)))
-    os.replace(tmp, p)
+    atomic_write_text(Path(out_dir) / "tiles" / f"{key}.json", json.dumps(asdict(res)))
 
 
 def _read_sidecar(out_dir: Path, key: str) -> TileResult | None:
@@ -563,16 +568,7 @@ def _assemble(results: dict[str, TileResult], levels: int, info: RasterInfo, cel
 def _replace_dir(partial: Path, out: Path) -> None:
     for side in partial.glob("tiles/**/*.json"):
         side.unlink()
-    if out.exists():
-        if not (out / "tileset.json").exists() and any(out.iterdir()):
-            raise InputError("output folder exists and is not a tileset; refusing to replace it", out)
-        old = out.with_name(out.name + ".old")
-        shutil.rmtree(old, ignore_errors=True)
-        os.replace(out, old)
-        os.replace(partial, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(partial, out)
+    publish_dir(partial, out)
 
 
 def _peak_rss_mb() -> float:
@@ -582,5 +578,3 @@ def _peak_rss_mb() -> float:
     kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     return max(own, kids) / 1024.0
 
-
-Runner = Callable[[DsmJob], TileResult]

@@ -47,6 +47,7 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod import __version__
+from citylod.core.fileio import atomic_write, atomic_write_bytes, publish_dir
 from citylod.io.las import iter_points, read_metadata
 from citylod.io.tiles3d import (
     MeshData,
@@ -437,7 +438,7 @@ def _build_chunk(p: _Params, cid: int, level: int, idx: tuple[int, int, int]) ->
     stats = _Stats()
     root = _subtree(p, recs, q, xyz, level, idx, stats)
     res = _ChunkResult(cid, root, stats)
-    _atomic_bytes(done, pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+    atomic_write_bytes(done, pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
     return res
 
 
@@ -455,19 +456,7 @@ def _chunk_errors(p: _Params, cid: int, ancestors: list[tuple[int, str]]) -> dic
 
 # --------------------------------------------------------------------------------------------- helpers
 def _save_npy(path: str | Path, arr: np.ndarray) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.save(f, arr)
-    os.replace(tmp, path)
-
-
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    atomic_write(path, lambda t: np.save(t, arr), suffix=".npy")  # np.save appends .npy otherwise
 
 
 def _chunks_from_counts(counts: I64, max_chunk_points: int) -> list[tuple[int, int, int, int, int]]:
@@ -512,13 +501,7 @@ def _prepare_partial(partial: Path, fingerprint: str) -> None:
 
 def _finish(partial: Path, out: Path) -> None:
     shutil.rmtree(partial / ".build", ignore_errors=True)
-    old = None
-    if out.exists():
-        old = out.with_name(f".{out.name}.old{os.getpid()}")
-        os.replace(out, old)
-    os.replace(partial, out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+    publish_dir(partial, out)
 
 
 # ----------------------------------------------------------------------------------------------- build
@@ -681,10 +664,7 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
 
 
 def _save_npy_z(path: Path, cells: I64, elem: F64) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
-    np.savez(tmp, cells=cells, elem=elem)
-    os.replace(tmp, path)
+    atomic_write(path, lambda t: np.savez(t, cells=cells, elem=elem), suffix=".npz")
 
 
 __all__ = ["INLINE_BELOW", "PointBuildReport", "build_points"]

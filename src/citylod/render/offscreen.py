@@ -26,6 +26,7 @@ import numpy.typing as npt
 
 from citylod.core.camera import Camera, load_cameras
 from citylod.core.errors import CitylodError, InputError
+from citylod.core.fileio import atomic_write, atomic_write_bytes
 from citylod.render import _vtk
 from citylod.render.depth import zbuffer_to_distance
 from citylod.render.tileset_actor import FrameStats, Scene
@@ -208,25 +209,17 @@ def save_png(path: str | os.PathLike[str], rgb: npt.NDArray[np.uint8]) -> Path:
     from citylod.render.tile_data import encode_png
 
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
     data = encode_png(np.asarray(rgb, np.uint8))
     if not data:
         raise CitylodError("cannot encode PNG", p)
-    tmp = p.with_name(f".{p.name}.tmp{os.getpid()}.png")
     try:
-        tmp.write_bytes(data)
-        os.replace(tmp, p)
+        return atomic_write_bytes(p, data)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise CitylodError(f"cannot write PNG ({exc.strerror})", p) from exc
-    return p
 
 
 def _save_npy(path: Path, arr: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}.npy")
-    np.save(tmp, arr)
-    os.replace(tmp, path)
+    atomic_write(path, lambda t: np.save(t, arr), suffix=".npy")
 
 
 def frame_path(pattern: Path, index: int, count: int) -> Path:

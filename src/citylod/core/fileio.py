@@ -1,0 +1,62 @@
+"""Writing outputs so that nothing half-written is ever left behind.
+
+Every file citylod writes goes to a temporary name beside its destination and is renamed into place when
+complete (``os.replace`` is atomic on one file system); every output folder is built as ``OUT.partial`` and
+published the same way. Standard library only.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+from citylod.core.errors import InputError
+
+
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], *, suffix: str = "") -> Path:
+    """Run ``write(tmp)`` on a temporary name beside ``path``, then rename it into place.
+
+    ``suffix`` ends the temporary name, for writers that choose the format by extension (``np.savez``,
+    image writers). On any failure the temporary file is removed and the exception propagates.
+    """
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(f".{p.name}.tmp{os.getpid()}{suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, p)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return p
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically."""
+    return atomic_write(path, lambda t: t.write_bytes(data))
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    return atomic_write(path, lambda t: t.write_text(text, encoding="utf-8"))
+
+
+def publish_dir(partial: str | os.PathLike[str], out: str | os.PathLike[str], *,
+                marker: str = "tileset.json") -> None:
+    """Move the finished folder ``partial`` to ``out``, replacing a previous output there.
+
+    A non-empty ``out`` that lacks ``marker`` (so is not an earlier output of the same kind) is refused
+    rather than deleted: a mistyped ``-o`` must never remove a user's folder.
+    """
+    src, dst = Path(partial), Path(out)
+    if not dst.exists():
+        os.replace(src, dst)
+        return
+    if not (dst / marker).exists() and any(dst.iterdir()):
+        raise InputError(f"output folder exists and holds no {marker}; refusing to replace it", dst)
+    old = dst.with_name(f".{dst.name}.old{os.getpid()}")
+    shutil.rmtree(old, ignore_errors=True)
+    os.replace(dst, old)
+    os.replace(src, dst)
+    shutil.rmtree(old, ignore_errors=True)

@@ -1,0 +1,39 @@
+"""Atomic writes and folder publishing: nothing half-written, never a user's folder deleted."""
+
+from __future__ import annotations
+
+import pytest
+
+from citylod.core.errors import InputError
+from citylod.core.fileio import atomic_write, atomic_write_text, publish_dir
+
+
+def test_failed_write_leaves_nothing(tmp_path) -> None:
+    def broken(tmp):
+        tmp.write_text("half")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError):
+        atomic_write(tmp_path / "out.txt", broken)
+    assert list(tmp_path.iterdir()) == []
+    atomic_write_text(tmp_path / "sub" / "ok.txt", "done")
+    assert (tmp_path / "sub" / "ok.txt").read_text() == "done"
+    assert [p.name for p in (tmp_path / "sub").iterdir()] == ["ok.txt"]
+
+
+def test_publish_replaces_an_earlier_output_but_not_a_foreign_folder(tmp_path) -> None:
+    out = tmp_path / "out"
+    for generation in ("a", "b"):
+        part = tmp_path / "out.partial"
+        part.mkdir()
+        (part / "tileset.json").write_text(generation)
+        publish_dir(part, out)
+        assert (out / "tileset.json").read_text() == generation and not part.exists()
+    docs = tmp_path / "Documents"
+    docs.mkdir()
+    (docs / "thesis.tex").write_text("precious")
+    part = tmp_path / "p2"
+    part.mkdir()
+    with pytest.raises(InputError, match="Documents"):
+        publish_dir(part, docs)
+    assert (docs / "thesis.tex").read_text() == "precious" and part.exists()
