@@ -183,7 +183,7 @@ def test_points_only_build_has_no_quads(tmp_path: Path, built: tuple[Path, np.nd
     assert hybrid_pts < plain_pts
 
 
-def test_local_pool_and_dask_write_the_same_tileset(tmp_path: Path) -> None:
+def test_local_pool_dask_and_in_memory_threads_write_the_same_tileset(tmp_path: Path) -> None:
     distributed = pytest.importorskip("distributed")
     las = tmp_path / "c.laz"
     make_cloud(las, n_terrain=20_000, rgb=False, crs=None)
@@ -194,13 +194,17 @@ def test_local_pool_and_dask_write_the_same_tileset(tmp_path: Path) -> None:
                                   dashboard_address=None) as cluster:
         b = build_points([las], tmp_path / "dask", crs="EPSG:28992", scheduler=cluster.scheduler_address,
                          progress=False, **small)
-    assert a.nodes == b.nodes and a.quads == b.quads and a.quads > 0
-    assert (tmp_path / "pool/tileset.json").read_text() == (tmp_path / "dask/tileset.json").read_text()
+    # workers=None on a small cloud: threads in this process, intermediates in memory, one segment per file.
+    c = build_points([las], tmp_path / "mem", crs="EPSG:28992", progress=False, **small)
+    assert not (tmp_path / "mem.partial").exists()
+    assert a.nodes == b.nodes == c.nodes and a.quads == b.quads == c.quads and a.quads > 0
     files_a = sorted(p.relative_to(tmp_path / "pool") for p in (tmp_path / "pool").rglob("*.glb"))
-    files_b = sorted(p.relative_to(tmp_path / "dask") for p in (tmp_path / "dask").rglob("*.glb"))
-    assert files_a == files_b
-    for f in files_a:
-        assert (tmp_path / "pool" / f).read_bytes() == (tmp_path / "dask" / f).read_bytes(), f
+    for other in ("dask", "mem"):
+        assert (tmp_path / "pool/tileset.json").read_text() == (tmp_path / other / "tileset.json").read_text()
+        files_b = sorted(p.relative_to(tmp_path / other) for p in (tmp_path / other).rglob("*.glb"))
+        assert files_a == files_b
+        for f in files_a:
+            assert (tmp_path / "pool" / f).read_bytes() == (tmp_path / other / f).read_bytes(), (other, f)
 
 
 def test_interrupted_build_resumes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -9,6 +9,7 @@ origin (Earth curvature: about 2 m at 5 km). citylod never reads positions throu
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -50,6 +51,14 @@ def utm_crs_for(lon_deg: float, lat_deg: float) -> pyproj.CRS:
     return pyproj.CRS.from_epsg(epsg)
 
 
+@functools.lru_cache(maxsize=16)
+def _to_wgs84(wkt: str) -> pyproj.Transformer:
+    # Creating a transformer and its first transform cost ≈25 ms (PROJ sets up the pipeline); a process
+    # writing many tilesets (tests, benchmarks, scripts) pays that once per CRS. Callers use the
+    # transformer from one thread at a time (tileset writing happens on the calling thread).
+    return pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(wkt), "EPSG:4326", always_xy=True)
+
+
 def ecef_from_local(crs: pyproj.CRS, origin: F64) -> F64:
     """4×4 matrix from the local frame (source CRS coordinates minus ``origin``) to ECEF.
 
@@ -58,7 +67,7 @@ def ecef_from_local(crs: pyproj.CRS, origin: F64) -> F64:
     the local frame is already metric only after projection, so ``crs`` must be metric here.
     """
     h = horizontal_crs(crs)
-    to_geo = pyproj.Transformer.from_crs(h, "EPSG:4326", always_xy=True)
+    to_geo = _to_wgs84(h.to_wkt())
     x0, y0, z0 = (float(v) for v in origin)
     lon0, lat0 = to_geo.transform(x0, y0)
     if not (np.isfinite(lon0) and np.isfinite(lat0)):

@@ -37,7 +37,9 @@ import pickle
 import shutil
 import time
 import zlib
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -151,6 +153,7 @@ class _Params:
     phi: float
     max_leaf_points: int
     intensity_scale: float = 255.0
+    memory: bool = False  # intermediates live in this process (threads), not in files (processes)
 
     def node_size(self, level: int) -> float:
         return self.cube_size / (1 << level)
@@ -241,10 +244,10 @@ def _point_data(recs: Recs, xyz: F64, center: F64, has_rgb: bool) -> PointData:
 
 def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
     path = content_path(p.out, key)
-    if path.exists():  # resumed build: this node was finished before the interruption
+    if not p.memory and path.exists():  # resumed build: this node was finished before the interruption
         stats.bytes += path.stat().st_size
         return path.relative_to(p.out).as_posix()
-    uri = write_content(p.out, key, content)
+    uri = write_content(p.out, key, content, atomic=not p.memory)
     stats.bytes += path.stat().st_size
     return uri
 
@@ -374,22 +377,30 @@ def _set_error(spec: TileSpec, exact: float) -> None:
 
 # ----------------------------------------------------------------------------------------------- tasks
 def _scan_segment(cube_lo: tuple[float, float, float], cube_size: float, path: str, start: int, count: int,
-                  raw: str) -> tuple[I64, I64, int, F64, F64, float]:
+                  raw: str, memory: bool = False) -> tuple[I64, I64, int, F64, F64, I64]:
     """Pass 1: decode a segment, park it as raw records, count it on the 128³ grid.
 
     Returns the occupied grid cells (sorted), their counts, the number of points, the tight bounds and
-    the 99th intensity percentile.
+    the histogram of intensities (65536 bins).
     """
     parts = list(iter_points(path, start=start, count=count, chunk_points=min(count, 1_000_000)))
     recs = np.concatenate(parts) if len(parts) > 1 else parts[0]
-    _save_npy(raw, recs)
+    _store(raw, recs, memory)
     xyz = _xyz(recs)
     g = quantize(xyz, np.asarray(cube_lo), cube_size) >> (QBITS - SCAN_BITS)
     flat = g[:, 0] | (g[:, 1] << SCAN_BITS) | (g[:, 2] << (2 * SCAN_BITS))
     cnt = np.bincount(flat, minlength=1 << (3 * SCAN_BITS))
     cells = np.flatnonzero(cnt)
-    p99 = float(np.percentile(recs["intensity"], 99)) if len(recs) else 0.0
-    return cells, cnt[cells].astype(np.int64), len(recs), *bounds(xyz), p99
+    # The histogram, not a percentile: segments' percentiles do not combine, histograms add up, so the
+    # intensity scale does not depend on how the input was cut into segments.
+    hist = np.bincount(recs["intensity"], minlength=1 << 16).astype(np.int64)
+    return cells, cnt[cells].astype(np.int64), len(recs), *bounds(xyz), hist
+
+
+def _percentile99(hist: I64) -> float:
+    """The smallest value at or below which 99 % of the values of a histogram lie."""
+    n = int(hist.sum())
+    return float(np.searchsorted(np.cumsum(hist), 0.99 * n)) if n else 0.0
 
 
 def _segment_path(p: _Params, sid: int) -> Path:
@@ -406,29 +417,31 @@ def _distribute_segment(p: _Params, sid: int, lut_path: str, n_chunks: int) -> t
     Returns the segment id and the offsets (n_chunks + 1,) of the chunks' slices.
     """
     raw = _segment_path(p, sid)
-    recs = np.load(raw)
-    lut = np.load(lut_path, mmap_mode="r")
+    recs = _fetch(raw, p.memory)
+    lut = _fetch(lut_path, p.memory, mmap=True)
     g = quantize(_xyz(recs), np.asarray(p.cube_lo), p.cube_size) >> (QBITS - SCAN_BITS)
     cid = np.asarray(lut[g[:, 0] | (g[:, 1] << SCAN_BITS) | (g[:, 2] << (2 * SCAN_BITS))], np.int64)
     order, offs = counting_sort(cid, n_chunks)
     if np.any(np.diff(order) < 0):
-        _save_npy(raw, _take(recs, order))
+        _store(raw, _take(recs, order), p.memory)
     return sid, offs
 
 
 def _load_chunk(p: _Params, cid: int) -> Recs:
-    offs = np.load(Path(p.tmp) / "pieces.npy")
+    offs = _fetch(Path(p.tmp) / "pieces.npy", p.memory)
     parts = []
     for sid in np.flatnonzero(offs[:, cid + 1] > offs[:, cid]):
-        seg = np.load(_segment_path(p, int(sid)), mmap_mode="r")
+        seg = _fetch(_segment_path(p, int(sid)), p.memory, mmap=True)
         parts.append(seg[offs[sid, cid]:offs[sid, cid + 1]])
-    return np.concatenate(parts) if len(parts) > 1 else np.array(parts[0])
+    if len(parts) > 1:
+        return np.concatenate(parts)
+    return parts[0] if p.memory else np.array(parts[0])  # a view in memory (only read), a copy of a map
 
 
 def _build_chunk(p: _Params, cid: int, level: int, idx: tuple[int, int, int]) -> _ChunkResult:
     """Pass 3: the subtree of one chunk. The result is kept on disk, so a resumed build skips it."""
     done = Path(p.tmp) / "results" / f"{cid}.pkl"
-    if done.exists():
+    if not p.memory and done.exists():
         with open(done, "rb") as f:
             res: _ChunkResult = pickle.load(f)
         return res
@@ -438,7 +451,8 @@ def _build_chunk(p: _Params, cid: int, level: int, idx: tuple[int, int, int]) ->
     stats = _Stats()
     root = _subtree(p, recs, q, xyz, level, idx, stats)
     res = _ChunkResult(cid, root, stats)
-    atomic_write_bytes(done, pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+    if not p.memory:
+        atomic_write_bytes(done, pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
     return res
 
 
@@ -449,7 +463,7 @@ def _chunk_errors(p: _Params, cid: int, ancestors: list[tuple[int, str]]) -> dic
     q = quantize(xyz, np.asarray(p.cube_lo), p.cube_size)
     out = {}
     for level, key in ancestors:
-        t = np.load(Path(p.tmp) / "tables" / (key.replace("/", "_") + ".npz"))
+        t = _fetch(Path(p.tmp) / "tables" / (key.replace("/", "_") + ".npz"), p.memory)
         out[key] = lookup_error(q, xyz, level, t["cells"], t["elem"])
     return out
 
@@ -457,6 +471,45 @@ def _chunk_errors(p: _Params, cid: int, ancestors: list[tuple[int, str]]) -> dic
 # --------------------------------------------------------------------------------------------- helpers
 def _save_npy(path: str | Path, arr: np.ndarray) -> None:
     atomic_write(path, lambda t: np.save(t, arr), suffix=".npy")  # np.save appends .npy otherwise
+
+
+# Intermediates of an in-process build (threads share them): parking decoded segments as files and
+# reading them back cost a third of the time of a small build. Keys are the paths the files would have.
+_MEMORY: dict[str, Any] = {}
+
+
+def _store(path: str | Path, value: Any, memory: bool) -> None:
+    if memory:
+        _MEMORY[str(path)] = value
+    elif isinstance(value, dict):
+        _save_npy_z(Path(path), **value)
+    else:
+        _save_npy(path, value)
+
+
+def _release(tmp: Path) -> None:
+    for k in [k for k in _MEMORY if k.startswith(str(tmp))]:
+        del _MEMORY[k]
+
+
+@contextmanager
+def _executor(workers: int | None, scheduler: Any, threads: bool, tmp: Path) -> Iterator[Executor]:
+    if not threads:
+        with make_executor(workers, scheduler) as ex:
+            yield ex
+        return
+    pool = ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="citylod-points")
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        _release(tmp)
+
+
+def _fetch(path: str | Path, memory: bool, mmap: bool = False) -> Any:
+    if memory:
+        return _MEMORY[str(path)]
+    return np.load(path, mmap_mode="r" if mmap else None)
 
 
 def _chunks_from_counts(counts: I64, max_chunk_points: int) -> list[tuple[int, int, int, int, int]]:
@@ -558,9 +611,18 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
 
         floor = decode_seconds(paths)
         t_start = time.perf_counter()
+    # Small clouds are built in this process, on threads (the kernels release the GIL), with the
+    # intermediates in memory: worker processes and parked files cost more than they save there.
+    # Such a build is redone whole when interrupted (seconds); large builds resume from their files.
+    memory = workers is None and scheduler is None and meta.point_count < INLINE_BELOW
+    if memory:
+        workers = 0
+        segment_points = max(segment_points, INLINE_BELOW)  # one segment per file: seeking in LAZ decodes
     out = Path(out_dir)
     partial = out.with_name(out.name + ".partial")
     tmp = partial / ".build"
+    if memory:
+        shutil.rmtree(partial, ignore_errors=True)  # an interrupted in-memory build left nothing to resume
     _prepare_partial(partial, _fingerprint(paths, crs=meta.crs.to_wkt(), hybrid=hybrid, phi=phi,
                                            max_leaf=max_leaf_points, max_chunk=max_chunk_points,
                                            segment=segment_points))
@@ -573,47 +635,55 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
             sid = len(segments)
             segments.append((str(info.path), start, min(segment_points, info.point_count - start),
                              str(tmp / "raw" / f"{sid:06d}.npy")))
-    if workers is None and scheduler is None and meta.point_count < INLINE_BELOW:
-        workers = 0
-    with make_executor(workers, scheduler) as ex:
+    with _executor(workers, scheduler, memory, tmp) as ex:
         # Pass 1: scan.
         scan = tmp / "scan.npz"
-        if not scan.exists():
+        if memory or not scan.exists():
             counts = np.zeros(1 << (3 * SCAN_BITS), np.int64)
             lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-            p99 = 0.0
+            ihist = np.zeros(1 << 16, np.int64)
             lo_t = tuple(float(v) for v in cube_lo)
-            for cells, cnt, _n, slo, shi, sp in run_tasks(ex, _scan_segment, [(lo_t, cube_size, *s) for s in segments],
+            for cells, cnt, _n, slo, shi, sp in run_tasks(ex, _scan_segment,
+                                                          [(lo_t, cube_size, *s, memory) for s in segments],
                                                           progress=progress, desc="scan"):
                 counts[cells] += cnt
-                lo, hi, p99 = np.minimum(lo, slo), np.maximum(hi, shi), max(p99, sp)
-            occupied = np.flatnonzero(counts)  # sparse: the dense grid is 16 MB
-            np.savez(tmp / "scan.tmp.npz", cells=occupied, counts=counts[occupied], lo=lo, hi=hi, p99=p99)
-            os.replace(tmp / "scan.tmp.npz", scan)
-        s = np.load(scan)
-        counts = np.zeros(1 << (3 * SCAN_BITS), np.int64)
-        counts[s["cells"]] = s["counts"]
-        p99 = float(s["p99"])
+                lo, hi = np.minimum(lo, slo), np.maximum(hi, shi)
+                ihist += sp
+            p99 = _percentile99(ihist)
+            if memory and len(segments) > 1:  # one segment in memory: every chunk becomes one slice
+                raws = [str(s_[3]) for s_ in segments]
+                _MEMORY[raws[0]] = np.concatenate([_MEMORY.pop(r) for r in raws])
+                segments = segments[:1]
+            if not memory:
+                occupied = np.flatnonzero(counts)  # sparse: the dense grid is 16 MB
+                np.savez(tmp / "scan.tmp.npz", cells=occupied, counts=counts[occupied], lo=lo, hi=hi, p99=p99)
+                os.replace(tmp / "scan.tmp.npz", scan)
+        else:
+            s = np.load(scan)
+            counts = np.zeros(1 << (3 * SCAN_BITS), np.int64)
+            counts[s["cells"]] = s["counts"]
+            p99 = float(s["p99"])
         params = _Params(out=str(partial), tmp=str(tmp),
                          cube_lo=(float(cube_lo[0]), float(cube_lo[1]), float(cube_lo[2])),
                          cube_size=cube_size, has_rgb=meta.has_rgb, hybrid=hybrid, phi=phi,
-                         max_leaf_points=max_leaf_points, intensity_scale=max(p99, 1.0))
+                         max_leaf_points=max_leaf_points, intensity_scale=max(p99, 1.0), memory=memory)
         chunks = _chunks_from_counts(counts, max_chunk_points)
         # Pass 2: distribute segments into chunk pieces.
-        if not (tmp / "distributed.done").exists():
+        if memory or not (tmp / "distributed.done").exists():
             n = 1 << SCAN_BITS
             lut = np.full((n, n, n), -1, np.int32)
             for cid, (lv, x, y, z, _c) in enumerate(chunks):
                 w = 1 << (SCAN_BITS - lv)
                 lut[z * w:(z + 1) * w, y * w:(y + 1) * w, x * w:(x + 1) * w] = cid
-            _save_npy(tmp / "lut.npy", lut.reshape(-1))
+            _store(tmp / "lut.npy", lut.reshape(-1), memory)
             pieces = np.zeros((len(segments), len(chunks) + 1), np.int64)
             for sid, offs in run_tasks(ex, _distribute_segment,
                                        [(params, sid, str(tmp / "lut.npy"), len(chunks))
                                         for sid in range(len(segments))], progress=progress, desc="distribute"):
                 pieces[sid] = offs
-            _save_npy(tmp / "pieces.npy", pieces)
-            (tmp / "distributed.done").touch()
+            _store(tmp / "pieces.npy", pieces, memory)
+            if not memory:
+                (tmp / "distributed.done").touch()
         # Pass 3: one subtree per chunk.
         stats = _Stats()
         roots: dict[tuple[int, tuple[int, int, int]], _Summary] = {}
@@ -632,7 +702,7 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
                     groups.setdefault((idx[0] >> 1, idx[1] >> 1, idx[2] >> 1), []).append(node)
             for pidx, kids in sorted(groups.items()):
                 node, cells, elem = _internal(params, lv - 1, pidx, kids, stats)
-                _save_npy_z(tables / (node.spec.key.replace("/", "_") + ".npz"), cells=cells, elem=elem)
+                _store(tables / (node.spec.key.replace("/", "_") + ".npz"), {"cells": cells, "elem": elem}, memory)
                 upper[node.spec.key] = node
                 roots[(lv - 1, pidx)] = node
                 for k in kids:  # the children's representatives are not needed any more
