@@ -18,6 +18,7 @@ from citylod.core.camera import Camera
 from citylod.lod.selection import Budget
 from citylod.render.depth import world_rays, zbuffer_to_distance
 from citylod.render.offscreen import OffscreenRenderer, render_command, save_png
+from citylod.render.tileset_actor import _SURFACE_RGB, baked_face_colors
 
 pytestmark = pytest.mark.render
 
@@ -241,3 +242,42 @@ def test_two_tilesets_share_one_scene(flat_terrain: Path, tmp_path: Path) -> Non
     assert frame.stats.points > 0 and frame.stats.triangles > 0
     # The camera is over the terrain's south-west corner: the north-east three quarters are covered.
     assert np.isfinite(frame.depth[: 120 // 2 - 5, 160 // 2 + 5:]).all()
+
+
+def test_baked_sun_matches_vtk_per_fragment_lighting(hills: Path) -> None:
+    """Untextured surfaces are drawn unlit with the sun baked into triangle colours: the image must equal
+    VTK's own per-fragment lighting of the same faceted meshes (the independent computation)."""
+    cam = Camera((CORNER[0] + 200.0, CORNER[1] - 300.0, 600.0), (CORNER[0] + 512.0, CORNER[1] + 512.0, 0.0),
+                 (0.0, 0.0, 1.0), 50.0)
+    with OffscreenRenderer([hills], size=(240, 160), tau_px=1.0) as r:
+        baked = r.render(cam).rgb.astype(int)
+        shown = [a for a in _actors(r.renderer) if a.GetVisibility()]
+        assert shown and all(not a.GetProperty().GetLighting() for a in shown)
+        for a in shown:  # back to VTK's lighting: flat normals from screen derivatives, the same sun
+            a.GetMapper().ScalarVisibilityOff()
+            a.GetProperty().SetColor(*_SURFACE_RGB)
+            a.GetProperty().LightingOn()
+            a.GetProperty().SetAmbient(0.3)
+            a.GetProperty().SetDiffuse(0.75)
+        r.draw()
+        lit = r.grab_rgb().astype(int)
+    terrain = np.any(baked != baked[0, 0], axis=2)  # not sky
+    assert terrain.mean() > 0.5
+    diff = np.abs(baked - lit).max(axis=2)[terrain]
+    assert np.percentile(diff, 99) <= 3, np.percentile(diff, [50, 99, 100])
+    # and the shading is not flat: slopes facing the sun and away from it differ
+    assert np.ptp(baked[terrain].mean(axis=1)) > 30
+
+
+def test_baked_face_colors_follow_the_tile_rotation() -> None:
+    # A triangle facing +x, tile rotated 90° about z so it faces +y in the scene (towards the sun's
+    # north-west quadrant): independent formula base · (0.3 + 0.75 · max(0, n·L)).
+    pos = np.array([[0, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+    faces = np.array([0, 1, 2], np.int64)
+    rot = np.eye(4)
+    rot[:2, :2] = [[0.0, -1.0], [1.0, 0.0]]
+    sun = np.array([-1.0, 1.0, math.sqrt(2.0)]) / 2.0
+    for matrix, normal in ((np.eye(4), np.array([1.0, 0.0, 0.0])), (rot, np.array([0.0, 1.0, 0.0]))):
+        rgb = baked_face_colors(pos, faces, matrix, (1.0, 1.0, 1.0))
+        expect = 255.0 * min(1.0, 0.3 + 0.75 * max(0.0, float(normal @ sun)))
+        assert abs(int(rgb[0, 0]) - expect) <= 0.51

