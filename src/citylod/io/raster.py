@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import math
 import os
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -56,6 +59,33 @@ class RasterInfo:
         return utm_crs_for(lon, lat)
 
 
+# Open datasets, per thread and file, shared by the RasterSource objects of that file: a build sends each
+# tile task its own (unpickled) source, and reopening the file per task would also drop GDAL's cache of
+# decompressed blocks. GDAL handles are not thread-safe, hence one per thread.
+_SHARED: OrderedDict[tuple[int, str, int, int, int], Any] = OrderedDict()
+_SHARED_MAX = 8
+
+
+def _open_shared(path: Path) -> Any:
+    import rasterio
+
+    st = os.stat(path)
+    key = (threading.get_ident(), str(path), st.st_ino, st.st_size, st.st_mtime_ns)  # a rewritten file reopens
+    ds = _SHARED.pop(key, None)
+    if ds is None or ds.closed:
+        ds = rasterio.open(path)
+    _SHARED[key] = ds
+    while len(_SHARED) > _SHARED_MAX:
+        _SHARED.popitem(last=False)[1].close()
+    return ds
+
+
+def _close_shared(path: Path) -> None:
+    me = threading.get_ident()
+    for key in [k for k in _SHARED if k[0] == me and k[1] == str(path)]:
+        _SHARED.pop(key).close()
+
+
 class RasterSource:
     """A height raster opened for windowed reads. Picklable (reopens on the worker)."""
 
@@ -64,6 +94,7 @@ class RasterSource:
         self.band = band
         self.info = read_info(self.path)
         self._ds = None
+        self._fast: bool | None = None
 
     def __getstate__(self) -> dict[str, object]:
         return {"path": self.path, "band": self.band, "info": self.info}
@@ -71,18 +102,77 @@ class RasterSource:
     def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
         self._ds = None
+        self._fast = None
 
     def _dataset(self):
         if self._ds is None:
-            import rasterio
-
-            self._ds = rasterio.open(self.path)
+            self._ds = _open_shared(self.path)
         return self._ds
 
     def close(self) -> None:
-        if self._ds is not None:
-            self._ds.close()
-            self._ds = None
+        """Close the raster in this thread (also for the other sources of the same file that share it)."""
+        self._ds = None
+        _close_shared(self.path)
+
+    def _fast_mask(self) -> bool:
+        """True when validity is "finite and not the no-data value" (no mask band, no alpha)."""
+        if self._fast is None:
+            from rasterio.enums import MaskFlags
+
+            flags = set(self._dataset().mask_flag_enums[self.band - 1])
+            self._fast = flags <= {MaskFlags.all_valid, MaskFlags.nodata}
+        return self._fast
+
+    def _nodata_value(self, dtype: np.dtype) -> float | None:
+        """The no-data value as stored in ``dtype`` (None when there is none or it cannot occur)."""
+        nd = self.info.nodata
+        if nd is None or math.isnan(nd):
+            return None  # NaN never compares equal; non-finite samples are invalid anyway
+        if np.issubdtype(dtype, np.integer):
+            lim = np.iinfo(dtype)
+            if not (lim.min <= nd <= lim.max) or nd != int(nd):
+                return None
+            return float(nd)
+        return float(np.asarray(nd, dtype=dtype))
+
+    def read_window(self, row0: int, col0: int, nrows: int, ncols: int) -> tuple[np.ndarray, np.ndarray]:
+        """Samples ``row0 .. row0+nrows-1`` × ``col0 .. col0+ncols-1`` in one read.
+
+        Returns C-contiguous heights (nrows, ncols) float64 and valid (nrows, ncols) bool; positions
+        outside the raster or at no-data are invalid (height 0). Reads the band as stored and compares
+        with the no-data value directly (no masked arrays) unless the raster has a mask band or alpha.
+        """
+        from rasterio.windows import Window
+
+        info = self.info
+        r_lo, r_hi = max(row0, 0), min(row0 + nrows, info.height)
+        c_lo, c_hi = max(col0, 0), min(col0 + ncols, info.width)
+        if r_lo >= r_hi or c_lo >= c_hi:
+            return np.zeros((nrows, ncols), np.float64), np.zeros((nrows, ncols), bool)
+        ds = self._dataset()
+        win = Window(c_lo, r_lo, c_hi - c_lo, r_hi - r_lo)
+        try:
+            if self._fast_mask():
+                raw = ds.read(self.band, window=win)
+                data = raw.astype(np.float64)
+                ok = np.isfinite(data)
+                nd = self._nodata_value(raw.dtype)
+                if nd is not None:
+                    ok &= raw != raw.dtype.type(nd)
+            else:
+                block = ds.read(self.band, window=win, masked=True)
+                data = np.ma.getdata(block).astype(np.float64)
+                ok = ~np.ma.getmaskarray(block) & np.isfinite(data)
+        except Exception as exc:  # rasterio raises several types for corrupt blocks
+            raise InputError(f"cannot read raster window rows {r_lo}-{r_hi - 1} ({exc})", self.path) from exc
+        data[~ok] = 0.0
+        if (r_lo, r_hi, c_lo, c_hi) == (row0, row0 + nrows, col0, col0 + ncols):
+            return data, ok
+        heights = np.zeros((nrows, ncols), np.float64)
+        valid = np.zeros((nrows, ncols), bool)
+        heights[r_lo - row0:r_hi - row0, c_lo - col0:c_hi - col0] = data
+        valid[r_lo - row0:r_hi - row0, c_lo - col0:c_hi - col0] = ok
+        return heights, valid
 
     def read(self, row0: int, col0: int, nrows: int, ncols: int, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Samples ``row0 + i·stride``, ``col0 + j·stride`` for i < nrows, j < ncols.
@@ -91,8 +181,8 @@ class RasterSource:
         or at no-data are invalid (their height is 0). Only the rows needed are read, in strips, so a
         decimated read of a large footprint stays small.
         """
-        from rasterio.windows import Window
-
+        if stride == 1:
+            return self.read_window(row0, col0, nrows, ncols)
         info = self.info
         heights = np.zeros((nrows, ncols), np.float64)
         valid = np.zeros((nrows, ncols), bool)
@@ -103,23 +193,15 @@ class RasterSource:
         if len(rin) == 0 or len(cin) == 0:
             return heights, valid
         c_lo, c_hi = int(cols[cin[0]]), int(cols[cin[-1]])
-        ds = self._dataset()
         # Read strips of at most ~4 M samples so memory stays bounded whatever the stride.
         strip = max(1, (4 << 20) // max(1, (c_hi - c_lo + 1)))
         strip = max(1, strip // stride)
         for s in range(0, len(rin), strip):
             idx = rin[s: s + strip]
             r_lo, r_hi = int(rows[idx[0]]), int(rows[idx[-1]])
-            try:
-                block = ds.read(self.band, window=Window(c_lo, r_lo, c_hi - c_lo + 1, r_hi - r_lo + 1),
-                                masked=True)
-            except Exception as exc:  # rasterio raises several types for corrupt blocks
-                raise InputError(f"cannot read raster window rows {r_lo}-{r_hi} ({exc})", self.path) from exc
-            sub = block[::stride, ::stride]
-            data = np.ma.getdata(sub).astype(np.float64)
-            mask = ~np.ma.getmaskarray(sub) & np.isfinite(data)
-            heights[np.ix_(idx, cin)] = np.where(mask, data, 0.0)
-            valid[np.ix_(idx, cin)] = mask
+            h, v = self.read_window(r_lo, c_lo, r_hi - r_lo + 1, c_hi - c_lo + 1)
+            heights[np.ix_(idx, cin)] = h[::stride, ::stride]
+            valid[np.ix_(idx, cin)] = v[::stride, ::stride]
         return heights, valid
 
 

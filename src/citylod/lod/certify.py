@@ -78,7 +78,17 @@ def _record(err, y, x, cell_err, tr0, tc0, stride, best):
 
 
 @njit(cache=True)
-def certify_block(F, V, r0, c0, vr, vc, vz, faces, cell_err, tr0, tc0, stride, best):
+def _cross(err, y, x, cell_err, tr0, tc0, stride, best, track):
+    if track:
+        _record(err, y, x, cell_err, tr0, tc0, stride, best)
+    elif err > best[0]:
+        best[0] = err
+        best[1] = y
+        best[2] = x
+
+
+@njit(cache=True)
+def certify_block(F, V, r0, c0, vr, vc, vz, faces, edges, cell_err, tr0, tc0, stride, best, track):
     """Update ``best`` = [max error, row, col] and ``cell_err`` with the exact error inside one block.
 
     Parameters
@@ -88,13 +98,16 @@ def certify_block(F, V, r0, c0, vr, vc, vz, faces, cell_err, tr0, tc0, stride, b
     vr, vc, vz : (N,) float64
         TIN vertex rows, columns (global full-resolution sample coordinates) and heights.
     faces : (M, 3) int64
+    edges : (K, 2) int64
+        The faces' edges, each once (an edge shared by two faces has the same crossings in both).
     cell_err : (h, w) float64
-        Per-level-cell maximum, updated in place; level cell (a, b) spans global rows
+        Per-level-cell maximum, updated in place when ``track``; level cell (a, b) spans global rows
         ``tr0 + a·stride`` to ``tr0 + (a+1)·stride``.
     """
     bh, bw = F.shape
     rmax_b = r0 + bh - 1
     cmax_b = c0 + bw - 1
+    # samples inside each face, scanline by scanline
     for t in range(faces.shape[0]):
         a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
         ys = (vr[a], vr[b], vr[c])
@@ -108,81 +121,184 @@ def certify_block(F, V, r0, c0, vr, vc, vz, faces, cell_err, tr0, tc0, stride, b
             continue
         # plane z = pa*y + pb*x + pc
         det = (ys[1] - ys[0]) * (xs[2] - xs[0]) - (ys[2] - ys[0]) * (xs[1] - xs[0])
-        if abs(det) > 1e-12:
-            pa = ((zs[1] - zs[0]) * (xs[2] - xs[0]) - (zs[2] - zs[0]) * (xs[1] - xs[0])) / det
-            pb = ((ys[1] - ys[0]) * (zs[2] - zs[0]) - (ys[2] - ys[0]) * (zs[1] - zs[0])) / det
-            pc = zs[0] - pa * ys[0] - pb * xs[0]
-            # samples inside the triangle, scanline by scanline
-            r_lo = max(int(math.ceil(ymin - _EPS)), r0)
-            r_hi = min(int(math.floor(ymax + _EPS)), rmax_b)
-            for r in range(r_lo, r_hi + 1):
-                lo = math.inf
-                hi = -math.inf
-                for e in range(3):
-                    y1, x1 = ys[e], xs[e]
-                    y2, x2 = ys[(e + 1) % 3], xs[(e + 1) % 3]
-                    if (y1 - _EPS <= r <= y2 + _EPS) or (y2 - _EPS <= r <= y1 + _EPS):
-                        if abs(y2 - y1) < 1e-12:
-                            lo = min(lo, min(x1, x2))
-                            hi = max(hi, max(x1, x2))
-                        else:
-                            x = x1 + (r - y1) * (x2 - x1) / (y2 - y1)
-                            lo = min(lo, x)
-                            hi = max(hi, x)
-                c_lo = max(int(math.ceil(lo - _EPS)), c0)
-                c_hi = min(int(math.floor(hi + _EPS)), cmax_b)
+        if abs(det) <= 1e-12:
+            continue
+        pa = ((zs[1] - zs[0]) * (xs[2] - xs[0]) - (zs[2] - zs[0]) * (xs[1] - xs[0])) / det
+        pb = ((ys[1] - ys[0]) * (zs[2] - zs[0]) - (ys[2] - ys[0]) * (zs[1] - zs[0])) / det
+        pc = zs[0] - pa * ys[0] - pb * xs[0]
+        r_lo = max(int(math.ceil(ymin - _EPS)), r0)
+        r_hi = min(int(math.floor(ymax + _EPS)), rmax_b)
+        for r in range(r_lo, r_hi + 1):
+            lo = math.inf
+            hi = -math.inf
+            for e in range(3):
+                y1, x1 = ys[e], xs[e]
+                y2, x2 = ys[(e + 1) % 3], xs[(e + 1) % 3]
+                if (y1 - _EPS <= r <= y2 + _EPS) or (y2 - _EPS <= r <= y1 + _EPS):
+                    if abs(y2 - y1) < 1e-12:
+                        lo = min(lo, min(x1, x2))
+                        hi = max(hi, max(x1, x2))
+                    else:
+                        x = x1 + (r - y1) * (x2 - x1) / (y2 - y1)
+                        lo = min(lo, x)
+                        hi = max(hi, x)
+            c_lo = max(int(math.ceil(lo - _EPS)), c0)
+            c_hi = min(int(math.floor(hi + _EPS)), cmax_b)
+            if c_lo > c_hi:
+                continue
+            fr = F[r - r0]
+            vrow = V[r - r0]
+            base = pa * r + pc
+            if track:
+                ci = int(math.floor((r - tr0) / stride))
+                ci = min(max(ci, 0), cell_err.shape[0] - 1)
+                ncol = cell_err.shape[1]
+                cc = c_lo
+                while cc <= c_hi:
+                    # the run of samples in one level cell (tc0 and stride are whole numbers)
+                    cj = min(max(int(math.floor((cc - tc0) / stride)), 0), ncol - 1)
+                    seg_end = c_hi if cj == ncol - 1 else min(c_hi, int(tc0 + (cj + 1) * stride) - 1)
+                    m = -1.0
+                    mc = cc
+                    for q in range(cc, seg_end + 1):
+                        if vrow[q - c0]:
+                            err = abs(base + pb * q - fr[q - c0])
+                            if err > m:
+                                m = err
+                                mc = q
+                    if m > best[0]:
+                        best[0] = m
+                        best[1] = float(r)
+                        best[2] = float(mc)
+                    if m > cell_err[ci, cj]:
+                        cell_err[ci, cj] = m
+                    cc = seg_end + 1
+            else:
                 for cc in range(c_lo, c_hi + 1):
-                    if V[r - r0, cc - c0]:
-                        err = abs(pa * r + pb * cc + pc - F[r - r0, cc - c0])
-                        _record(err, float(r), float(cc), cell_err, tr0, tc0, stride, best)
-        # crossings of the triangle's edges with grid rows, columns and diagonals
-        for e in range(3):
-            y1, x1, z1 = ys[e], xs[e], zs[e]
-            y2, x2, z2 = ys[(e + 1) % 3], xs[(e + 1) % 3], zs[(e + 1) % 3]
-            dy = y2 - y1
-            dx = x2 - x1
-            if abs(dy) > 1e-12:
-                k_lo = int(math.ceil(min(y1, y2)))
-                k_hi = int(math.floor(max(y1, y2)))
-                for r in range(max(k_lo, r0), min(k_hi, rmax_b) + 1):
-                    s = (r - y1) / dy
-                    x = x1 + s * dx
-                    if x < c0 or x > cmax_b:
-                        continue
-                    f = _f_row(F, V, r - r0, x - c0)
-                    if not math.isnan(f):
-                        _record(abs(z1 + s * (z2 - z1) - f), float(r), x, cell_err, tr0, tc0, stride, best)
-            if abs(dx) > 1e-12:
-                k_lo = int(math.ceil(min(x1, x2)))
-                k_hi = int(math.floor(max(x1, x2)))
-                for cc in range(max(k_lo, c0), min(k_hi, cmax_b) + 1):
-                    s = (cc - x1) / dx
-                    y = y1 + s * dy
-                    if y < r0 or y > rmax_b:
-                        continue
-                    f = _f_col(F, V, y - r0, cc - c0)
-                    if not math.isnan(f):
-                        _record(abs(z1 + s * (z2 - z1) - f), y, float(cc), cell_err, tr0, tc0, stride, best)
-            d1 = y1 - x1
-            d2 = y2 - x2
-            if abs(d2 - d1) > 1e-12:
-                k_lo = int(math.ceil(min(d1, d2)))
-                k_hi = int(math.floor(max(d1, d2)))
-                for k in range(k_lo, k_hi + 1):
-                    s = (k - d1) / (d2 - d1)
-                    y = y1 + s * dy
-                    x = x1 + s * dx
-                    if y < r0 or y > rmax_b or x < c0 or x > cmax_b:
-                        continue
-                    # local diagonal index: (y - r0) - (x - c0) = k - r0 + c0
-                    f = _f_diag(F, V, y - r0, k - r0 + c0)
-                    if not math.isnan(f):
-                        _record(abs(z1 + s * (z2 - z1) - f), y, x, cell_err, tr0, tc0, stride, best)
+                    if vrow[cc - c0]:
+                        err = abs(base + pb * cc - fr[cc - c0])
+                        if err > best[0]:
+                            best[0] = err
+                            best[1] = float(r)
+                            best[2] = float(cc)
+    # crossings of the TIN's edges with grid rows, columns and diagonals, once per edge
+    for k_e in range(edges.shape[0]):
+        a, b = edges[k_e, 0], edges[k_e, 1]
+        y1, x1, z1 = vr[a], vc[a], vz[a]
+        y2, x2, z2 = vr[b], vc[b], vz[b]
+        if max(y1, y2) < r0 or min(y1, y2) > rmax_b or max(x1, x2) < c0 or min(x1, x2) > cmax_b:
+            continue
+        dy = y2 - y1
+        dx = x2 - x1
+        if abs(dy) > 1e-12:
+            k_lo = int(math.ceil(min(y1, y2)))
+            k_hi = int(math.floor(max(y1, y2)))
+            for r in range(max(k_lo, r0), min(k_hi, rmax_b) + 1):
+                s = (r - y1) / dy
+                x = x1 + s * dx
+                if x < c0 or x > cmax_b:
+                    continue
+                f = _f_row(F, V, r - r0, x - c0)
+                if not math.isnan(f):
+                    _cross(abs(z1 + s * (z2 - z1) - f), float(r), x, cell_err, tr0, tc0, stride, best, track)
+        if abs(dx) > 1e-12:
+            k_lo = int(math.ceil(min(x1, x2)))
+            k_hi = int(math.floor(max(x1, x2)))
+            for cc in range(max(k_lo, c0), min(k_hi, cmax_b) + 1):
+                s = (cc - x1) / dx
+                y = y1 + s * dy
+                if y < r0 or y > rmax_b:
+                    continue
+                f = _f_col(F, V, y - r0, cc - c0)
+                if not math.isnan(f):
+                    _cross(abs(z1 + s * (z2 - z1) - f), y, float(cc), cell_err, tr0, tc0, stride, best, track)
+        d1 = y1 - x1
+        d2 = y2 - x2
+        if abs(d2 - d1) > 1e-12:
+            k_lo = int(math.ceil(min(d1, d2)))
+            k_hi = int(math.floor(max(d1, d2)))
+            for k in range(k_lo, k_hi + 1):
+                s = (k - d1) / (d2 - d1)
+                y = y1 + s * dy
+                x = x1 + s * dx
+                if y < r0 or y > rmax_b or x < c0 or x > cmax_b:
+                    continue
+                # local diagonal index: (y - r0) - (x - c0) = k - r0 + c0
+                f = _f_diag(F, V, y - r0, k - r0 + c0)
+                if not math.isnan(f):
+                    _cross(abs(z1 + s * (z2 - z1) - f), y, x, cell_err, tr0, tc0, stride, best, track)
+
+
+@njit(cache=True)
+def _edge_table(faces, nv):
+    """For the directed edges of ``faces`` (edge k of face t at ``k·F + t``, from corner k to corner k+1):
+    whether each is the first occurrence of its undirected edge, and how many faces share that edge.
+    Linear time: edges are bucketed by their smaller vertex and matched with a stamp array."""
+    nf = faces.shape[0]
+    m = 3 * nf
+    lo = np.empty(m, np.int64)
+    hi = np.empty(m, np.int64)
+    for k in range(3):
+        for t in range(nf):
+            a = faces[t, k]
+            b = faces[t, (k + 1) % 3]
+            lo[k * nf + t] = min(a, b)
+            hi[k * nf + t] = max(a, b)
+    start = np.zeros(nv + 1, np.int64)
+    for i in range(m):
+        start[lo[i] + 1] += 1
+    for v in range(nv):
+        start[v + 1] += start[v]
+    pos = start[:-1].copy()
+    order = np.empty(m, np.int64)
+    for i in range(m):
+        order[pos[lo[i]]] = i
+        pos[lo[i]] += 1
+    first = np.zeros(m, np.bool_)
+    count = np.zeros(m, np.int64)
+    mark = np.full(nv, -1, np.int64)
+    slot = np.zeros(nv, np.int64)
+    for v in range(nv):
+        for q in range(start[v], start[v + 1]):
+            i = order[q]
+            h = hi[i]
+            if mark[h] != v:
+                mark[h] = v
+                slot[h] = i
+                first[i] = True
+            count[slot[h]] += 1
+        for q in range(start[v], start[v + 1]):
+            i = order[q]
+            count[i] = count[slot[hi[i]]]
+    return first, count
+
+
+def edge_table(faces: npt.NDArray[np.int64], n_vertices: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Directed edges (3F, 2) of ``faces`` (all of edge 0, then 1, then 2), whether each is the first of its
+    undirected edge, and how many faces share it (1 on the border of the mesh)."""
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    if len(f) == 0:
+        return e, np.zeros(0, bool), np.zeros(0, np.int64)
+    first, count = _edge_table(f, max(int(n_vertices), int(f.max()) + 1))
+    return e, first, count
+
+
+def unique_edges(faces: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """(K, 2) the undirected edges of ``faces``, each once, as (smaller, larger) vertex index.
+
+    The fixed direction makes an edge's crossings evaluate to the same numbers whichever faces are
+    certified together, so maxima over subsets of faces combine exactly (see the DSM builder's stage 2).
+    """
+    e, first, _ = edge_table(faces, 0)
+    u = e[first]
+    return np.ascontiguousarray(np.column_stack([u.min(axis=1), u.max(axis=1)]))
 
 
 def certify(read_block, footprint: tuple[int, int, int, int], vr: npt.NDArray[np.float64],
             vc: npt.NDArray[np.float64], vz: npt.NDArray[np.float64], faces: npt.NDArray[np.int64],
-            cells: tuple[int, int], stride: int, block: int = 1024) -> tuple[float, np.ndarray, tuple[float, float]]:
+            cells: tuple[int, int], stride: int, block: int = 1024,
+            per_cell: bool = True) -> tuple[float, np.ndarray, tuple[float, float]]:
     """Exact max |T − F| over a footprint, read in overlapping blocks.
 
     Parameters
@@ -193,6 +309,8 @@ def certify(read_block, footprint: tuple[int, int, int, int], vr: npt.NDArray[np
         Inclusive global sample range covered by the tile.
     cells : (h, w)
         Level cells of the tile, for the per-cell error map.
+    per_cell : bool
+        Keep the per-cell map (False leaves it zero, a little faster, same maximum).
 
     Returns
     -------
@@ -204,12 +322,16 @@ def certify(read_block, footprint: tuple[int, int, int, int], vr: npt.NDArray[np
     if len(faces) == 0:
         return 0.0, cell_err, (0.0, 0.0)
     f = np.ascontiguousarray(faces, dtype=np.int64)
-    for br in range(r0, r1 + 1, block):
-        for bc in range(c0, c1 + 1, block):
+    edges = unique_edges(f)
+    vr, vc, vz = (np.ascontiguousarray(a, dtype=np.float64) for a in (vr, vc, vz))
+    # Blocks overlap by one sample, so the last block starting before r1 (c1) already reaches it.
+    for br in range(r0, max(r1, r0 + 1), block):
+        for bc in range(c0, max(c1, c0 + 1), block):
             nr = min(block + 1, r1 - br + 1)  # one sample of overlap keeps grid edges whole
             nc = min(block + 1, c1 - bc + 1)
             heights, valid = read_block(br, bc, nr, nc)
             if not valid.any():
                 continue
-            certify_block(heights, valid, br, bc, vr, vc, vz, f, cell_err, float(r0), float(c0), float(stride), best)
+            certify_block(heights, valid, br, bc, vr, vc, vz, f, edges, cell_err, float(r0), float(c0), float(stride),
+                          best, per_cell)
     return float(best[0]), cell_err, (float(best[1]), float(best[2]))

@@ -12,27 +12,40 @@ after quantisation to float32. Where the certificate exceeds the level's target,
 vertices of the offending cells into the TIN and tries again; ``geometricError`` is the certified value plus
 the horizontal quantisation error, so it is a true bound even where a coarse grid cannot reach its target
 (a one-sample chimney cannot be represented on a grid of stride 16). This is provably conservative, which is
-what the issue allows in place of Wahl's l−2 reference bookkeeping; it reads each footprint in blocks, so
-memory does not grow with the raster.
+what the issue allows in place of Wahl's l−2 reference bookkeeping. A tile's footprint is read once, in one
+window, when it holds up to ``_WHOLE_FOOTPRINT_SAMPLES`` samples (its grid and every certification are then
+taken from memory), and in cached blocks otherwise, so memory does not grow with the raster.
+
+Borders, in two stages. Stage 1 (:func:`build_tile`) chooses every tile's TIN. Its border vertices are the
+1D simplification of the border samples (the same on both sides) plus the few the exact 2D bound or a
+no-data boundary made the kernel add, which differ between neighbours. Stage 2 (:func:`finish_tile`) gives
+each tile the vertices its same-level neighbours have on the shared border and it lacks, by splitting the
+border edge they lie on into a fan (no re-triangulation, no other triangle changes), so both sides carry the
+same border vertices wherever both have a surface; one round suffices, since a split adds vertices on that
+border only. Every tile is certified on its final TIN: leaves once, in stage 2; coarser tiles in stage 1
+(refinement is steered by the certificate) and, where stage 2 changed them, again, on the faces it changed
+(the certificate is a maximum over faces, and each face evaluates to the same numbers in any subset).
 
 Skirts (Wahl 2004: "a triangle strip along the border that reaches down") hang from each tile's outer
 border by twice its error: two neighbours differ along a shared border by at most the sum of their errors,
 so the skirt of the coarser one closes the crack. Skirt triangles are marked in the glb and are not part of
 the certified surface.
 
-Every tile is an independent task (decision 5): it reads its own windows, so tasks run on a local process
-pool or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; finished tiles leave a
-sidecar, so an interrupted build resumes without redoing them.
+Every tile is an independent task per stage (decision 5): it reads its own windows, so tasks run on a local
+process pool or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; stage 1 leaves
+``KEY.tin`` (the TIN and its borders), stage 2 the glb and a ``KEY.json`` sidecar, so an interrupted build
+resumes without redoing either.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -40,16 +53,20 @@ import numpy as np
 import pyproj
 
 from citylod.core.errors import InputError
-from citylod.core.fileio import atomic_write_text, publish_dir
+from citylod.core.fileio import atomic_write, atomic_write_text, publish_dir
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
-from citylod.lod.certify import certify
+from citylod.lod.certify import certify, edge_table
 
 # Coarse levels may need several passes of "force the vertices of bad cells"; after this many the
 # certified error is accepted as it is (and written as the tile's bound).
 _MAX_REFINE_PASSES = 4
 # Rasters smaller than this build in the calling process unless workers are asked for.
 _INLINE_BELOW_SAMPLES = 1_500_000
+# Tile footprints up to this many full-resolution samples are read in one window and kept while the tile is
+# built (2049² float64 heights + validity ≈ 38 MB); larger ones are read in cached blocks of _BLOCK cells.
+_WHOLE_FOOTPRINT_SAMPLES = 2049 * 2049
+_BLOCK = 1024
 
 
 @dataclass(frozen=True)
@@ -67,9 +84,10 @@ class DsmJob:
     ortho: str | None
     texture_size: int
     metric_crs_wkt: str
-    # Border vertices (grid index along the side) forced in so neighbours match: side -> indices,
-    # sides "n" (row 0), "s" (row cells), "w" (col 0), "e" (col cells).
-    border_must: tuple[tuple[str, tuple[int, ...]], ...] = ()
+    # Stage 2 only: vertices the same-level neighbours have on a shared border and this tile lacks (grid
+    # index along the side): side -> indices, sides "n" (row 0), "s" (last row), "w" (col 0), "e" (last col).
+    border_extra: tuple[tuple[str, tuple[int, ...]], ...] = ()
+    stage1: TileResult | None = None  # stage 2 only: this tile's stage-1 result
 
 
 @dataclass
@@ -145,93 +163,231 @@ def _grid_positions(start: int, count: int, stride: int, limit: int) -> tuple[np
     return np.minimum(pos, limit), exists
 
 
+def _tile_grid(job: DsmJob) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """(stride, full-resolution rows, full-resolution columns) of a tile's grid lines; None when it is
+    outside the raster. Tiles at the raster's far edges are cropped to the grid lines that exist rather
+    than padded with no-data: the TIN kernel forces every sample on a no-data boundary, which would waste
+    triangles."""
+    info = job.source.info
+    cells = job.tile_size - 1
+    stride = 2 ** (job.levels - job.level)
+    rpos, rex = _grid_positions(job.row * cells * stride, job.tile_size, stride, info.height - 1)
+    cpos, cex = _grid_positions(job.col * cells * stride, job.tile_size, stride, info.width - 1)
+    if not rex.any() or not cex.any():
+        return None
+    return stride, rpos[rex], cpos[cex]
+
+
+class _Footprint:
+    """The full-resolution samples under one tile, for its grid and its certification.
+
+    A footprint of up to ``_WHOLE_FOOTPRINT_SAMPLES`` is read in one window, once, and both the tile's
+    (strided) grid and the certifier's blocks are views of it; a larger one (the coarsest levels of a large
+    raster) is read in blocks of ``_BLOCK`` cells, a few of which are kept, so memory stays bounded whatever
+    the raster's size.
+    """
+
+    def __init__(self, src: RasterSource, rpos: np.ndarray, cpos: np.ndarray) -> None:
+        self.src, self.rpos, self.cpos = src, rpos, cpos
+        self.footprint = (int(rpos[0]), int(cpos[0]), int(rpos[-1]), int(cpos[-1]))
+        r0, c0, r1, c1 = self.footprint
+        self.shape = (r1 - r0 + 1, c1 - c0 + 1)
+        self.whole = self.shape[0] * self.shape[1] <= _WHOLE_FOOTPRINT_SAMPLES
+        # the certifier's block size: the whole footprint in one block when it is in memory
+        self.block = max(self.shape[0], self.shape[1], 2) if self.whole else _BLOCK
+        self._all: tuple[np.ndarray, np.ndarray] | None = None
+        self._blocks: dict[tuple[int, int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._grid: tuple[np.ndarray, np.ndarray] | None = None
+
+    def read_block(self, r: int, c: int, nr: int, nc: int) -> tuple[np.ndarray, np.ndarray]:
+        """Full-resolution heights and validity of rows r..r+nr−1 × columns c..c+nc−1 (inside the footprint)."""
+        r0, c0, _, _ = self.footprint
+        if self.whole:
+            if self._all is None:
+                self._all = self.src.read_window(r0, c0, *self.shape)
+            h, v = self._all
+            if (r, c, nr, nc) == (r0, c0, *self.shape):
+                return h, v
+            sl = (slice(r - r0, r - r0 + nr), slice(c - c0, c - c0 + nc))
+            return np.ascontiguousarray(h[sl]), np.ascontiguousarray(v[sl])
+        k = (r, c, nr, nc)
+        if k not in self._blocks:
+            if len(self._blocks) >= 8:  # 8 blocks of 1025² ≈ 75 MB at most
+                self._blocks.pop(next(iter(self._blocks)))
+            self._blocks[k] = self.src.read_window(r, c, nr, nc)
+        return self._blocks[k]
+
+    def grid(self) -> tuple[np.ndarray, np.ndarray]:
+        """Heights and validity at the tile's grid lines (rows ``rpos`` × columns ``cpos``)."""
+        if self._grid is not None:
+            return self._grid
+        r0, c0, r1, c1 = self.footprint
+        if self.whole:
+            h, v = self.read_block(r0, c0, *self.shape)
+            ix = np.ix_(self.rpos - r0, self.cpos - c0)
+            self._grid = (h[ix], v[ix])
+            return self._grid
+        heights = np.zeros((len(self.rpos), len(self.cpos)))
+        valid = np.zeros((len(self.rpos), len(self.cpos)), bool)
+        # the same blocks the certifier reads (overlapping by one sample), so they are read once
+        for br in range(r0, max(r1, r0 + 1), _BLOCK):
+            nr = min(_BLOCK + 1, r1 - br + 1)
+            ri = np.flatnonzero((self.rpos >= br) & (self.rpos < br + nr))
+            for bc in range(c0, max(c1, c0 + 1), _BLOCK):
+                nc = min(_BLOCK + 1, c1 - bc + 1)
+                ci = np.flatnonzero((self.cpos >= bc) & (self.cpos < bc + nc))
+                if len(ri) == 0 or len(ci) == 0:
+                    continue
+                h, v = self.read_block(br, bc, nr, nc)
+                ix = np.ix_(self.rpos[ri] - br, self.cpos[ci] - bc)
+                heights[np.ix_(ri, ci)] = h[ix]
+                valid[np.ix_(ri, ci)] = v[ix]
+        self._grid = (heights, valid)
+        return self._grid
+
+
+def _to_metric(info: RasterInfo, job: DsmJob) -> pyproj.Transformer | None:
+    """Geographic rasters: vertical errors are metres already; vertices are projected afterwards."""
+    if not info.geographic:
+        return None
+    return pyproj.Transformer.from_crs(info.crs, pyproj.CRS.from_wkt(job.metric_crs_wkt), always_xy=True)
+
+
+def _place(info: RasterInfo, to_metric: pyproj.Transformer | None, rpos: np.ndarray, cpos: np.ndarray,
+           vij: np.ndarray, vz: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """Vertex positions as written (float32 around a centre) and what certification needs.
+
+    Returns local (V, 3) float32, centre (3,), the horizontal quantisation error, and the vertices' full-
+    resolution rows, columns and quantised heights.
+    """
+    vr = rpos[vij[:, 0]].astype(np.float64)
+    vc = cpos[vij[:, 1]].astype(np.float64)
+    x, y = info.sample_xy(vr, vc)
+    if to_metric is not None:
+        x, y = to_metric.transform(x, y)
+    xyz = np.column_stack([x, y, vz])
+    center = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
+    local = (xyz - center).astype(np.float32)
+    back = local.astype(np.float64) + center
+    q_xy = float(np.max(np.hypot(back[:, 0] - xyz[:, 0], back[:, 1] - xyz[:, 1]), initial=0.0))
+    return local, center, q_xy, vr, vc, back[:, 2]
+
+
+def _certify(fp: _Footprint, vr: np.ndarray, vc: np.ndarray, zq: np.ndarray, faces: np.ndarray, cells: int,
+             stride: int, per_cell: bool = False) -> tuple[float, np.ndarray]:
+    """Exact vertical L∞ of the TIN (quantised heights) against the full-resolution footprint, and per cell
+    (zeros unless ``per_cell``)."""
+    err, cell_err, _ = certify(fp.read_block, fp.footprint, vr, vc, zq, faces.astype(np.int64), (cells, cells),
+                               stride, block=fp.block, per_cell=per_cell)
+    return err, cell_err
+
+
+def _fixed_cell(cell: tuple[int, int], vij: np.ndarray, must: np.ndarray | None, last_r: int, last_c: int) -> bool:
+    """Whether the next refinement pass is sure to triangulate this level cell exactly as now.
+
+    It forces the interior corners of bad cells; when all four corners of the worst cell are vertices
+    already and each is either interior (forced again) or in ``must``, the cell's triangles are the grid's
+    own two (a unit square whose corners are all vertices is triangulated by its edges and the grid's
+    diagonal: see :mod:`citylod.lod.tin`), so the worst error stays where it is and the pass cannot help.
+    """
+    i, j = cell
+    for r, c in ((i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1)):
+        if not np.any((vij[:, 0] == r) & (vij[:, 1] == c)):
+            return False
+        if not (0 < r < last_r and 0 < c < last_c) and (
+                must is None or not np.any((must[:, 0] == r) & (must[:, 1] == c))):
+            return False
+    return True
+
+
+def _refit(heights: np.ndarray, valid: np.ndarray, vij: np.ndarray, tol: float, last_r: int,
+           last_c: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """A TIN within ``tol`` on the tile's grid that keeps every vertex of ``vij`` and has exactly its border
+    vertices, or None when the kernel needed another border vertex."""
+    v2, f2 = _triangulate(heights, valid, tol, np.ascontiguousarray(vij, dtype=np.int32))
+    if len(f2) == 0 or _border_sets(v2, last_r, last_c) != _border_sets(vij, last_r, last_c):
+        return None
+    return v2, f2
+
+
+def _grid_cell_error(fp: _Footprint, rpos: np.ndarray, cpos: np.ndarray, heights: np.ndarray, i: int, j: int,
+                     cells: int, stride: int) -> float:
+    """Exact vertical L∞ of level cell (i, j) triangulated as the grid (diagonal (i, j)–(i+1, j+1))."""
+    vr = rpos[[i, i, i + 1, i + 1]].astype(np.float64)
+    vc = cpos[[j, j + 1, j, j + 1]].astype(np.float64)
+    vz = heights[[i, i, i + 1, i + 1], [j, j + 1, j, j + 1]]
+    err, _ = _certify(fp, vr, vc, vz, np.array([[0, 3, 2], [0, 1, 3]]), cells, stride)
+    return err
+
+
 def build_tile(job: DsmJob) -> TileResult:
-    """Build, certify and write one tile. Runs on a worker."""
+    """Stage 1 of a tile, on a worker: read its grid and choose its TIN.
+
+    Leaves are triangulated once (the kernel's bound is exact on their own grid; certification against the
+    raster happens once, in :func:`finish_tile`). Coarser tiles are certified here, because refinement is
+    steered by where the certificate is exceeded. The TIN is stored beside the output (``KEY.tin``) with its
+    stage-1 result (border vertices, certificate), so the build resumes from it.
+    """
     t0 = time.perf_counter()
     src, info = job.source, job.source.info
-    n = job.tile_size
-    cells = n - 1
-    stride = 2 ** (job.levels - job.level)
+    cells = job.tile_size - 1
     key = f"{job.level}/{job.row}/{job.col}"
     res = TileResult(key, job.level, job.row, job.col, False, target=job.target)
-    r_start, c_start = job.row * cells * stride, job.col * cells * stride
-    rpos, rex = _grid_positions(r_start, n, stride, info.height - 1)
-    cpos, cex = _grid_positions(c_start, n, stride, info.width - 1)
-    if not rex.any() or not cex.any():
+    g = _tile_grid(job)
+    if g is None:
+        _write_sidecar(job.out_dir, key, res)
         return res
-    # Tiles at the raster's far edges are cropped to the grid lines that exist rather than padded with
-    # no-data: the TIN kernel forces every sample on a no-data boundary, which would waste triangles.
-    rpos, cpos = rpos[rex], cpos[cex]
-    heights, valid = _read_grid(src, rpos, cpos)
+    stride, rpos, cpos = g
+    fp = _Footprint(src, rpos, cpos)
+    heights, valid = fp.grid()
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
     if valid.sum() < 3:
+        _write_sidecar(job.out_dir, key, res)
         return res
-    footprint = (int(rpos[0]), int(cpos[0]), int(rpos[-1]), int(cpos[-1]))
+    to_metric = _to_metric(info, job)
 
-    # Certification passes (refinement, coarsening) read the same full-resolution blocks again: keep a
-    # few in memory (8 blocks of 1025² ≈ 75 MB at most) so a tile reads its footprint from disk once when
-    # it is small enough, and memory stays bounded when it is not.
-    blocks: dict[tuple[int, int, int, int], tuple[np.ndarray, np.ndarray]] = {}
-
-    def read_block(r: int, c: int, nr: int, nc: int) -> tuple[np.ndarray, np.ndarray]:
-        k = (r, c, nr, nc)
-        if k not in blocks:
-            if len(blocks) >= 8:
-                blocks.pop(next(iter(blocks)))
-            blocks[k] = src.read(r, c, nr, nc)
-        return blocks[k]
-
-    # Geographic rasters: vertical errors are metres already; vertices are projected afterwards.
-    to_metric = None
-    if info.geographic:
-        to_metric = pyproj.Transformer.from_crs(info.crs, pyproj.CRS.from_wkt(job.metric_crs_wkt), always_xy=True)
-
-    must: np.ndarray | None = _border_vertices(job.border_must, last_r, last_c, valid)
-    tol = job.target
-    border_must = must
-
-    def attempt(tol: float, must: np.ndarray | None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray,
-                                                             np.ndarray, float, np.ndarray]:
+    def attempt(tol: float, must: np.ndarray | None, check: bool = True,
+                per_cell: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         vij, faces = _triangulate(heights, valid, tol, must)
-        if len(faces) == 0:
-            return 0.0, vij, faces, np.zeros((0, 3), np.float32), np.zeros(3), 0.0, np.zeros((cells, cells))
-        vr = rpos[vij[:, 0]].astype(np.float64)
-        vc = cpos[vij[:, 1]].astype(np.float64)
         vz = heights[vij[:, 0], vij[:, 1]]
-        x, y = info.sample_xy(vr, vc)
-        if to_metric is not None:
-            x, y = to_metric.transform(x, y)
-        xyz = np.column_stack([x, y, vz])
-        center = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
-        local = (xyz - center).astype(np.float32)
-        back = local.astype(np.float64) + center
-        q_xy = float(np.max(np.hypot(back[:, 0] - xyz[:, 0], back[:, 1] - xyz[:, 1]), initial=0.0))
-        err, cell_err, _ = certify(read_block, footprint, vr, vc, back[:, 2], faces.astype(np.int64),
-                                   (cells, cells), stride)
-        return err, vij, faces, local, center, q_xy, cell_err
+        if len(faces) == 0 or not check:
+            return math.nan, vij, faces, vz, np.zeros((cells, cells))
+        _, _, _, vr, vc, zq = _place(info, to_metric, rpos, cpos, vij, vz)
+        err, cell_err = _certify(fp, vr, vc, zq, faces, cells, stride, per_cell=per_cell)
+        return err, vij, faces, vz, cell_err
 
-    tol = job.target
-    best = attempt(tol, must)
+    best = attempt(job.target, None, check=stride > 1)
     if len(best[2]) == 0:
+        _write_sidecar(job.out_dir, key, res)
         return res
-    cell_err = best[6]
+    cell_err = best[4]
     passes = 1
+    must: np.ndarray | None = None
+    tol = job.target
     while passes < _MAX_REFINE_PASSES and best[0] > job.target and stride > 1:
+        wi, wj = (int(w) for w in np.unravel_index(int(np.argmax(cell_err)), cell_err.shape))
+        if _fixed_cell((wi, wj), best[1], must, last_r, last_c):
+            break  # the outcome is known: the pass below would find no lower error and be dropped
+        if (0 < wi and wi + 1 < last_r and 0 < wj and wj + 1 < last_c and valid[wi:wi + 2, wj:wj + 2].all()
+                and _grid_cell_error(fp, rpos, cpos, heights, wi, wj, cells, stride) >= 0.98 * best[0] + 1e-3):
+            # The pass would force the worst cell's four (interior) corners, which triangulates it as the
+            # grid does; that alone keeps the error above what the pass must beat. Known outcome: skip it.
+            break
         bad = np.argwhere(cell_err > job.target)
         # Force the grid corners of offending interior cells; border vertices stay as the border
-        # simplification chose them, so neighbours keep matching.
+        # simplification chose them (neighbours are reconciled in stage 2).
         corners = np.concatenate([bad, bad + [0, 1], bad + [1, 0], bad + [1, 1]])
         interior = (corners[:, 0] > 0) & (corners[:, 0] < last_r) & (corners[:, 1] > 0) & (corners[:, 1] < last_c)
         corners = corners[interior]
         corners = corners[valid[corners[:, 0], corners[:, 1]]]
-        new = np.unique(np.concatenate([corners, must]) if must is not None else corners, axis=0)
+        new = _unique_ij(np.concatenate([corners, must]) if must is not None else corners, last_c + 1)
         if must is not None and len(new) == len(must):
             break
         must = new.astype(np.int32)
         tol *= 0.5
         passes += 1
         trial = attempt(tol, must)
-        cell_err = trial[6]
+        cell_err = trial[4]
         # Forcing vertices only pays when it lowers the certified error: façades between the samples of
         # a coarse grid cannot be fixed on that grid.
         if trial[0] >= best[0] * 0.98:
@@ -240,19 +396,93 @@ def build_tile(job: DsmJob) -> TileResult:
     if best[0] > 2.0 * job.target and stride > 1:
         # The target is out of reach on this grid; the tile's bound is best[0] wherever it is shown, so a
         # TIN that stays under that bound everywhere looks the same at the distances where it is drawn.
-        coarse = attempt(0.8 * best[0], border_must)
+        coarse = attempt(0.8 * best[0], None, per_cell=False)  # only its maximum is looked at
         if len(coarse[2]) and coarse[0] <= best[0] and len(coarse[2]) < len(best[2]):
             best = coarse
-    err, vij, faces, local, center, q_xy, _ = best
+    err, vij, faces, vz, _ = best
+    res.has_content = True
     res.passes = passes
+    res.certified = err
+    res.samples = int(valid.sum()) * stride * stride
+    res.borders = _border_sets(vij, last_r, last_c)
+    res.seconds = time.perf_counter() - t0
+    _save_tin(job.out_dir, key, vij, faces, vz, res)
+    return res
+
+
+def finish_tile(job: DsmJob) -> TileResult:
+    """Stage 2 of a tile, on a worker: match its borders to its neighbours', certify, write.
+
+    ``job.border_extra`` holds the vertices the same-level neighbours have on the shared borders and this
+    tile lacks. Each is inserted into the border edge it lies on (the edge's triangle becomes a fan from
+    its opposite vertex), so both tiles carry the same border vertices wherever both have a surface,
+    without re-triangulating either; the result is then certified like any other TIN (exact, against the
+    full-resolution raster), and that certificate is the tile's error.
+    """
+    t0 = time.perf_counter()
+    info = job.source.info
+    cells = job.tile_size - 1
+    key = f"{job.level}/{job.row}/{job.col}"
+    g = _tile_grid(job)
+    if g is None:
+        raise RuntimeError(f"tile {key}: outside the raster")
+    stride, rpos, cpos = g
+    last_r, last_c = len(rpos) - 1, len(cpos) - 1
+    stored, tin = _load_tin(Path(job.out_dir) / "tiles" / f"{key}.tin")
+    vij, faces, vz = tin["vij"], tin["faces"], tin["vz"]
+    res = dataclasses.replace(job.stage1) if job.stage1 is not None else stored
+    err = res.certified
+    to_metric = _to_metric(info, job)
+    fp: _Footprint | None = None
+    n_kept = len(faces)  # faces[:n_kept] are stage 1's; the rest are the fans that replaced the others
+    replaced = faces[:0]
+    old_center = None
+    if job.border_extra:
+        vij2, faces2, replaced = _insert_border_vertices(vij, faces, dict(job.border_extra), last_r, last_c)
+        if len(replaced):
+            fp = _Footprint(job.source, rpos, cpos)
+            heights, _ = fp.grid()
+            old_center = _place(info, to_metric, rpos, cpos, vij, vz)[1]
+            vz = np.concatenate([vz, heights[vij2[len(vij):, 0], vij2[len(vij):, 1]]])
+            n_kept = len(faces) - len(replaced)
+            vij, faces = vij2, faces2
+    local, center, q_xy, vr, vc, zq = _place(info, to_metric, rpos, cpos, vij, vz)
+    if fp is not None and old_center is not None and not math.isnan(err) and np.array_equal(center, old_center):
+        # Certified in stage 1, and the old vertices quantise as they did: the certificate is a maximum
+        # over faces, so the fans, and where needed the faces they replaced or kept, are evaluated (exactly,
+        # with the same numbers as in stage 1) instead of the whole tile.
+        e_fans, _ = _certify(fp, vr, vc, zq, faces[n_kept:], cells, stride)
+        if e_fans < err:
+            e_replaced, _ = _certify(fp, vr, vc, zq, replaced, cells, stride)
+            if e_replaced >= err:  # stage 1's maximum may have been on a replaced face
+                e_kept, _ = _certify(fp, vr, vc, zq, faces[:n_kept], cells, stride)
+                err = max(e_kept, e_fans)
+            # else the maximum is on a kept face: err stands
+        else:
+            err = e_fans  # the kept faces are at most stage 1's err
+    elif fp is not None or math.isnan(err):
+        err, _ = _certify(fp or _Footprint(job.source, rpos, cpos), vr, vc, zq, faces, cells, stride)
+    if len(replaced) and err > job.target and not res.certified > job.target:
+        # The fans pushed a tile that met its target over it (not seen on real data, but possible): re-mesh
+        # with every current vertex forced, and keep that when it adds no border vertex and is certified
+        # lower. Otherwise the fans stay, with their (certified, so still true) error.
+        assert fp is not None
+        heights, valid = fp.grid()
+        again = _refit(heights, valid, vij, job.target, last_r, last_c)
+        if again is not None:
+            vz2 = heights[again[0][:, 0], again[0][:, 1]]
+            placed = _place(info, to_metric, rpos, cpos, again[0], vz2)
+            err2, _ = _certify(fp, placed[3], placed[4], placed[5], again[1], cells, stride)
+            if err2 < err:
+                (vij, faces), vz, err = again, vz2, err2
+                local, center, q_xy, vr, vc, zq = placed
     res.certified = err
     res.quantisation = q_xy
     res.projection = 0.0 if to_metric is None else _projection_bound(info, to_metric, rpos, cpos, vij, faces)
     res.geometric_error = err + q_xy + res.projection
     skirt_depth = 2.0 * max(res.geometric_error, job.target)
-    if info.transform[0] * info.transform[4] > 0:  # south-up raster: the grid's orientation is mirrored
-        faces = faces[:, ::-1]
-    positions, faces_all, skirt, skirt_src = _add_skirts(local, faces, vij, last_r, last_c, skirt_depth)
+    out_faces = faces[:, ::-1] if info.transform[0] * info.transform[4] > 0 else faces  # south-up: mirrored
+    positions, faces_all, skirt, skirt_src = _add_skirts(local, out_faces, vij, last_r, last_c, skirt_depth)
     uv = texture = None
     if job.ortho:
         from citylod.io.image import encode_image
@@ -273,15 +503,11 @@ def build_tile(job: DsmJob) -> TileResult:
     lo = surf.min(axis=0)
     hi = surf.max(axis=0)
     lo[2] -= skirt_depth  # the skirt hangs below the surface; bounding volumes must hold it
-    res.has_content = True
     res.center, res.lo, res.hi = center.tolist(), lo.tolist(), hi.tolist()
     res.triangles = len(faces)
     res.vertices = len(vij)
-    res.samples = int(valid.sum()) * stride * stride
-    r_, c_ = vij[:, 0], vij[:, 1]
-    res.borders = {"n": sorted(int(v) for v in c_[r_ == 0]), "s": sorted(int(v) for v in c_[r_ == last_r]),
-                   "w": sorted(int(v) for v in r_[c_ == 0]), "e": sorted(int(v) for v in r_[c_ == last_c])}
-    res.seconds = time.perf_counter() - t0
+    res.borders = _border_sets(vij, last_r, last_c)
+    res.seconds += time.perf_counter() - t0
     _write_sidecar(job.out_dir, key, res)
     return res
 
@@ -312,64 +538,156 @@ def _projection_bound(info: RasterInfo, to_metric: pyproj.Transformer, rpos: np.
     return 4.0 / 3.0 * worst + longest**3 / 6.371e6**2
 
 
-def _border_vertices(border_must: tuple[tuple[str, tuple[int, ...]], ...], last_r: int, last_c: int,
-                     valid: np.ndarray) -> np.ndarray | None:
-    pts = []
-    for side, idx in border_must:
-        k = np.asarray(idx, np.int32)
-        k = k[k <= (last_c if side in "ns" else last_r)]
-        fixed = np.full(len(k), {"n": 0, "s": last_r, "w": 0, "e": last_c}[side], np.int32)
-        pts.append(np.column_stack([fixed, k]) if side in "ns" else np.column_stack([k, fixed]))
-    if not pts:
-        return None
-    ij = np.unique(np.concatenate(pts), axis=0)
-    return ij[valid[ij[:, 0], ij[:, 1]]].astype(np.int32)
+def _unique_ij(ij: np.ndarray, width: int) -> np.ndarray:
+    """Unique (row, col) pairs, sorted row-major (one 1D unique instead of a slow ``axis=0`` one)."""
+    ij = np.asarray(ij, np.int64).reshape(-1, 2)
+    keys = np.unique(ij[:, 0] * width + ij[:, 1])
+    return np.column_stack([keys // width, keys % width])
 
 
-def _reconcile_borders(results: dict[str, TileResult], jobs: dict[str, DsmJob]) -> list[DsmJob]:
-    """Rebuild jobs for same-level neighbours whose shared border vertices differ.
+def _border_sets(vij: np.ndarray, last_r: int, last_c: int) -> dict[str, list[int]]:
+    """Vertex positions along each tile side: "n" (row 0), "s" (last row), "w" (col 0), "e" (last col)."""
+    r_, c_ = vij[:, 0], vij[:, 1]
+    return {"n": sorted(int(v) for v in c_[r_ == 0]), "s": sorted(int(v) for v in c_[r_ == last_r]),
+            "w": sorted(int(v) for v in r_[c_ == 0]), "e": sorted(int(v) for v in r_[c_ == last_c])}
 
-    The TIN kernel derives most border vertices from the border samples alone (identical on both sides),
-    but may add a border vertex that the tile's interior needs for the bound. Each tile of such a pair is
-    rebuilt with the union forced in; sets only grow, so a few rounds converge.
+
+def _border_additions(stage1: dict[str, TileResult]) -> dict[str, dict[str, list[int]]]:
+    """For every tile, the vertices its same-level neighbours have on a shared border and it lacks.
+
+    Tiles of one level and row share their grid rows (columns likewise), so positions along a shared side
+    compare directly.
     """
-    extra: dict[str, dict[str, set[int]]] = {}
-    for key, r in results.items():
+    out: dict[str, dict[str, list[int]]] = {}
+    for key, r in stage1.items():
         if not r.has_content:
             continue
-        for side, (dr, dc), other_side in (("e", (0, 1), "w"), ("s", (1, 0), "n")):
-            nkey = f"{r.level}/{r.row + dr}/{r.col + dc}"
-            n = results.get(nkey)
+        for side, (dr, dc), other in (("e", (0, 1), "w"), ("w", (0, -1), "e"), ("s", (1, 0), "n"),
+                                      ("n", (-1, 0), "s")):
+            n = stage1.get(f"{r.level}/{r.row + dr}/{r.col + dc}")
             if n is None or not n.has_content:
                 continue
-            a, b = set(r.borders.get(side, [])), set(n.borders.get(other_side, []))
-            if a != b:
-                union = a | b
-                extra.setdefault(key, {}).setdefault(side, set()).update(union)
-                extra.setdefault(nkey, {}).setdefault(other_side, set()).update(union)
-    out = []
-    for key, sides in extra.items():
-        job = jobs[key]
-        merged = {s: set(v) for s, v in job.border_must}
-        for side, idx in sides.items():
-            merged.setdefault(side, set()).update(idx)
-        out.append(dataclasses.replace(job, border_must=tuple((s, tuple(sorted(v))) for s, v in sorted(merged.items()))))
+            miss = set(n.borders.get(other, [])) - set(r.borders.get(side, []))
+            if miss:
+                out.setdefault(key, {})[side] = sorted(miss)
     return out
 
 
-def _read_grid(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Samples at the given full-resolution rows × columns."""
-    if len(rpos) > 1 and np.all(np.diff(rpos) == 1) and np.all(np.diff(cpos) == 1):
-        return src.read(int(rpos[0]), int(cpos[0]), len(rpos), len(cpos))
-    heights = np.zeros((len(rpos), len(cpos)))
-    valid = np.zeros((len(rpos), len(cpos)), bool)
-    c0 = int(cpos[0])
-    span = int(cpos[-1]) - c0 + 1
-    for i, r in enumerate(rpos):
-        h, v = src.read(int(r), c0, 1, span)
-        heights[i] = h[0, cpos - c0]
-        valid[i] = v[0, cpos - c0]
-    return heights, valid
+def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str, tuple[int, ...]],
+                            last_r: int, last_c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Insert border samples into the border edges they lie on.
+
+    A triangle (a, b, o) whose edge a→b lies on a tile side and passes over samples p1..pk of ``extra``
+    becomes the fan (a, p1, o), (p1, p2, o), …, (pk, b, o): same orientation, same area, no other triangle
+    changes (an edge on the tile's outer border has one triangle). A sample that lies on no border edge
+    (this tile has no surface there) is left out, so it cannot create a crack either. Returns the vertices
+    (new ones appended), the faces (the unchanged ones first, in their order, then the fans) and the faces
+    that were replaced.
+    """
+    r, c = vij[:, 0].astype(np.int64), vij[:, 1].astype(np.int64)
+    along: dict[str, np.ndarray] = {}
+    for side, idx in extra.items():
+        pos = np.unique(np.asarray(idx, np.int64))
+        if side in "ns":
+            line = last_r if side == "s" else 0
+            pos = pos[(pos >= 0) & (pos <= last_c) & ~np.isin(pos, c[r == line])]
+        else:
+            line = last_c if side == "e" else 0
+            pos = pos[(pos >= 0) & (pos <= last_r) & ~np.isin(pos, r[c == line])]
+        if len(pos):
+            along[side] = pos
+    if not along:
+        return vij, faces, faces[:0]
+    f = faces.astype(np.int64)
+    hit = np.zeros(len(f), bool)
+    for k in range(3):
+        a, b = f[:, k], f[:, (k + 1) % 3]
+        for side, pts in along.items():
+            if side in "ns":
+                line = last_r if side == "s" else 0
+                on = np.flatnonzero((r[a] == line) & (r[b] == line))
+                pa, pb = c[a[on]], c[b[on]]
+            else:
+                line = last_c if side == "e" else 0
+                on = np.flatnonzero((c[a] == line) & (c[b] == line))
+                pa, pb = r[a[on]], r[b[on]]
+            inside = (np.searchsorted(pts, np.maximum(pa, pb), "left")
+                      - np.searchsorted(pts, np.minimum(pa, pb), "right"))
+            hit[on[inside > 0]] = True
+    if not hit.any():
+        return vij, faces, faces[:0]
+    n_old = len(vij)
+    added: list[tuple[int, int]] = []
+    index: dict[tuple[int, int], int] = {}
+
+    def at(i: int) -> tuple[int, int]:
+        return (int(r[i]), int(c[i])) if i < n_old else added[i - n_old]
+
+    def vid(p: tuple[int, int]) -> int:
+        if p not in index:
+            index[p] = n_old + len(added)
+            added.append(p)
+        return index[p]
+
+    def between(a: int, b: int) -> list[int]:
+        (ra, ca), (rb, cb) = at(a), at(b)
+        for side, pts in along.items():
+            if side in "ns":
+                line = last_r if side == "s" else 0
+                if ra == rb == line:
+                    sel = pts[(pts > min(ca, cb)) & (pts < max(ca, cb))].tolist()
+                    sel = sel if ca < cb else sel[::-1]
+                    return [vid((line, p)) for p in sel]
+            else:
+                line = last_c if side == "e" else 0
+                if ca == cb == line:
+                    sel = pts[(pts > min(ra, rb)) & (pts < max(ra, rb))].tolist()
+                    sel = sel if ra < rb else sel[::-1]
+                    return [vid((p, line)) for p in sel]
+        return []
+
+    def split(tri: tuple[int, int, int]) -> list[tuple[int, int, int]]:
+        for k in range(3):
+            a, b, o = tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3]
+            mids = between(a, b)
+            if mids:
+                chain = [a, *mids, b]
+                return [t for u, w in itertools.pairwise(chain) for t in split((u, w, o))]
+        return [tri]
+
+    new_faces = [t for row in f[hit].tolist() for t in split((row[0], row[1], row[2]))]
+    faces_out = np.concatenate([f[~hit], np.asarray(new_faces, np.int64).reshape(-1, 3)]).astype(faces.dtype)
+    return np.concatenate([vij, np.asarray(added, vij.dtype).reshape(-1, 2)]), faces_out, faces[hit]
+
+
+# Stage 1's output per tile: one JSON header line (array shapes and dtypes, the stage-1 result), then the
+# arrays' raw bytes. Plain data only (no pickle): a resumed build reads what it finds in OUT.partial.
+_TIN_ARRAYS = ("vij", "faces", "vz")
+
+
+def _save_tin(out_dir: str, key: str, vij: np.ndarray, faces: np.ndarray, vz: np.ndarray, res: TileResult) -> None:
+    """Stage 1's output: the TIN, its vertex heights and the stage-1 result (certified error or NaN, borders)."""
+    arrays = [np.ascontiguousarray(a) for a in (vij, faces, vz)]
+    head = {"result": _as_doc(res),
+            "arrays": [[n, a.dtype.str, list(a.shape)] for n, a in zip(_TIN_ARRAYS, arrays, strict=True)]}
+    data = json.dumps(head).encode() + b"\n" + b"".join(a.tobytes() for a in arrays)
+    atomic_write(Path(out_dir) / "tiles" / f"{key}.tin", lambda t: t.write_bytes(data))
+
+
+def _load_tin(path: Path) -> tuple[TileResult, dict[str, np.ndarray]]:
+    data = path.read_bytes()
+    nl = data.index(b"\n")
+    head = json.loads(data[:nl])
+    out: dict[str, np.ndarray] = {}
+    at = nl + 1
+    for name, dtype, shape in head["arrays"]:
+        dt = np.dtype(dtype)
+        n = int(np.prod(shape))
+        out[name] = np.frombuffer(data, dt, n, at).reshape(shape)
+        at += n * dt.itemsize
+    if at != len(data) or set(out) != set(_TIN_ARRAYS):
+        raise ValueError("truncated stage-1 file")
+    return TileResult(**head["result"]), out
 
 
 def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: int, last_c: int,
@@ -379,11 +697,8 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     Returns positions, faces, the skirt mask per face, and for each appended vertex the surface vertex it
     hangs from (so attributes such as texture coordinates can be copied).
     """
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
-    n = len(local)
-    undirected = np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1])  # 1D keys: fast unique
-    _, inverse, counts = np.unique(undirected, return_inverse=True, return_counts=True)
-    bd = e[counts[inverse] == 1]
+    e, _, counts = edge_table(faces, len(local))
+    bd = e[counts == 1]
     r, c = vij[:, 0], vij[:, 1]
     a, b = bd[:, 0], bd[:, 1]
     on_border = (((r[a] == r[b]) & ((r[a] == 0) | (r[a] == last_r)))
@@ -405,11 +720,16 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     return positions, faces_all, skirt, sources
 
 
+def _as_doc(res: TileResult) -> dict[str, Any]:
+    return {f.name: getattr(res, f.name) for f in dataclasses.fields(res)}  # flat fields: no deep copy
+
+
 def _write_sidecar(out_dir: str, key: str, res: TileResult) -> None:
-    atomic_write_text(Path(out_dir) / "tiles" / f"{key}.json", json.dumps(asdict(res)))
+    atomic_write_text(Path(out_dir) / "tiles" / f"{key}.json", json.dumps(_as_doc(res)))
 
 
 def _read_sidecar(out_dir: Path, key: str) -> TileResult | None:
+    """A finished tile's result (its glb exists), or None."""
     p = out_dir / "tiles" / f"{key}.json"
     if not p.exists():
         return None
@@ -420,6 +740,17 @@ def _read_sidecar(out_dir: Path, key: str) -> TileResult | None:
     if res.has_content and not (out_dir / "tiles" / f"{key}.glb").exists():
         return None
     return res
+
+
+def _read_stage1(out_dir: Path, key: str) -> TileResult | None:
+    """A tile's stage-1 result, stored with its TIN (``KEY.tin``), or None."""
+    p = out_dir / "tiles" / f"{key}.tin"
+    if not p.exists():
+        return None
+    try:
+        return _load_tin(p)[0]
+    except (OSError, ValueError, TypeError, KeyError):
+        return None
 
 
 def plan_levels(info: RasterInfo, tile_size: int) -> int:
@@ -474,46 +805,59 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     metric = info.metric_crs()
     tex = texture_size or 256
     cells = tile_size - 1
-    jobs: list[DsmJob] = []
+    stage1: list[DsmJob] = []
     all_jobs: dict[str, DsmJob] = {}
-    done: list[TileResult] = []
+    results: dict[str, TileResult] = {}  # finished tiles
+    borders: dict[str, TileResult] = {}  # stage-1 results (their border vertices) of tiles with content
     for d in range(levels + 1):
         stride = 2 ** (levels - d)
         nr = math.ceil(max(info.height - 1, 1) / (cells * stride))
         nc = math.ceil(max(info.width - 1, 1) / (cells * stride))
         for i in range(nr):
             for j in range(nc):
+                key = f"{d}/{i}/{j}"
                 job = DsmJob(src, str(partial), d, i, j, levels, tile_size, leaf * 2 ** (levels - d),
                              None if ortho is None else str(ortho), tex, metric.to_wkt())
-                all_jobs[f"{d}/{i}/{j}"] = job
-                prev = _read_sidecar(partial, f"{d}/{i}/{j}")
-                if prev is not None:
-                    done.append(prev)
-                    continue
-                jobs.append(job)
-    resumed = len(done)
+                all_jobs[key] = job
+                prev = _read_sidecar(partial, key)
+                tin = _read_stage1(partial, key)
+                if prev is not None and (tin is not None or not prev.has_content):
+                    # finished; its stage-1 borders are what its neighbours are fitted to
+                    results[key] = prev
+                    if tin is not None:
+                        borders[key] = tin
+                elif tin is not None:
+                    borders[key] = tin
+                else:
+                    stage1.append(job)
+    resumed = len(results) + sum(1 for k in borders if k not in results)
     if _stop_after is not None:
-        jobs = jobs[:_stop_after]
-    # Leaves first: they are the most numerous and the cheapest, which keeps the progress bar honest.
-    jobs.sort(key=lambda j: -j.level)
+        stage1 = stage1[:_stop_after]
+    # Coarse tiles first: they take longest, so starting them first keeps the workers busy to the end.
+    stage1.sort(key=lambda j: j.level)
     from citylod.lod.executor import make_executor, run_tasks
 
     if workers is None and scheduler is None and info.width * info.height < _INLINE_BELOW_SAMPLES:
         workers = 0  # starting worker processes (imports, numba cache) costs more than it saves here
-    with make_executor(workers=workers, scheduler=scheduler) as ex:
-        for r in run_tasks(ex, build_tile, jobs, progress=progress, desc="dsm tiles"):
-            done.append(r)
-        if _stop_after is not None:
-            raise KeyboardInterrupt("stopped on request (test hook)")
-        results = {r.key: r for r in done}
-        for _round in range(6):
-            again = _reconcile_borders(results, all_jobs)
-            if not again:
-                break
-            for job in again:
-                all_jobs[f"{job.level}/{job.row}/{job.col}"] = job
-            for r in run_tasks(ex, build_tile, again, progress=progress, desc="dsm borders"):
+    try:
+        with make_executor(workers=workers, scheduler=scheduler) as ex:
+            for r in run_tasks(ex, build_tile, stage1, progress=progress, desc="dsm tiles"):
+                if r.has_content:
+                    borders[r.key] = r
+                else:
+                    results[r.key] = r
+            if _stop_after is not None:
+                raise KeyboardInterrupt("stopped on request (test hook)")
+            # Stage 2: every tile takes the border vertices its neighbours chose and it lacks (one round: the
+            # insertions add no vertex elsewhere), then is certified and written.
+            extra = _border_additions(borders)
+            stage2 = [dataclasses.replace(all_jobs[k], stage1=borders[k], border_extra=tuple(
+                (s, tuple(v)) for s, v in sorted(extra.get(k, {}).items())))
+                      for k in sorted(borders, key=lambda k: int(k.split("/")[0])) if k not in results]
+            for r in run_tasks(ex, finish_tile, stage2, progress=progress, desc="dsm borders"):
                 results[r.key] = r
+    finally:
+        src.close()  # inline builds opened it in this process
     root = _assemble(results, levels, info, cells)
     if root is None:
         raise InputError("no tile has valid data", raster)
@@ -566,8 +910,9 @@ def _assemble(results: dict[str, TileResult], levels: int, info: RasterInfo, cel
 
 
 def _replace_dir(partial: Path, out: Path) -> None:
-    for side in partial.glob("tiles/**/*.json"):
-        side.unlink()
+    for pattern in ("tiles/**/*.json", "tiles/**/*.tin"):
+        for side in partial.glob(pattern):
+            side.unlink()
     publish_dir(partial, out)
 
 
