@@ -157,14 +157,3 @@ def test_foreign_tileset_with_region_and_b3dm(tmp_path) -> None:
     np.testing.assert_allclose(v[1], [4_000_010.0, 600_000.0, 4_900_000.0], atol=1e-6)
     lo, hi = ts.root.bounds
     assert np.all(hi - lo > 0) and np.linalg.norm(lo) > 6e6
-
-
-@pytest.mark.parametrize(("value", "expect"), [(0.75, 0.75), (9.0, 2.0), (-1.0, 2.0), ("1", 2.0), (None, 2.0)])
-def test_view_error_is_the_tightest_valid_bound(tmp_path, value, expect) -> None:
-    c = np.array([500_000.0, 5_400_000.0, 0.0])
-    extras = {} if value is None else {"hausdorff_m": value}
-    root = TileSpec("0/0/0", 0, c, c - 10, c + 10, 2.0, None, extras=extras)
-    ts = open_tileset(write_tileset(tmp_path, root, UTM))
-    tile = next(iter(ts.walk()))
-    assert tile.geometric_error == 2.0  # what other clients see is untouched
-    assert tile.view_error == expect

@@ -656,9 +656,8 @@ class TileMesh:
 class Tile:
     """One tile of an opened tileset. See docs/CONTRACTS.md."""
 
-    __slots__ = ("_size", "box", "children", "content_path", "content_uri", "geometric_error",
-                 "hausdorff_error", "key", "level", "matrix", "parent", "point_count", "refine", "tileset",
-                 "triangle_count")
+    __slots__ = ("_size", "box", "children", "content_path", "content_uri", "geometric_error", "key",
+                 "level", "matrix", "parent", "point_count", "refine", "tileset", "triangle_count")
 
     def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
                  geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None) -> None:
@@ -677,16 +676,6 @@ class Tile:
         # Cost hints for budgets before a tile is loaded (written by citylod builders in tile extras).
         self.triangle_count = 0
         self.point_count = 0
-        # A certified bound on the Hausdorff distance to the full-resolution data (extras "hausdorff_m",
-        # written by `build dsm`), tighter than geometricError on city rasters; None when absent.
-        self.hausdorff_error: float | None = None
-
-    @property
-    def view_error(self) -> float:
-        """The error to use for screen-space refinement: the smallest guaranteed bound the tile carries."""
-        if self.hausdorff_error is None:
-            return self.geometric_error
-        return min(self.geometric_error, self.hausdorff_error)
 
     def __repr__(self) -> str:
         return f"Tile({self.key!r}, level={self.level}, error={self.geometric_error:.3g})"
@@ -804,9 +793,6 @@ class Tileset:
             if isinstance(hints, dict):
                 tile.triangle_count = int(hints.get("triangles", 0) or 0)
                 tile.point_count = int(hints.get("points", 0) or 0)
-                h = hints.get("hausdorff_m")
-                if isinstance(h, (int, float)) and math.isfinite(h) and h >= 0:
-                    tile.hausdorff_error = float(h)
             if parent is None:
                 root_tile = tile
             else:

@@ -82,8 +82,7 @@ class _Node:
         self.key = f"{prefix}{tile.key}"
         self.level = tile.level
         self.box: Box = tile.box
-        # Selection refines on the tightest guaranteed bound the tile carries (Tile.view_error).
-        self.geometric_error = float(tile.view_error)
+        self.geometric_error = float(tile.geometric_error)
         self.refine = tile.refine
         self.content_uri = tile.content_uri
         self.content_bytes = tile.content_bytes
