@@ -110,12 +110,13 @@ def check_tileset(out, z, valid, *, x0=500_000.0, y0=5_400_000.0, res=1.0, trans
     area = 0.0
     for _tile, v, surf in leaves:
         lo, hi = v.min(axis=0), v.max(axis=0)
-        inside = np.flatnonzero((src_x >= lo[0] - 1e-9) & (src_x <= hi[0] + 1e-9) & (src_y >= lo[1] - 1e-9)
-                                & (src_y <= hi[1] + 1e-9))
-        # vertices went through float32 and back through the projection: allow that rounding (1e-5 of a
-        # triangle) when the vertices were mapped back to degrees
-        _, found = _interp_with_boundary(v, surf, src_x[inside], src_y[inside],
-                                         tol=1e-7 if inverse_xy is None else 1e-5)
+        m = 1e-6  # metres: float32 positions relative to the tile centre move vertices by nanometres
+        inside = np.flatnonzero((src_x >= lo[0] - m) & (src_x <= hi[0] + m) & (src_y >= lo[1] - m)
+                                & (src_y <= hi[1] + m))
+        # vertices went through float32 (positions relative to the tile centre: ~4e-6 m at 32 m) and, for
+        # rasters in degrees, back through the projection: a sample on the raster's outer edge can fall
+        # that far outside the edge, so allow 1e-5 of a triangle
+        _, found = _interp_with_boundary(v, surf, src_x[inside], src_y[inside], tol=1e-5)
         covered[inside[found]] = True
         p = v[surf]
         a = 0.5 * ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (p[:, 1, 1] - p[:, 0, 1]))

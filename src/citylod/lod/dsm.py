@@ -61,6 +61,7 @@ from citylod.lod.certify import certify, edge_table
 # Coarse levels may need several passes of "force the vertices of bad cells"; after this many the
 # certified error is accepted as it is (and written as the tile's bound).
 _MAX_REFINE_PASSES = 4
+_REFINE_GAIN = 0.9  # a refinement pass is kept when it lowers the certified error by 10 % or more
 # Rasters smaller than this build in the calling process unless workers are asked for.
 _INLINE_BELOW_SAMPLES = 1_500_000
 # Tile footprints up to this many full-resolution samples are read in one window and kept while the tile is
@@ -388,9 +389,9 @@ def build_tile(job: DsmJob) -> TileResult:
         passes += 1
         trial = attempt(tol, must)
         cell_err = trial[4]
-        # Forcing vertices only pays when it lowers the certified error: façades between the samples of
-        # a coarse grid cannot be fixed on that grid.
-        if trial[0] >= best[0] * 0.98:
+        # Forcing vertices only pays when it lowers the certified error clearly: façades between the
+        # samples of a coarse grid cannot be fixed on that grid, and a 2 % gain measured 3.8× the triangles.
+        if trial[0] >= best[0] * _REFINE_GAIN:
             break
         best = trial
     if best[0] > 2.0 * job.target and stride > 1:

@@ -19,7 +19,7 @@ Algorithm
 ---------
 Greedy insertion into a Delaunay triangulation (Garland & Heckbert 1995, "Fast polygonal
 approximation of terrains and height fields", algorithm III; half-edge layout after mapbox/delatin),
-compiled with numba in `citylod.lod.tin_kernels`:
+then bounded vertex removal, compiled with numba in `citylod.lod.tin_kernels`:
 
 1. Forced vertices, inserted first: the four corners; along each of the four grid borders a 1D
    bounded-error simplification (to half the bound) of each run of valid samples (`simplify_polyline`; depends only on
@@ -27,11 +27,22 @@ compiled with numba in `citylod.lod.tin_kernels`:
    every sample on the boundary of the valid region R (the union of valid cells); ``must_include``.
 2. Greedy phase: every triangle keeps its exact error (samples + edge crossings) and its candidate
    sample in a max-heap; the worst triangle's candidate is inserted and the touched triangles are
-   re-evaluated, until no triangle exceeds ``max_error``.
+   re-evaluated, until no triangle exceeds ``max_error``. While a sample of a triangle is above the
+   bound, its worst sample is the candidate and its crossings are not evaluated (they could only
+   raise its key); they are once its samples are within the bound.
+3. Decimation (``decimate=True``, the default): greedy insertion overshoots, mostly near façades
+   where the crossings force vertices that later insertions make redundant. Each vertex that is
+   neither forced nor on the grid border is removed, newest first, when its hole can be
+   re-triangulated with every new triangle within the bound, samples and crossings evaluated exactly
+   as in step 2 (a dynamic programme over the hole's triangulations, `tin_kernels._decimate`). On the
+   benchmark city rasters (0.5 m on 1 m samples) it removes a quarter of the triangles, leaving 0.9×
+   what pydelatin makes with its samples-only bound, in about the time the lazy crossings of step 2
+   save.
 
 Ties in the Delaunay criterion (every grid cell is cocircular) are broken by a symbolic perturbation
 under which the Delaunay triangulation of a full grid is exactly the grid surface; so inserting every
-sample of a region reproduces it and the greedy phase always terminates.
+sample of a region reproduces it and the greedy phase always terminates. The result of step 3 is no
+longer Delaunay; nothing downstream needs it to be.
 
 No-data, and why the result is correct: every unit edge of ∂R has both ends forced, and a unit-length
 edge between two vertices is always Delaunay (its diametral disk holds no other lattice point), so all
@@ -39,6 +50,8 @@ of ∂R consists of TIN edges (on the grid border, hull edges, whose adjacent-ce
 because every validity change along the border is a forced vertex). Hence no triangle's interior
 meets ∂R: each triangle lies wholly in R or wholly outside, and the cell of its centroid tells which.
 Triangles outside are dropped and never evaluated; those inside cover every valid cell exactly once.
+Step 3 keeps this: the forced vertices (∂R among them) stay, so a removed vertex's star, and the
+triangles that replace it, lie inside R, and every edge of ∂R stays a TIN edge.
 
 Borders: the border vertex set of a tile is the 1D simplification of its border samples, plus (i)
 samples where the validity of the adjacent cells changes (no-data touching the border) and (ii) the
@@ -48,7 +61,8 @@ it within ε). (i) and (ii) depend on a tile's interior, so a builder that wants
 borders passes each tile the union of its neighbours' border vertices on the shared border as
 ``must_include`` (the greedy phase then restores the bound around them; repeat until no border set
 grows, which takes one or two rounds and converges because the sets only grow).
-`TinResult.border_added` counts (ii).
+`TinResult.border_added` counts (ii). Step 3 never removes a border vertex, so the border vertex set
+is that of the greedy phase.
 
 This module does no I/O and imports neither VTK nor Qt.
 """
@@ -197,6 +211,7 @@ def build(
     max_error: float,
     *,
     must_include: npt.ArrayLike | None = None,
+    decimate: bool = True,
 ) -> TinResult:
     """`triangulate`, returning a `TinResult` with diagnostics. See `triangulate`."""
     h = np.ascontiguousarray(heights, dtype=np.float64)
@@ -229,15 +244,23 @@ def build(
     order = np.argsort(_morton(fr, fc), kind="stable")
     hz = np.where(v, h, 0.0)
     vx, vy, tris, stuck, border_added = _k.build_tin(
-        hz, np.ascontiguousarray(cv), fc[order].astype(np.int64), fr[order].astype(np.int64), e
+        hz,
+        np.ascontiguousarray(cv),
+        fc[order].astype(np.int64),
+        fr[order].astype(np.int64),
+        e,
+        decimate=decimate,
     )
     # keep the triangles inside R (centroid cell valid; see the module docstring for why that suffices)
     ci = np.minimum((vy[tris].sum(axis=1)) // 3, H - 2)
     cj = np.minimum((vx[tris].sum(axis=1)) // 3, W - 2)
     tris = tris[cv[ci, cj]]
-    used, faces = np.unique(tris, return_inverse=True)
+    # the vertices in some face, in index order, and the faces renumbered (what np.unique gives, in O(n))
+    used = np.zeros(len(vx), dtype=bool)
+    used[tris.reshape(-1)] = True
+    remap = np.cumsum(used, dtype=np.int32) - 1
     vertices = np.stack([vy[used], vx[used]], axis=1).astype(np.int32)
-    return TinResult(vertices, faces.reshape(-1, 3).astype(np.int32), border_added, stuck)
+    return TinResult(vertices, remap[tris].astype(np.int32), border_added, stuck)
 
 
 def triangulate(
@@ -246,8 +269,9 @@ def triangulate(
     max_error: float,
     *,
     must_include: npt.ArrayLike | None = None,
+    decimate: bool = True,
 ) -> tuple[I32, I32]:
-    """Bounded-error TIN of a height grid (Garland & Heckbert 1995 greedy insertion, exact bound).
+    """Bounded-error TIN of a height grid (greedy insertion, then vertex removal; exact bound).
 
     Parameters
     ----------
@@ -262,6 +286,9 @@ def triangulate(
     must_include
         Optional (K, 2) (row, col) samples that must be vertices, e.g. a neighbour's border vertices
         or the vertices of a previous triangulation (then the result refines it; see `refine`).
+    decimate
+        Remove the vertices the bound does not need after the greedy phase (module docstring, step
+        3). False gives the plain greedy-insertion Delaunay TIN.
 
     Returns
     -------
@@ -278,7 +305,7 @@ def triangulate(
     cell exactly once and no invalid cell; the four corners are vertices when valid; the border
     vertices include the 1D simplification of each border (see the module docstring).
     """
-    r = build(heights, valid, max_error, must_include=must_include)
+    r = build(heights, valid, max_error, must_include=must_include, decimate=decimate)
     return r.vertices_ij, r.faces
 
 
@@ -293,9 +320,11 @@ def refine(
 
     The result is the (perturbed) Delaunay triangulation of ``vertices_ij`` ∪ ``extra_vertices`` ∪ the
     forced vertices, further refined by greedy insertion while its error exceeds ``max_error`` (the
-    default ``inf`` inserts nothing else). Use it when a certification against a finer grid fails
-    somewhere: add samples there and re-run. Adding vertices re-flips the Delaunay triangulation
-    around them, which can raise the error elsewhere: pass the bound as ``max_error`` to restore it.
+    default ``inf`` inserts nothing else); the vertices given are kept, those the greedy phase adds
+    may be removed again if the bound does not need them. Use it when a certification against a finer
+    grid fails somewhere: add samples there and re-run. Adding vertices re-flips the Delaunay
+    triangulation around them, which can raise the error elsewhere: pass the bound as ``max_error``
+    to restore it.
 
     Parameters
     ----------
