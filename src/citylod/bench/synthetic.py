@@ -62,6 +62,14 @@ def _texture(level: int, ix: int, iy: int, size: int) -> npt.NDArray[np.uint8]:
     return img
 
 
+def _attach_children(spec: TileSpec, specs: dict[tuple[int, int, int], TileSpec], level: int, ix: int,
+                     iy: int) -> None:
+    """Make the four tiles below (level, ix, iy) the children of ``spec`` and grow its box over them."""
+    spec.children = [specs[(level + 1, 2 * ix + dx, 2 * iy + dy)] for dy in (0, 1) for dx in (0, 1)]
+    spec.lo = np.minimum.reduce([spec.lo] + [c.lo for c in spec.children])
+    spec.hi = np.maximum.reduce([spec.hi] + [c.hi for c in spec.children])
+
+
 def make_terrain_tileset(out_dir: str | os.PathLike[str], *, levels: int = 3, n: int = 17,
                          extent: float = 1024.0, corner: npt.ArrayLike = (500000.0, 5400000.0, 0.0),
                          height_fn: HeightFn = rolling_hills, crs: str = "EPSG:25832",
@@ -161,9 +169,7 @@ def make_terrain_tileset(out_dir: str | os.PathLike[str], *, levels: int = 3, n:
                 spec = TileSpec(key=key, level=level, center=center, lo=lo, hi=hi, geometric_error=err,
                                 content=uri)
                 if level < levels - 1:
-                    spec.children = [specs[(level + 1, 2 * ix + dx, 2 * iy + dy)] for dy in (0, 1) for dx in (0, 1)]
-                    spec.lo = np.minimum.reduce([spec.lo] + [c.lo for c in spec.children])
-                    spec.hi = np.maximum.reduce([spec.hi] + [c.hi for c in spec.children])
+                    _attach_children(spec, specs, level, ix, iy)
                 specs[(level, ix, iy)] = spec
     write_tileset(out, specs[(0, 0, 0)], crs, extras={"citylod": {"kind": "dsm"}})
     return out
@@ -201,9 +207,7 @@ def make_point_tileset(out_dir: str | os.PathLike[str], *, levels: int = 3, poin
                 spec = TileSpec(key=key, level=level, center=center, lo=lo, hi=hi,
                                 geometric_error=size / np.sqrt(points_per_tile), content=uri, refine="ADD")
                 if level < levels - 1:
-                    spec.children = [specs[(level + 1, 2 * ix + dx, 2 * iy + dy)] for dy in (0, 1) for dx in (0, 1)]
-                    spec.lo = np.minimum.reduce([spec.lo] + [c.lo for c in spec.children])
-                    spec.hi = np.maximum.reduce([spec.hi] + [c.hi for c in spec.children])
+                    _attach_children(spec, specs, level, ix, iy)
                 specs[(level, ix, iy)] = spec
     write_tileset(out, specs[(0, 0, 0)], crs, extras={"citylod": {"kind": "points"}})
     return out

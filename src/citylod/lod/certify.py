@@ -25,6 +25,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from citylod.lod.octree import counting_sort
+
 _EPS = 1e-9
 
 
@@ -244,16 +246,7 @@ def _edge_table(faces, nv):
             b = faces[t, (k + 1) % 3]
             lo[k * nf + t] = min(a, b)
             hi[k * nf + t] = max(a, b)
-    start = np.zeros(nv + 1, np.int64)
-    for i in range(m):
-        start[lo[i] + 1] += 1
-    for v in range(nv):
-        start[v + 1] += start[v]
-    pos = start[:-1].copy()
-    order = np.empty(m, np.int64)
-    for i in range(m):
-        order[pos[lo[i]]] = i
-        pos[lo[i]] += 1
+    order, start = counting_sort(lo, nv)  # edges bucketed by their smaller vertex
     first = np.zeros(m, np.bool_)
     count = np.zeros(m, np.int64)
     mark = np.full(nv, -1, np.int64)

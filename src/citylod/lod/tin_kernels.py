@@ -304,6 +304,29 @@ def _edge_error(
     return best
 
 
+@njit(cache=True, inline="always")
+def _row_span(y: int, xmin: int, xmax: int, a0: int, b0: int, c0: int, a1: int, b1: int, c1: int, a2: int,
+              b2: int, c2: int) -> tuple[int, int]:
+    """Columns [lo, hi] of row ``y`` inside the closed triangle whose half-planes are ``a·x + b·y + c >= 0``
+    (integer arithmetic, clipped to [xmin, xmax]; empty when hi < lo)."""
+    lo = xmin
+    hi = xmax
+    for k in range(3):
+        if k == 0:
+            a, r = a0, b0 * y + c0
+        elif k == 1:
+            a, r = a1, b1 * y + c1
+        else:
+            a, r = a2, b2 * y + c2
+        if a > 0:
+            lo = max(lo, -(r // a))
+        elif a < 0:
+            hi = min(hi, r // (-a))
+        elif r < 0:
+            hi = lo - 1
+    return lo, hi
+
+
 @njit(cache=True)
 def _triangle_error(
     h: np.ndarray,
@@ -351,22 +374,7 @@ def _triangle_error(
     xmin = min(x0, min(x1, x2))
     xmax = max(x0, max(x1, x2))
     for y in range(ymin, ymax + 1):
-        lo = xmin
-        hi = xmax
-        # x-range of the row inside the closed triangle, from the three half-planes w_k >= 0
-        for k in range(3):
-            if k == 0:
-                a, r = a0, b0 * y + c0
-            elif k == 1:
-                a, r = a1, b1 * y + c1
-            else:
-                a, r = a2, b2 * y + c2
-            if a > 0:
-                lo = max(lo, -(r // a))
-            elif a < 0:
-                hi = min(hi, r // (-a))
-            elif r < 0:
-                hi = lo - 1
+        lo, hi = _row_span(y, xmin, xmax, a0, b0, c0, a1, b1, c1, a2, b2, c2)
         r1 = b1 * y + c1
         r2 = b2 * y + c2
         for x in range(lo, hi + 1):
@@ -964,21 +972,7 @@ def _samples_within(
     xmin = min(x0, min(x1, x2))
     xmax = max(x0, max(x1, x2))
     for y in range(ymin, ymax + 1):
-        lo = xmin
-        hi = xmax
-        for k in range(3):
-            if k == 0:
-                a, r = a0, b0 * y + c0
-            elif k == 1:
-                a, r = a1, b1 * y + c1
-            else:
-                a, r = a2, b2 * y + c2
-            if a > 0:
-                lo = max(lo, -(r // a))
-            elif a < 0:
-                hi = min(hi, r // (-a))
-            elif r < 0:
-                hi = lo - 1
+        lo, hi = _row_span(y, xmin, xmax, a0, b0, c0, a1, b1, c1, a2, b2, c2)
         r1 = b1 * y + c1
         r2 = b2 * y + c2
         for x in range(lo, hi + 1):
