@@ -247,6 +247,10 @@ def test_bad_inputs_fail_cleanly(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"cut\.laz"):
         build_points([cut], tmp_path / "o1", workers=0, progress=False)
     assert not (tmp_path / "o1").exists()
+    # the default for small clouds: threads, intermediates in memory; nothing to resume, nothing left
+    with pytest.raises(InputError, match=r"cut\.laz"):
+        build_points([cut], tmp_path / "o4", progress=False)
+    assert not (tmp_path / "o4").exists() and not (tmp_path / "o4.partial").exists()
     nocrs = tmp_path / "nocrs.laz"
     make_cloud(nocrs, n_terrain=3_000, crs=None)
     with pytest.raises(GeoreferenceError, match=r"nocrs\.laz"):

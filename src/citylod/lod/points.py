@@ -501,6 +501,10 @@ def _executor(workers: int | None, scheduler: Any, threads: bool, tmp: Path) -> 
     pool = ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="citylod-points")
     try:
         yield pool
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        shutil.rmtree(tmp.parent, ignore_errors=True)  # an in-memory build cannot resume: leave nothing
+        raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
         _release(tmp)
