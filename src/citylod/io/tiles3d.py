@@ -549,7 +549,8 @@ def write_content(out_dir: str | os.PathLike[str], key: str, content: TileConten
     if atomic:
         atomic_write_bytes(path, data)
     else:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if not path.parent.is_dir():  # a stat; mkdir(exist_ok=True) raises and catches on every call
+            path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(data)
     return path.relative_to(Path(out_dir)).as_posix()
 
