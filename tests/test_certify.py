@@ -50,3 +50,41 @@ def test_certifier_matches_dense_brute_force() -> None:
     assert err >= brute - 1e-9
     assert err <= brute * 1.02 + 1e-6
     assert cell_err.max() == err
+
+
+def _full_grid(rpos: np.ndarray, cpos: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The coarse grid as a TIN (every sample a vertex, cells split by their (a,b)-(a+1,b+1) diagonal)."""
+    nr, nc = len(rpos), len(cpos)
+    idx = np.arange(nr * nc).reshape(nr, nc)
+    gv = valid[np.ix_(rpos, cpos)]
+    cv = gv[:-1, :-1] & gv[:-1, 1:] & gv[1:, :-1] & gv[1:, 1:]
+    a, b, c, d = idx[:-1, :-1][cv], idx[:-1, 1:][cv], idx[1:, :-1][cv], idx[1:, 1:][cv]
+    faces = np.concatenate([np.stack([a, d, c], 1), np.stack([a, b, d], 1)]).astype(np.int64)
+    vr, vc = (g.reshape(-1).astype(float) for g in np.meshgrid(rpos, cpos, indexing="ij"))
+    return vr, vc, faces
+
+
+def test_grid_lower_bound_is_exact_on_square_cells_and_a_bound_otherwise() -> None:
+    from citylod.lod.certify import grid_error_lower_bound
+
+    rng = np.random.default_rng(3)
+    z = rng.normal(0, 1, (65, 65)).cumsum(axis=0).cumsum(axis=1) * 0.05
+    z[9:30, 13:22] += 25.0  # buildings: façades between the coarse samples
+    z[40:43, 50:60] += 12.0
+    valid = np.ones_like(z, bool)
+    valid[55:60, 3:9] = False  # a no-data hole
+
+    def read(r, c, nr, nc):
+        return z[r:r + nr, c:c + nc], valid[r:r + nr, c:c + nc]
+
+    for rpos, cpos, square in ((np.arange(0, 65, 8), np.arange(0, 65, 8), True),
+                               (np.arange(0, 65, 4), np.r_[np.arange(0, 61, 6), 64], False)):
+        vr, vc, faces = _full_grid(rpos, cpos, valid)
+        exact, _, _ = certify(read, (0, 0, 64, 64), vr, vc, z[vr.astype(int), vc.astype(int)], faces, (8, 8), 8,
+                              block=16, per_cell=False)
+        gz, gv = z[np.ix_(rpos, cpos)], valid[np.ix_(rpos, cpos)]
+        lb = grid_error_lower_bound(read, (0, 0, 64, 64), rpos, cpos, gz, gv, block=16)
+        assert lb > 5.0  # the façades are seen
+        assert lb <= exact + 1e-9
+        if square:  # the coarse diagonals lie on the raster's: the samples are the whole overlay
+            assert abs(lb - exact) < 1e-9

@@ -72,13 +72,13 @@ def _section(title: str) -> None:
 
 
 def _build_in_child(raster: Path, tiles: Path, progress: bool) -> dict[str, Any]:
-    """``build_dsm`` on 2 workers in a child process, so its peak memory is the build's own (this process
+    """``build_dsm`` (threads, the default) in a child process, so its peak memory is the build's own (this process
     holds rasters and render state by then)."""
     import subprocess
     import sys
 
     code = ("import dataclasses, json; from citylod.lod.dsm import build_dsm; "
-            f"r = build_dsm({str(raster)!r}, {str(tiles)!r}, workers=2, progress={progress}); "
+            f"r = build_dsm({str(raster)!r}, {str(tiles)!r}, progress={progress}); "
             "print('@@' + json.dumps(dataclasses.asdict(r)))")
     proc = subprocess.run([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, check=True)
     report: dict[str, Any] = json.loads(proc.stdout.split("@@", 1)[1])
@@ -112,7 +112,7 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
     rasters = [sample.files["dsm"]]
     if not quick:
         rasters.append(_dsm_from_city(2049, out / "raster2049" / "dsm.tif"))
-    dsm_results = [bench_dsm(Path(r), out / "dsm", workers=2, progress=progress) for r in rasters]
+    dsm_results = [bench_dsm(Path(r), out / "dsm", progress=progress) for r in rasters]
     results["dsm"] = dsm_results
     md.append("## DSM tile tree\n")
     md.append(dsm_markdown(dsm_results))
@@ -137,7 +137,7 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
             raster = make(out / f"raster_{name}" / "dsm.tif")
             brep = _build_in_child(raster, out / f"tiles_{name}", progress)
             results[f"build_{name}"] = {k: brep[k] for k in ("seconds", "tiles", "per_level", "peak_rss_mb")}
-            md.append(f"{title} built on 2 workers in {brep['seconds']:.0f} s ({brep['tiles']} tiles, "
+            md.append(f"{title} built on {os.cpu_count()} threads in {brep['seconds']:.0f} s ({brep['tiles']} tiles, "
                       f"peak {brep['peak_rss_mb']:.0f} MB).\n")
             rep4 = run_bench([out / f"tiles_{name}"], None, taus, (960, 540), out / f"render_{name}", progress,
                              repeats=1)

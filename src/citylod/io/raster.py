@@ -61,29 +61,39 @@ class RasterInfo:
 
 # Open datasets, per thread and file, shared by the RasterSource objects of that file: a build sends each
 # tile task its own (unpickled) source, and reopening the file per task would also drop GDAL's cache of
-# decompressed blocks. GDAL handles are not thread-safe, hence one per thread.
-_SHARED: OrderedDict[tuple[int, str, int, int, int], Any] = OrderedDict()
+# decompressed blocks. GDAL handles are not thread-safe, hence one per thread, kept in thread-local storage
+# (a build on threads must not let one thread's eviction close another's dataset); a thread's datasets are
+# closed with it.
+_LOCAL = threading.local()
 _SHARED_MAX = 8
+
+
+def _shared() -> OrderedDict[tuple[str, int, int, int], Any]:
+    d: OrderedDict[tuple[str, int, int, int], Any] | None = getattr(_LOCAL, "datasets", None)
+    if d is None:
+        d = _LOCAL.datasets = OrderedDict()
+    return d
 
 
 def _open_shared(path: Path) -> Any:
     import rasterio
 
     st = os.stat(path)
-    key = (threading.get_ident(), str(path), st.st_ino, st.st_size, st.st_mtime_ns)  # a rewritten file reopens
-    ds = _SHARED.pop(key, None)
+    key = (str(path), st.st_ino, st.st_size, st.st_mtime_ns)  # a rewritten file reopens
+    shared = _shared()
+    ds = shared.pop(key, None)
     if ds is None or ds.closed:
         ds = rasterio.open(path)
-    _SHARED[key] = ds
-    while len(_SHARED) > _SHARED_MAX:
-        _SHARED.popitem(last=False)[1].close()
+    shared[key] = ds
+    while len(shared) > _SHARED_MAX:
+        shared.popitem(last=False)[1].close()
     return ds
 
 
 def _close_shared(path: Path) -> None:
-    me = threading.get_ident()
-    for key in [k for k in _SHARED if k[0] == me and k[1] == str(path)]:
-        _SHARED.pop(key).close()
+    shared = _shared()
+    for key in [k for k in shared if k[0] == str(path)]:
+        shared.pop(key).close()
 
 
 class RasterSource:

@@ -30,7 +30,7 @@ from citylod.lod.octree import counting_sort
 _EPS = 1e-9
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _f_row(F, V, r, x):  # F along the row line r at fractional column x (global coords already local)
     j = int(math.floor(x))
     if j < 0 or j + 1 >= F.shape[1] or r < 0 or r >= F.shape[0]:
@@ -41,7 +41,7 @@ def _f_row(F, V, r, x):  # F along the row line r at fractional column x (global
     return F[r, j] * (1.0 - f) + F[r, j + 1] * f
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _f_col(F, V, y, c):
     i = int(math.floor(y))
     if i < 0 or i + 1 >= F.shape[0] or c < 0 or c >= F.shape[1]:
@@ -52,7 +52,7 @@ def _f_col(F, V, y, c):
     return F[i, c] * (1.0 - f) + F[i + 1, c] * f
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _f_diag(F, V, y, k):  # on the diagonal line row - col = k
     i = int(math.floor(y))
     j = i - k
@@ -64,7 +64,7 @@ def _f_diag(F, V, y, k):  # on the diagonal line row - col = k
     return F[i, j] * (1.0 - f) + F[i + 1, j + 1] * f
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _record(err, y, x, cell_err, tr0, tc0, stride, best):
     # attribute an error to the level cell containing (y, x) (global full-resolution coordinates)
     ci = int(math.floor((y - tr0) / stride))
@@ -79,7 +79,7 @@ def _record(err, y, x, cell_err, tr0, tc0, stride, best):
         best[2] = x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cross(err, y, x, cell_err, tr0, tc0, stride, best, track):
     if track:
         _record(err, y, x, cell_err, tr0, tc0, stride, best)
@@ -89,7 +89,7 @@ def _cross(err, y, x, cell_err, tr0, tc0, stride, best, track):
         best[2] = x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def certify_block(F, V, r0, c0, vr, vc, vz, faces, edges, cell_err, tr0, tc0, stride, best, track):
     """Update ``best`` = [max error, row, col] and ``cell_err`` with the exact error inside one block.
 
@@ -231,7 +231,7 @@ def certify_block(F, V, r0, c0, vr, vc, vz, faces, edges, cell_err, tr0, tc0, st
                     _cross(abs(z1 + s * (z2 - z1) - f), y, x, cell_err, tr0, tc0, stride, best, track)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _edge_table(faces, nv):
     """For the directed edges of ``faces`` (edge k of face t at ``k·F + t``, from corner k to corner k+1):
     whether each is the first occurrence of its undirected edge, and how many faces share that edge.
@@ -328,3 +328,60 @@ def certify(read_block, footprint: tuple[int, int, int, int], vr: npt.NDArray[np
             certify_block(heights, valid, br, bc, vr, vc, vz, f, edges, cell_err, float(r0), float(c0), float(stride),
                           best, per_cell)
     return float(best[0]), cell_err, (float(best[1]), float(best[2]))
+
+
+@njit(cache=True, nogil=True)
+def _grid_sample_error(F, V, br, bc, rpos, cpos, gz, gv):  # pragma: no cover - compiled
+    nr, nc = F.shape
+    worst = 0.0
+    for a in range(len(rpos) - 1):
+        ra, rb = rpos[a], rpos[a + 1]
+        if rb < br or ra > br + nr - 1:
+            continue
+        for b in range(len(cpos) - 1):
+            ca, cb = cpos[b], cpos[b + 1]
+            if cb < bc or ca > bc + nc - 1:
+                continue
+            if not (gv[a, b] and gv[a, b + 1] and gv[a + 1, b] and gv[a + 1, b + 1]):
+                continue
+            z00, z01, z10, z11 = gz[a, b], gz[a, b + 1], gz[a + 1, b], gz[a + 1, b + 1]
+            hr, hc = float(rb - ra), float(cb - ca)
+            for r in range(max(ra, br), min(rb, br + nr - 1) + 1):
+                u = (r - ra) / hr
+                for c in range(max(ca, bc), min(cb, bc + nc - 1) + 1):
+                    if not V[r - br, c - bc]:
+                        continue
+                    v = (c - ca) / hc
+                    if u >= v:  # below the (a, b)–(a+1, b+1) diagonal: triangle 00, 10, 11
+                        t = z00 + u * (z10 - z00) + v * (z11 - z10)
+                    else:  # triangle 00, 01, 11
+                        t = z00 + v * (z01 - z00) + u * (z11 - z01)
+                    d = abs(F[r - br, c - bc] - t)
+                    if d > worst:
+                        worst = d
+    return worst
+
+
+def grid_error_lower_bound(read_block, footprint: tuple[int, int, int, int], rpos: npt.NDArray[np.int64],
+                           cpos: npt.NDArray[np.int64], gz: npt.NDArray[np.float64], gv: npt.NDArray[np.bool_],
+                           block: int = 1024) -> float:
+    """max |G − F| over the full-resolution samples, G the tile's full grid (every valid sample of rows
+    ``rpos`` × columns ``cpos`` a vertex, cells split by their (a, b)–(a+1, b+1) diagonal).
+
+    A lower bound of the full grid's certified error (crossings are not visited; where the grid's cells
+    are square, its diagonals lie on the raster's own and the bound is exact). One pass over the samples,
+    ≈ 25× cheaper than certifying the full grid's 33 k faces: what a coarse tile's build uses to tell that
+    its target is out of reach on its grid before triangulating towards it.
+    """
+    r0, c0, r1, c1 = footprint
+    rp, cp = np.ascontiguousarray(rpos, np.int64), np.ascontiguousarray(cpos, np.int64)
+    z, v = np.ascontiguousarray(gz, np.float64), np.ascontiguousarray(gv, np.bool_)
+    worst = 0.0
+    for br in range(r0, max(r1, r0 + 1), block):
+        for bc in range(c0, max(c1, c0 + 1), block):
+            nr, nc = min(block + 1, r1 - br + 1), min(block + 1, c1 - bc + 1)
+            heights, valid = read_block(br, bc, nr, nc)
+            if valid.any():
+                worst = max(worst, _grid_sample_error(np.ascontiguousarray(heights, np.float64),
+                                                      np.ascontiguousarray(valid), br, bc, rp, cp, z, v))
+    return float(worst)

@@ -1,4 +1,4 @@
-"""Where build tasks run: a local process pool, the calling process, or a Dask cluster.
+"""Where build tasks run: a local process pool, threads or the calling process, or a Dask cluster.
 
 Decision 5 of the design: a build is a graph of independent tile tasks submitted to a
 ``concurrent.futures.Executor``. This module makes that executor and runs a batch of tasks through it
@@ -15,7 +15,14 @@ import multiprocessing
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    Executor,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    wait,
+)
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
@@ -59,14 +66,19 @@ def _exit_now() -> None:
 
 
 @contextmanager
-def make_executor(workers: int | None = None, scheduler: Any = None) -> Iterator[Executor]:
+def make_executor(workers: int | None = None, scheduler: Any = None, *, threads: bool = False
+                  ) -> Iterator[Executor]:
     """An executor for build tasks, shut down when the ``with`` block ends.
 
     Parameters
     ----------
     workers
-        Local worker processes; None = CPU count; 0 = run in the calling process.
-        Ignored when ``scheduler`` is given.
+        Local worker processes (threads with ``threads``); None = CPU count; 0 = run in the calling
+        process. Ignored when ``scheduler`` is given.
+    threads
+        Threads of the calling process instead of worker processes: for tasks whose compiled kernels
+        release the GIL, no start-up (a spawned worker imports numpy, numba, rasterio and loads the
+        compiled kernels, ≈1 s) and no pickling of results.
     scheduler
         A Dask scheduler address (``tcp://HOST:PORT``), or a ``distributed.Client``; the tasks then run
         on that cluster's workers, which need citylod importable and the build's files reachable at
@@ -91,6 +103,13 @@ def make_executor(workers: int | None = None, scheduler: Any = None) -> Iterator
     n = (os.cpu_count() or 1) if workers is None else int(workers)
     if n <= 0:
         yield InlineExecutor()
+        return
+    if threads:
+        tpool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="citylod-build")
+        try:
+            yield tpool
+        finally:
+            tpool.shutdown(wait=True, cancel_futures=True)
         return
     # spawn, not fork: the parent may hold threads (Dask, tqdm monitor, OpenMP) that fork would copy
     # in a locked state, and spawn behaves the same on Linux, macOS and Windows.

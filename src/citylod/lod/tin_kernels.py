@@ -25,18 +25,18 @@ _NTRI, _NPEND, _NHEAP, _NVERT, _ERRORS_ON, _STUCK, _NBORDER_ADDED = 0, 1, 2, 3, 
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _orient(ax: int, ay: int, bx: int, by: int, cx: int, cy: int) -> int:
     # Delatin's sign convention; exact in int64 for any grid below 2**31 samples a side.
     return (bx - cx) * (ay - cy) - (by - cy) * (ax - cx)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _det3(dx: int, dy: int, ap: int, ex: int, ey: int, bp: int, fx: int, fy: int, cp: int) -> int:
     return dx * (ey * cp - bp * fy) - dy * (ex * cp - bp * fx) + ap * (ex * fy - ey * fx)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _in_circle(ax: int, ay: int, bx: int, by: int, cx: int, cy: int, px: int, py: int) -> bool:
     """Whether p lies inside the circumcircle of (a, b, c) (``_orient(a, b, c) > 0``), ties perturbed.
 
@@ -69,7 +69,7 @@ def _in_circle(ax: int, ay: int, bx: int, by: int, cx: int, cy: int, px: int, py
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _heap_up(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int) -> None:
     t = heap[i]
     e = terr[t]
@@ -85,7 +85,7 @@ def _heap_up(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int) -> No
     hpos[t] = i
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _heap_down(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int, n: int) -> None:
     t = heap[i]
     e = terr[t]
@@ -105,7 +105,7 @@ def _heap_down(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int, n: 
     hpos[t] = i
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _heap_push(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.ndarray, t: int) -> None:
     i = cnt[_NHEAP]
     cnt[_NHEAP] = i + 1
@@ -114,7 +114,7 @@ def _heap_push(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.nda
     _heap_up(heap, hpos, terr, i)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _heap_remove(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.ndarray, t: int) -> None:
     i = hpos[t]
     hpos[t] = -1
@@ -133,14 +133,14 @@ def _heap_remove(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.n
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _is_border(s: int, H: int, W: int) -> bool:
     r = s // W
     c = s - r * W
     return r == 0 or c == 0 or r == H - 1 or c == W - 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pick(
     ss: np.ndarray,
     n: int,
@@ -182,7 +182,7 @@ def _pick(
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _edge_error(
     h: np.ndarray, px: int, py: int, qx: int, qy: int, info: np.ndarray, o: int, stop: float
 ) -> float:
@@ -304,7 +304,7 @@ def _edge_error(
     return best
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _row_span(y: int, xmin: int, xmax: int, a0: int, b0: int, c0: int, a1: int, b1: int, c1: int, a2: int,
               b2: int, c2: int) -> tuple[int, int]:
     """Columns [lo, hi] of row ``y`` inside the closed triangle whose half-planes are ``a·x + b·y + c >= 0``
@@ -327,7 +327,7 @@ def _row_span(y: int, xmin: int, xmax: int, a0: int, b0: int, c0: int, a1: int, 
     return lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _triangle_error(
     h: np.ndarray,
     cellvalid: np.ndarray,
@@ -462,7 +462,7 @@ def _triangle_error(
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add_triangle(
     tri: np.ndarray,
     half: np.ndarray,
@@ -505,7 +505,7 @@ def _add_triangle(
     return e
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _legalize(
     tri: np.ndarray,
     half: np.ndarray,
@@ -554,7 +554,7 @@ def _legalize(
         n += 2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _locate(
     tri: np.ndarray,
     half: np.ndarray,
@@ -601,7 +601,7 @@ def _locate(
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _insert(
     tri: np.ndarray,
     half: np.ndarray,
@@ -652,7 +652,7 @@ def _insert(
     return t0 // 3
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _split_edge(
     tri: np.ndarray,
     half: np.ndarray,
@@ -703,14 +703,14 @@ def _split_edge(
     return t0 // 3
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _grown(a: np.ndarray, n: int, fill: int) -> np.ndarray:
     out = np.full(n, fill, dtype=a.dtype)
     out[: a.size] = a
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _flush(
     h: np.ndarray,
     cellvalid: np.ndarray,
@@ -757,7 +757,7 @@ def _flush(
     cnt[_NPEND] = 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def build_tin(
     h: np.ndarray,
     cellvalid: np.ndarray,
@@ -938,7 +938,7 @@ _MAX_DEGREE = 24
 _MAX_CANDIDATES = 2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _samples_within(
     h: np.ndarray, x0: int, y0: int, x1: int, y1: int, x2: int, y2: int, px: int, py: int, eps: float
 ) -> bool:
@@ -981,7 +981,7 @@ def _samples_within(
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _hole_triangle_ok(
     h: np.ndarray,
     vx: np.ndarray,
@@ -1040,7 +1040,7 @@ def _hole_triangle_ok(
     return s == 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _hole_feasible(
     h: np.ndarray,
     vx: np.ndarray,
@@ -1086,7 +1086,7 @@ def _hole_feasible(
     return feas[a % d, b - a] == gen + 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _decimate(
     h: np.ndarray,
     tri: np.ndarray,
@@ -1287,7 +1287,7 @@ def _decimate(
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def simplify_runs(z: np.ndarray, valid: np.ndarray, max_error: float) -> np.ndarray:
     """Keep-mask (N,) bool of a bounded-error simplification of each run of valid samples of ``z``.
 
@@ -1345,7 +1345,7 @@ def simplify_runs(z: np.ndarray, valid: np.ndarray, max_error: float) -> np.ndar
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _grid_z(h: np.ndarray, valid: np.ndarray, r: float, c: float) -> float:
     """Height of the grid surface (diagonal (i,j)-(i+1,j+1) per cell) at (r, c); NaN if no-data."""
     H, W = h.shape
@@ -1364,7 +1364,7 @@ def _grid_z(h: np.ndarray, valid: np.ndarray, r: float, c: float) -> float:
     return h[i, j] + v * (h[i1, j] - h[i, j]) + u * (h[i1, j1] - h[i1, j])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def eval_max_error(
     h: np.ndarray,
     valid: np.ndarray,
@@ -1431,7 +1431,7 @@ def eval_max_error(
     return worst, wr, wc
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _clip_area(px: np.ndarray, py: np.ndarray, n: int, x0: float, y0: float) -> float:
     """Area of polygon (px, py)[:n] clipped to the unit square at (x0, y0) (Sutherland-Hodgman)."""
     bx = np.empty(16)
@@ -1470,7 +1470,7 @@ def _clip_area(px: np.ndarray, py: np.ndarray, n: int, x0: float, y0: float) -> 
     return abs(a) / 2.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cell_coverage(
     shape_cells: tuple[int, int], vr: np.ndarray, vc: np.ndarray, faces: np.ndarray
 ) -> np.ndarray:
