@@ -97,13 +97,13 @@ def _close_shared(path: Path) -> None:
 
 
 class RasterSource:
-    """A height raster opened for windowed reads. Picklable (reopens on the worker)."""
+    """A height raster opened for windowed reads. Picklable (reopens on the worker); usable from several
+    threads at once (each reads through its own dataset handle)."""
 
     def __init__(self, path: str | os.PathLike[str], band: int = 1) -> None:
         self.path = Path(path)
         self.band = band
         self.info = read_info(self.path)
-        self._ds = None
         self._fast: bool | None = None
 
     def __getstate__(self) -> dict[str, object]:
@@ -111,17 +111,15 @@ class RasterSource:
 
     def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
-        self._ds = None
         self._fast = None
 
     def _dataset(self):
-        if self._ds is None:
-            self._ds = _open_shared(self.path)
-        return self._ds
+        # Not cached on the object: build tasks on threads share one source, and a GDAL handle must not
+        # be used by two threads (it failed reads when it was). The per-thread cache makes this a lookup.
+        return _open_shared(self.path)
 
     def close(self) -> None:
         """Close the raster in this thread (also for the other sources of the same file that share it)."""
-        self._ds = None
         _close_shared(self.path)
 
     def _fast_mask(self) -> bool:
