@@ -32,9 +32,10 @@ so the skirt of the coarser one closes the crack. Skirt triangles are marked in 
 the certified surface.
 
 Every tile is an independent task per stage (decision 5): it reads its own windows, so tasks run on threads
-of the calling process (the default: the kernels release the GIL), a local process pool or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; stage 1 leaves
-``KEY.tin`` (the TIN and its borders), stage 2 the glb and a ``KEY.json`` sidecar, so an interrupted build
-resumes without redoing either.
+of the calling process (the default: the kernels release the GIL), a local process pool or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; stage 1 journals
+each tile's TIN and borders, stage 2 writes the glb and journals the tile's result
+(:mod:`citylod.core.journal`: append-only files, one per thread, not a file per tile and stage), so an
+interrupted build resumes without redoing either.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ import itertools
 import json
 import math
 import os
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,8 +54,9 @@ from typing import Any
 import numpy as np
 import pyproj
 
+from citylod.core import journal
 from citylod.core.errors import InputError
-from citylod.core.fileio import atomic_write, atomic_write_text, publish_dir
+from citylod.core.fileio import publish_dir
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod.certify import certify, edge_table, grid_error_lower_bound
@@ -90,6 +93,7 @@ class DsmJob:
     # index along the side): side -> indices, sides "n" (row 0), "s" (last row), "w" (col 0), "e" (last col).
     border_extra: tuple[tuple[str, tuple[int, ...]], ...] = ()
     stage1: TileResult | None = None  # stage 2 only: this tile's stage-1 result
+    stage1_tin: journal.Entry | None = None  # stage 2 only: where its stage-1 TIN is journalled
 
 
 @dataclass
@@ -327,8 +331,8 @@ def build_tile(job: DsmJob) -> TileResult:
 
     Leaves are triangulated once (the kernel's bound is exact on their own grid; certification against the
     raster happens once, in :func:`finish_tile`). Coarser tiles are certified here, because refinement is
-    steered by where the certificate is exceeded. The TIN is stored beside the output (``KEY.tin``) with its
-    stage-1 result (border vertices, certificate), so the build resumes from it.
+    steered by where the certificate is exceeded. The TIN is journalled with its stage-1 result (border vertices,
+    certificate), so the build resumes from it.
     """
     t0 = time.perf_counter()
     src, info = job.source, job.source.info
@@ -463,7 +467,9 @@ def finish_tile(job: DsmJob) -> TileResult:
         raise RuntimeError(f"tile {key}: outside the raster")
     stride, rpos, cpos = g
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
-    stored, tin = _load_tin(Path(job.out_dir) / "tiles" / f"{key}.tin")
+    if job.stage1_tin is None:
+        raise RuntimeError(f"tile {key}: stage 2 without a stage-1 TIN")
+    stored, tin = _decode_tin(job.stage1_tin.read())
     vij, faces, vz = tin["vij"], tin["faces"], tin["vz"]
     res = dataclasses.replace(job.stage1) if job.stage1 is not None else stored
     err = res.certified
@@ -706,11 +712,16 @@ def _save_tin(out_dir: str, key: str, vij: np.ndarray, faces: np.ndarray, vz: np
     head = {"result": _as_doc(res),
             "arrays": [[n, a.dtype.str, list(a.shape)] for n, a in zip(_TIN_ARRAYS, arrays, strict=True)]}
     data = json.dumps(head).encode() + b"\n" + b"".join(a.tobytes() for a in arrays)
-    atomic_write(Path(out_dir) / "tiles" / f"{key}.tin", lambda t: t.write_bytes(data))
+    journal.append(_journal_dir(out_dir), "tin/" + key, data)
 
 
-def _load_tin(path: Path) -> tuple[TileResult, dict[str, np.ndarray]]:
-    data = path.read_bytes()
+def _journal_dir(out_dir: str | Path) -> Path:
+    # Stage results go to append-only journals (one file per thread), not a file or two per tile: creating
+    # a file costs 0.4-0.9 ms of serialised kernel time on ext4 here, 1.2 s of the 2049² city's build.
+    return Path(out_dir) / ".journal"
+
+
+def _decode_tin(data: bytes) -> tuple[TileResult, dict[str, np.ndarray]]:
     nl = data.index(b"\n")
     head = json.loads(data[:nl])
     out: dict[str, np.ndarray] = {}
@@ -760,16 +771,17 @@ def _as_doc(res: TileResult) -> dict[str, Any]:
 
 
 def _write_sidecar(out_dir: str, key: str, res: TileResult) -> None:
-    atomic_write_text(Path(out_dir) / "tiles" / f"{key}.json", json.dumps(_as_doc(res)))
+    """Record a finished tile (its glb, when it has content, is written before)."""
+    journal.append(_journal_dir(out_dir), "done/" + key, json.dumps(_as_doc(res)).encode())
 
 
-def _read_sidecar(out_dir: Path, key: str) -> TileResult | None:
+def _read_sidecar(out_dir: Path, key: str, idx: dict[str, journal.Entry]) -> TileResult | None:
     """A finished tile's result (its glb exists), or None."""
-    p = out_dir / "tiles" / f"{key}.json"
-    if not p.exists():
+    entry = idx.get("done/" + key)
+    if entry is None:
         return None
     try:
-        res = TileResult(**json.loads(p.read_text()))
+        res = TileResult(**json.loads(entry.read()))
     except (OSError, ValueError, TypeError):
         return None
     if res.has_content and not (out_dir / "tiles" / f"{key}.glb").exists():
@@ -777,13 +789,13 @@ def _read_sidecar(out_dir: Path, key: str) -> TileResult | None:
     return res
 
 
-def _read_stage1(out_dir: Path, key: str) -> TileResult | None:
-    """A tile's stage-1 result, stored with its TIN (``KEY.tin``), or None."""
-    p = out_dir / "tiles" / f"{key}.tin"
-    if not p.exists():
+def _read_stage1(key: str, idx: dict[str, journal.Entry]) -> TileResult | None:
+    """A tile's stage-1 result, journalled with its TIN, or None."""
+    entry = idx.get("tin/" + key)
+    if entry is None:
         return None
     try:
-        return _load_tin(p)[0]
+        return _decode_tin(entry.read())[0]
     except (OSError, ValueError, TypeError, KeyError):
         return None
 
@@ -845,6 +857,8 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     all_jobs: dict[str, DsmJob] = {}
     results: dict[str, TileResult] = {}  # finished tiles
     borders: dict[str, TileResult] = {}  # stage-1 results (their border vertices) of tiles with content
+    jdir = _journal_dir(partial)
+    idx = journal.index(jdir)  # what an interrupted build finished (empty for a new one)
     for d in range(levels + 1):
         stride = 2 ** (levels - d)
         nr = math.ceil(max(info.height - 1, 1) / (cells * stride))
@@ -855,8 +869,8 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
                 job = DsmJob(src, str(partial), d, i, j, levels, tile_size, leaf * 2 ** (levels - d),
                              None if ortho is None else str(ortho), tex, metric.to_wkt())
                 all_jobs[key] = job
-                prev = _read_sidecar(partial, key)
-                tin = _read_stage1(partial, key)
+                prev = _read_sidecar(partial, key, idx)
+                tin = _read_stage1(key, idx)
                 if prev is not None and (tin is not None or not prev.has_content):
                     # finished; its stage-1 borders are what its neighbours are fitted to
                     results[key] = prev
@@ -889,13 +903,17 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
             # Stage 2: every tile takes the border vertices its neighbours chose and it lacks (one round: the
             # insertions add no vertex elsewhere), then is certified and written.
             extra = _border_additions(borders)
-            stage2 = [dataclasses.replace(all_jobs[k], stage1=borders[k], border_extra=tuple(
+            journal.close(jdir)  # this thread's records (inline builds) are on disk; index all of them
+            idx = journal.index(jdir)
+            stage2 = [dataclasses.replace(all_jobs[k], stage1=borders[k], stage1_tin=idx.get("tin/" + k),
+                                          border_extra=tuple(
                 (s, tuple(v)) for s, v in sorted(extra.get(k, {}).items())))
                       for k in sorted(borders, key=lambda k: int(k.split("/")[0])) if k not in results]
             for r in run_tasks(ex, finish_tile, stage2, progress=progress, desc="dsm borders"):
                 results[r.key] = r
     finally:
         src.close()  # builds on threads or inline opened it in this thread too
+        journal.close(jdir)
     root = _assemble(results, levels, info, cells)
     if root is None:
         raise InputError("no tile has valid data", raster)
@@ -948,7 +966,8 @@ def _assemble(results: dict[str, TileResult], levels: int, info: RasterInfo, cel
 
 
 def _replace_dir(partial: Path, out: Path) -> None:
-    for pattern in ("tiles/**/*.json", "tiles/**/*.tin"):
+    shutil.rmtree(_journal_dir(partial), ignore_errors=True)
+    for pattern in ("tiles/**/*.json", "tiles/**/*.tin"):  # sidecars of builds before the journal
         for side in partial.glob(pattern):
             side.unlink()
     publish_dir(partial, out)
