@@ -84,6 +84,8 @@ def check_tileset(out, z, valid, *, x0=500_000.0, y0=5_400_000.0, res=1.0, trans
     leaves, checked = [], 0
     worst_ratio = 0.0
     for tile in ts.walk():
+        # errors shrink downwards, as 3D Tiles clients expect
+        assert all(c.geometric_error <= tile.geometric_error for c in tile.children), tile.key
         if tile.content_uri is None:
             continue
         mesh = tile.load()
