@@ -96,7 +96,12 @@ def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progre
     code = ("import json,sys; from citylod.lod.dsm import build_dsm; "
             f"r=build_dsm({str(raster)!r}, {str(tiles_dir)!r}, workers={workers}, progress={progress}); "
             "import dataclasses; print('@@'+json.dumps(dataclasses.asdict(r)))")
-    where = f"{os.cpu_count()} threads" if workers is None else f"{workers} worker processes"
+    from citylod.lod.dsm import _THREADS_BELOW_SAMPLES
+
+    with rasterio.open(raster) as ds:
+        small = ds.width * ds.height < _THREADS_BELOW_SAMPLES
+    where = (f"{os.cpu_count()} {'threads' if small else 'worker processes'}" if workers is None
+             else f"{workers} worker processes")
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     wall = time.perf_counter() - t0

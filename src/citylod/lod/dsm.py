@@ -931,12 +931,20 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     }})
     _replace_dir(partial, out)
     seconds = time.perf_counter() - t0
+    written: dict[int, float] = {}  # the geometricError as written (raised to the children's where needed)
+    stack = [root]
+    while stack:
+        sp = stack.pop()
+        if sp.content is not None:
+            written[sp.level] = max(written.get(sp.level, 0.0), sp.geometric_error)
+        stack.extend(sp.children)
     per_level = []
     for d in range(levels + 1):
         lv = [r for r in results.values() if r.level == d and r.has_content]
         per_level.append({"level": d, "tiles": len(lv), "triangles": sum(r.triangles for r in lv),
                           "target": leaf * 2 ** (levels - d),
-                          "max_error": max((r.geometric_error for r in lv), default=0.0)})
+                          "max_error": written.get(d, 0.0),
+                          "max_certified": max((r.geometric_error for r in lv), default=0.0)})
     return DsmBuildReport(
         output=str(out), raster=str(raster), width=info.width, height=info.height, levels=levels + 1,
         tiles=sum(1 for r in results.values() if r.has_content), seconds=seconds,
