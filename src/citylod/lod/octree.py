@@ -236,6 +236,47 @@ def _radix_argsort30(codes: I64) -> I64:  # pragma: no cover - compiled
     return order
 
 
+@numba.njit(cache=True, nogil=True)
+def leaf_columns(raw: npt.NDArray[np.uint8], xyz: F64, order: I64, runs: I64, batch: int
+                 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8], npt.NDArray[np.uint16],
+                            npt.NDArray[np.uint8], npt.NDArray[np.uint8], F64, F64]:  # pragma: no cover
+    """A leaf's drawn columns in one compiled pass, without the GIL: the points ``order[t]`` taken in runs
+    of ``batch`` whose order is ``runs`` (what :func:`batch_shuffle` gives), split out of the 31-byte
+    records (``raw``, their bytes) into contiguous arrays.
+
+    Returns positions relative to the bounds' centre (float32), RGB, intensity, classification, return
+    number, and the bounds. The per-leaf numpy calls it replaces held the GIL for most of a leaf's time,
+    which kept a build's two threads from running leaves side by side.
+    """
+    n = order.shape[0]
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(xyz.shape[0]):
+        for a in range(3):
+            v = xyz[i, a]
+            lo[a] = min(lo[a], v)
+            hi[a] = max(hi[a], v)
+    cx, cy, cz = (lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, (lo[2] + hi[2]) / 2.0
+    pos = np.empty((n, 3), np.float32)
+    rgb = np.empty((n, 3), np.uint8)
+    inten = np.empty(n, np.uint16)
+    cls = np.empty(n, np.uint8)
+    ret = np.empty(n, np.uint8)
+    k = 0
+    for r in runs:
+        for t in range(r * batch, min(r * batch + batch, n)):
+            i = order[t]
+            pos[k, 0] = xyz[i, 0] - cx
+            pos[k, 1] = xyz[i, 1] - cy
+            pos[k, 2] = xyz[i, 2] - cz
+            inten[k] = raw[i, 24] | (np.uint16(raw[i, 25]) << 8)
+            cls[k] = raw[i, 26]
+            ret[k] = raw[i, 27]
+            rgb[k, 0], rgb[k, 1], rgb[k, 2] = raw[i, 28], raw[i, 29], raw[i, 30]
+            k += 1
+    return pos, rgb, inten, cls, ret, lo, hi
+
+
 def batch_shuffle(n: int, seed: int, batch: int = 32) -> I64:
     """(n,) int64 permutation that keeps runs of ``batch`` consecutive items and shuffles the runs.
 

@@ -52,7 +52,7 @@ import numpy.typing as npt
 
 from citylod import __version__
 from citylod.core.fileio import atomic_write, atomic_write_bytes, publish_dir
-from citylod.io.las import iter_points, read_metadata
+from citylod.io.las import POINT_DTYPE, iter_points, read_metadata
 from citylod.io.tiles3d import (
     MeshData,
     PointData,
@@ -71,6 +71,7 @@ from citylod.lod.octree import (
     bounds,
     cluster,
     counting_sort,
+    leaf_columns,
     lookup_error,
     morton_order,
     partition,
@@ -81,6 +82,12 @@ from citylod.lod.planes import encode_png, find_planes, quad_mesh_arrays, splat_
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 Recs = npt.NDArray[np.void]
+
+#: Points per run of the shuffled order within a node (see :func:`~citylod.lod.octree.batch_shuffle`).
+_BATCH = 32
+# leaf_columns reads the records' bytes at these offsets.
+assert [POINT_DTYPE.fields[f][1] for f in ("intensity", "classification", "return_number", "red", "green", "blue")] \
+    == [24, 26, 27, 28, 29, 30] and POINT_DTYPE.itemsize == 31
 
 #: Levels of the scan grid: 2^7 = 128 cells per axis.
 SCAN_BITS = 7
@@ -271,12 +278,15 @@ def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
 def _leaf(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, int, int],
           stats: _Stats) -> _Summary:
     key = _key(level, idx)
-    lo, hi = bounds(xyz)
-    center = (lo + hi) / 2.0
+    n = len(recs)
     order = morton_order(q, level)
-    order = order[batch_shuffle(len(order), _seed(key))]
-    content = TileContent(points=_point_data(_take(recs, order), _take(xyz, order), center, p.has_rgb))
-    uri = _write(p, _file_key(level, idx), content, stats)
+    runs = np.random.default_rng(_seed(key)).permutation(-(-n // _BATCH))  # as batch_shuffle(n, seed)
+    raw = np.ascontiguousarray(recs).view(np.uint8).reshape(n, recs.dtype.itemsize)
+    pos, rgb, inten, cls, ret, lo, hi = leaf_columns(raw, np.ascontiguousarray(xyz), order, runs, _BATCH)
+    center = (lo + hi) / 2.0
+    points = PointData(positions=pos, rgb=rgb if p.has_rgb else None, intensity=inten, classification=cls,
+                       return_number=ret)
+    uri = _write(p, _file_key(level, idx), TileContent(points=points), stats)
     stats.nodes += 1
     stats.leaves += 1
     stats.max_level = max(stats.max_level, level)
