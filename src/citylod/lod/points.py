@@ -86,7 +86,8 @@ Recs = npt.NDArray[np.void]
 #: Points per run of the shuffled order within a node (see :func:`~citylod.lod.octree.batch_shuffle`).
 _BATCH = 32
 # leaf_columns reads the records' bytes at these offsets.
-assert [POINT_DTYPE.fields[f][1] for f in ("intensity", "classification", "return_number", "red", "green", "blue")] \
+_FIELDS: Any = POINT_DTYPE.fields
+assert [_FIELDS[f][1] for f in ("intensity", "classification", "return_number", "red", "green", "blue")] \
     == [24, 26, 27, 28, 29, 30] and POINT_DTYPE.itemsize == 31
 
 #: Levels of the scan grid: 2^7 = 128 cells per axis.
