@@ -237,31 +237,24 @@ def _radix_argsort30(codes: I64) -> I64:  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def leaf_columns(raw: npt.NDArray[np.uint8], xyz: F64, order: I64, runs: I64, batch: int
-                 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8], npt.NDArray[np.uint16],
-                            npt.NDArray[np.uint8], npt.NDArray[np.uint8], F64, F64]:  # pragma: no cover
-    """A leaf's drawn columns in one compiled pass, without the GIL: the points ``order[t]`` taken in runs
+def point_columns(raw: npt.NDArray[np.uint8], xyz: F64, order: I64, runs: I64, batch: int, center: F64
+                  ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8], npt.NDArray[np.uint16],
+                             npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:  # pragma: no cover - compiled
+    """A node's drawn columns in one compiled pass, without the GIL: the points ``order[t]`` taken in runs
     of ``batch`` whose order is ``runs`` (what :func:`batch_shuffle` gives), split out of the 31-byte
     records (``raw``, their bytes) into contiguous arrays.
 
-    Returns positions relative to the bounds' centre (float32), RGB, intensity, classification, return
-    number, and the bounds. The per-leaf numpy calls it replaces held the GIL for most of a leaf's time,
-    which kept a build's two threads from running leaves side by side.
+    Returns positions relative to ``center`` (float32), RGB, intensity, classification and return number.
+    The per-node numpy calls it replaces held the GIL for most of a leaf's time, which kept a build's two
+    threads from running nodes side by side.
     """
     n = order.shape[0]
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for i in range(xyz.shape[0]):
-        for a in range(3):
-            v = xyz[i, a]
-            lo[a] = min(lo[a], v)
-            hi[a] = max(hi[a], v)
-    cx, cy, cz = (lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, (lo[2] + hi[2]) / 2.0
     pos = np.empty((n, 3), np.float32)
     rgb = np.empty((n, 3), np.uint8)
     inten = np.empty(n, np.uint16)
     cls = np.empty(n, np.uint8)
     ret = np.empty(n, np.uint8)
+    cx, cy, cz = center[0], center[1], center[2]
     k = 0
     for r in runs:
         for t in range(r * batch, min(r * batch + batch, n)):
@@ -274,7 +267,20 @@ def leaf_columns(raw: npt.NDArray[np.uint8], xyz: F64, order: I64, runs: I64, ba
             ret[k] = raw[i, 27]
             rgb[k, 0], rgb[k, 1], rgb[k, 2] = raw[i, 28], raw[i, 29], raw[i, 30]
             k += 1
-    return pos, rgb, inten, cls, ret, lo, hi
+    return pos, rgb, inten, cls, ret
+
+
+@numba.njit(cache=True, nogil=True)
+def bounds_nb(xyz: F64) -> tuple[F64, F64]:  # pragma: no cover - compiled
+    """:func:`bounds` without the GIL (N ≥ 1)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(xyz.shape[0]):
+        for a in range(3):
+            v = xyz[i, a]
+            lo[a] = min(lo[a], v)
+            hi[a] = max(hi[a], v)
+    return lo, hi
 
 
 def batch_shuffle(n: int, seed: int, batch: int = 32) -> I64:

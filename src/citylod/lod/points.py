@@ -67,14 +67,14 @@ from citylod.lod.octree import (
     CLUSTER_BITS,
     MAX_LEVEL,
     QBITS,
-    batch_shuffle,
     bounds,
+    bounds_nb,
     cluster,
     counting_sort,
-    leaf_columns,
     lookup_error,
     morton_order,
     partition,
+    point_columns,
     quantize,
 )
 from citylod.lod.planes import encode_png, find_planes, quad_mesh_arrays, splat_colors
@@ -85,7 +85,7 @@ Recs = npt.NDArray[np.void]
 
 #: Points per run of the shuffled order within a node (see :func:`~citylod.lod.octree.batch_shuffle`).
 _BATCH = 32
-# leaf_columns reads the records' bytes at these offsets.
+# point_columns reads the records' bytes at these offsets.
 _FIELDS: Any = POINT_DTYPE.fields
 assert [_FIELDS[f][1] for f in ("intensity", "classification", "return_number", "red", "green", "blue")] \
     == [24, 26, 27, 28, 29, 30] and POINT_DTYPE.itemsize == 31
@@ -259,13 +259,6 @@ def _seed(key: str) -> int:
     return zlib.crc32(key.encode())
 
 
-def _point_data(recs: Recs, xyz: F64, center: F64, has_rgb: bool) -> PointData:
-    rgb = np.stack([recs["red"], recs["green"], recs["blue"]], axis=1) if has_rgb else None
-    return PointData(positions=(xyz - center).astype(np.float32), rgb=rgb,
-                     intensity=recs["intensity"], classification=recs["classification"],
-                     return_number=recs["return_number"])
-
-
 def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
     path = content_path(p.out, key)
     if not p.memory and path.exists():  # resumed build: this node was finished before the interruption
@@ -276,17 +269,22 @@ def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
     return uri
 
 
+def _columns(recs: Recs, xyz: F64, order: I64, key: str, center: F64, has_rgb: bool) -> PointData:
+    """The drawn points ``order`` of a node, shuffled in runs (:func:`~citylod.lod.octree.batch_shuffle`)."""
+    n = len(order)
+    runs = np.random.default_rng(_seed(key)).permutation(-(-n // _BATCH))
+    raw = np.ascontiguousarray(recs).view(np.uint8).reshape(len(recs), recs.dtype.itemsize)
+    pos, rgb, inten, cls, ret = point_columns(raw, np.ascontiguousarray(xyz), order, runs, _BATCH, center)
+    return PointData(positions=pos, rgb=rgb if has_rgb else None, intensity=inten, classification=cls,
+                     return_number=ret)
+
+
 def _leaf(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, int, int],
           stats: _Stats) -> _Summary:
     key = _key(level, idx)
-    n = len(recs)
-    order = morton_order(q, level)
-    runs = np.random.default_rng(_seed(key)).permutation(-(-n // _BATCH))  # as batch_shuffle(n, seed)
-    raw = np.ascontiguousarray(recs).view(np.uint8).reshape(n, recs.dtype.itemsize)
-    pos, rgb, inten, cls, ret, lo, hi = leaf_columns(raw, np.ascontiguousarray(xyz), order, runs, _BATCH)
+    lo, hi = bounds_nb(np.ascontiguousarray(xyz))
     center = (lo + hi) / 2.0
-    points = PointData(positions=pos, rgb=rgb if p.has_rgb else None, intensity=inten, classification=cls,
-                       return_number=ret)
+    points = _columns(recs, xyz, morton_order(q, level), key, center, p.has_rgb)
     uri = _write(p, _file_key(level, idx), TileContent(points=points), stats)
     stats.nodes += 1
     stats.leaves += 1
@@ -339,8 +337,7 @@ def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[
             nquads = len(res.quads)
             stats.quads += nquads
             stats.quad_points += int(res.replaced.sum())
-    drawn = drawn[batch_shuffle(len(drawn), _seed(key))]
-    points = _point_data(_take(rrecs, drawn), _take(rxyz, drawn), center, p.has_rgb) if len(drawn) else None
+    points = _columns(rrecs, rxyz, drawn, key, center, p.has_rgb) if len(drawn) else None
     uri = _write(p, _file_key(level, idx), TileContent(meshes=meshes, points=points), stats)
     stats.nodes += 1
     spec = TileSpec(key=key, level=level, center=center, lo=lo, hi=hi, geometric_error=0.0, content=uri,
