@@ -66,9 +66,11 @@ def test_nothing_to_insert_returns_the_input() -> None:
     assert out_v is vij and out_f is faces and len(replaced) == 0
 
 
-def test_interrupted_in_stage_two_resumes_with_matching_borders(tmp_path, monkeypatch) -> None:
+@pytest.mark.parametrize("workers", [0, None], ids=["inline", "threads"])
+def test_interrupted_in_stage_two_resumes_with_matching_borders(tmp_path, monkeypatch, workers) -> None:
     """Stop after some tiles were finished: the resumed build redoes no stage-1 work and neighbours still
-    match (finished tiles and the rest were fitted to the same stage-1 borders)."""
+    match (finished tiles and the rest were fitted to the same stage-1 borders). On threads, the records
+    journalled by the pool's threads (their files closed as the threads end) are what the resume reads."""
     import citylod.lod.dsm as dsm
     from citylod.io.tiles3d import open_tileset
     from test_dsm import _borders_match, check_tileset, city_like, write_raster
@@ -86,7 +88,7 @@ def test_interrupted_in_stage_two_resumes_with_matching_borders(tmp_path, monkey
 
     monkeypatch.setattr(dsm, "finish_tile", flaky)
     with pytest.raises(KeyboardInterrupt):
-        dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=0, progress=False)
+        dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=workers, progress=False)
     monkeypatch.setattr(dsm, "finish_tile", real)
     built = {"n": 0}
     real_build = dsm.build_tile
@@ -96,7 +98,7 @@ def test_interrupted_in_stage_two_resumes_with_matching_borders(tmp_path, monkey
         return real_build(job)
 
     monkeypatch.setattr(dsm, "build_tile", counting)
-    rep = dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=0, progress=False)
+    rep = dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=workers, progress=False)
     assert built["n"] == 0 and rep.resumed == rep.tiles
     check_tileset(tmp_path / "out", z, np.ones_like(z, bool))
     ts = open_tileset(tmp_path / "out")
