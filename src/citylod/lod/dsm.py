@@ -28,8 +28,9 @@ border only. Every tile is certified on its final TIN: leaves once, in stage 2; 
 
 Skirts (Wahl 2004: "a triangle strip along the border that reaches down") hang from each tile's outer
 border by twice its error: two neighbours differ along a shared border by at most the sum of their errors,
-so the skirt of the coarser one closes the crack. Skirt triangles are marked in the glb and are not part of
-the certified surface.
+so the skirt of the coarser one closes the crack where its border lies above the finer one's (where it lies
+lower by more than twice the finer error, a gap can remain; not seen in the crack test). Skirt triangles
+are marked in the glb and are not part of the certified surface.
 
 Every tile is an independent task per stage (decision 5): it reads its own windows, so tasks run on threads
 of the calling process (the default: the kernels release the GIL), a local process pool or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; stage 1 journals
