@@ -323,3 +323,25 @@ def test_one_raster_source_read_from_many_threads(tmp_path) -> None:
 
     with ThreadPoolExecutor(4) as ex:
         assert all(ex.map(read, windows))
+
+
+def test_skirts_only_where_a_neighbour_can_be(tmp_path) -> None:
+    """Skirts hang on tile borders inside the raster (cracks between levels); along the raster's own edges
+    no tile lies beyond, so none hangs there (it would be a curtain under the data's outline)."""
+    z = city_like(150, 140, seed=8)
+    write_raster(tmp_path / "dsm.tif", z)
+    build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=33, workers=0, progress=False)
+    # sample centres: x0 + 0.5 .. x0 + 139.5, y0 - 0.5 .. y0 - 149.5 (1 m pixels)
+    xmin, xmax, ymax, ymin = 500_000.5, 500_139.5, 5_400_000 - 0.5, 5_400_000 - 149.5
+    inner = 0
+    for tile in open_tileset(tmp_path / "out").walk():
+        if tile.content_uri is None:
+            continue
+        mesh = tile.load()
+        f = mesh.faces[mesh.skirt]
+        x, y = mesh.vertices[f, 0], mesh.vertices[f, 1]  # (K, 3) per skirt triangle
+        along_edge = ((np.abs(x - xmin) < 1e-3).all(axis=1) | (np.abs(x - xmax) < 1e-3).all(axis=1)
+                      | (np.abs(y - ymin) < 1e-3).all(axis=1) | (np.abs(y - ymax) < 1e-3).all(axis=1))
+        assert not along_edge.any(), tile.key  # no skirt triangle runs along the raster's edge
+        inner += int(mesh.skirt.sum())
+    assert inner > 0

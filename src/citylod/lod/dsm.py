@@ -27,7 +27,7 @@ border only. Every tile is certified on its final TIN: leaves once, in stage 2; 
 (the certificate is a maximum over faces, and each face evaluates to the same numbers in any subset).
 
 Skirts (Wahl 2004: "a triangle strip along the border that reaches down") hang from each tile's outer
-border by twice its error: two neighbours differ along a shared border by at most the sum of their errors,
+border, except along the raster's own edges, by twice its error: two neighbours differ along a shared border by at most the sum of their errors,
 so the skirt of the coarser one closes the crack where its border lies above the finer one's (where it lies
 lower by more than twice the finer error, a gap can remain; not seen in the crack test). Skirt triangles
 are marked in the glb and are not part of the certified surface.
@@ -528,7 +528,14 @@ def finish_tile(job: DsmJob) -> TileResult:
     res.geometric_error = err + q_xy + res.projection
     skirt_depth = 2.0 * max(res.geometric_error, job.target)
     out_faces = faces[:, ::-1] if info.transform[0] * info.transform[4] > 0 else faces  # south-up: mirrored
-    positions, faces_all, skirt, skirt_src = _add_skirts(local, out_faces, vij, last_r, last_c, skirt_depth)
+    # No skirt along the raster's own edges: no tile lies beyond them, so there is no crack to close, and a
+    # skirt there only hangs a curtain of twice the tile's error under the data's outline (40 m under the
+    # coarse tiles of a city).
+    sides = "".join(side for side, outer in (("n", rpos[0] == 0), ("s", rpos[-1] >= info.height - 1),
+                                             ("w", cpos[0] == 0), ("e", cpos[-1] >= info.width - 1))
+                    if not outer)
+    positions, faces_all, skirt, skirt_src = _add_skirts(local, out_faces, vij, last_r, last_c, skirt_depth,
+                                                         sides)
     uv = texture = None
     if job.ortho:
         from citylod.io.image import encode_image
@@ -742,8 +749,9 @@ def _decode_tin(data: bytes) -> tuple[TileResult, dict[str, np.ndarray]]:
 
 
 def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: int, last_c: int,
-                depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Append a vertical strip below each TIN edge on the tile's outer border.
+                depth: float, sides: str = "nswe") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Append a vertical strip below each TIN edge on the tile's outer border, on the ``sides`` given
+    ("n": row 0, "s": the last row, "w": column 0, "e": the last column).
 
     Returns positions, faces, the skirt mask per face, and for each appended vertex the surface vertex it
     hangs from (so attributes such as texture coordinates can be copied).
@@ -752,8 +760,9 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     bd = e[counts == 1]
     r, c = vij[:, 0], vij[:, 1]
     a, b = bd[:, 0], bd[:, 1]
-    on_border = (((r[a] == r[b]) & ((r[a] == 0) | (r[a] == last_r)))
-                 | ((c[a] == c[b]) & ((c[a] == 0) | (c[a] == last_c))))
+    rows = [v for v, side in ((0, "n"), (last_r, "s")) if side in sides]
+    cols = [v for v, side in ((0, "w"), (last_c, "e")) if side in sides]
+    on_border = (((r[a] == r[b]) & np.isin(r[a], rows)) | ((c[a] == c[b]) & np.isin(c[a], cols)))
     bd = bd[on_border]
     sources = np.unique(bd)
     dup = np.full(len(local), -1, np.int64)
