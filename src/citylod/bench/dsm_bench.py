@@ -86,6 +86,14 @@ def run_pymartini(z: np.ndarray, max_error: float, valid: np.ndarray | None = No
     return MesherRow("pymartini (RTIN)", seconds, len(faces), max_error, err)
 
 
+def executor_label(report: dict[str, Any]) -> str:
+    """What the default executor of a ``build_dsm`` run was, from its report (as a dict)."""
+    from citylod.lod.dsm import _THREADS_BELOW_SAMPLES
+
+    threads = report["width"] * report["height"] < _THREADS_BELOW_SAMPLES
+    return f"{os.cpu_count()} {'threads' if threads else 'worker processes'}"
+
+
 def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progress: bool = True) -> dict[str, Any]:
     """Build ``raster`` (default: one thread per CPU; ``workers``: that many processes), then mesh it with
     the baselines; returns a result dict."""
@@ -96,18 +104,13 @@ def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progre
     code = ("import json,sys; from citylod.lod.dsm import build_dsm; "
             f"r=build_dsm({str(raster)!r}, {str(tiles_dir)!r}, workers={workers}, progress={progress}); "
             "import dataclasses; print('@@'+json.dumps(dataclasses.asdict(r)))")
-    from citylod.lod.dsm import _THREADS_BELOW_SAMPLES
-
-    with rasterio.open(raster) as ds:
-        small = ds.width * ds.height < _THREADS_BELOW_SAMPLES
-    where = (f"{os.cpu_count()} {'threads' if small else 'worker processes'}" if workers is None
-             else f"{workers} worker processes")
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"build failed: {proc.stderr[-2000:]}")
     report = json.loads(proc.stdout.split("@@", 1)[1])
+    where = executor_label(report) if workers is None else f"{workers} worker processes"
     with rasterio.open(raster) as ds:
         band = ds.read(1, masked=True)
     valid = ~np.ma.getmaskarray(band)

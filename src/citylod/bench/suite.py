@@ -73,8 +73,8 @@ def _section(title: str) -> None:
 
 
 def _build_in_child(raster: Path, tiles: Path, progress: bool) -> dict[str, Any]:
-    """``build_dsm`` (threads, the default) in a child process, so its peak memory is the build's own (this process
-    holds rasters and render state by then)."""
+    """``build_dsm`` (the default executor) in a child process, so its peak memory is the build's own (this
+    process holds rasters and render state by then)."""
     import subprocess
     import sys
 
@@ -83,19 +83,11 @@ def _build_in_child(raster: Path, tiles: Path, progress: bool) -> dict[str, Any]
             "print('@@' + json.dumps(dataclasses.asdict(r)))")
     proc = subprocess.run([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, check=True)
     report: dict[str, Any] = json.loads(proc.stdout.split("@@", 1)[1])
-    import rasterio
-
-    from citylod.lod.dsm import _THREADS_BELOW_SAMPLES
-
-    with rasterio.open(raster) as ds:
-        n = ds.width * ds.height
-    report["executor"] = (f"{os.cpu_count()} threads" if n < _THREADS_BELOW_SAMPLES
-                          else f"{os.cpu_count()} worker processes")
     return report
 
 
 def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress: bool = True) -> int:
-    from citylod.bench.dsm_bench import bench_dsm, dsm_markdown
+    from citylod.bench.dsm_bench import bench_dsm, dsm_markdown, executor_label
     from citylod.bench.report import run_bench
     from citylod.core.camera import load_cameras
     from citylod.io.sample import make_sample
@@ -146,7 +138,7 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
             raster = make(out / f"raster_{name}" / "dsm.tif")
             brep = _build_in_child(raster, out / f"tiles_{name}", progress)
             results[f"build_{name}"] = {k: brep[k] for k in ("seconds", "tiles", "per_level", "peak_rss_mb")}
-            md.append(f"{title} built by default ({brep['executor']}) in {brep['seconds']:.0f} s ({brep['tiles']} tiles, "
+            md.append(f"{title} built by default ({executor_label(brep)}) in {brep['seconds']:.0f} s ({brep['tiles']} tiles, "
                       f"peak {brep['peak_rss_mb']:.0f} MB).\n")
             rep4 = run_bench([out / f"tiles_{name}"], None, taus, (960, 540), out / f"render_{name}", progress,
                              repeats=1)

@@ -27,13 +27,15 @@ border only. Every tile is certified on its final TIN: leaves once, in stage 2; 
 (the certificate is a maximum over faces, and each face evaluates to the same numbers in any subset).
 
 Skirts (Wahl 2004: "a triangle strip along the border that reaches down") hang from each tile's outer
-border, except along the raster's own edges, by twice its error: two neighbours differ along a shared border by at most the sum of their errors,
-so the skirt of the coarser one closes the crack where its border lies above the finer one's (where it lies
-lower by more than twice the finer error, a gap can remain; not seen in the crack test). Skirt triangles
-are marked in the glb and are not part of the certified surface.
+border, except along the raster's own edges, by twice its error: two neighbours differ along a shared
+border by at most the sum of their errors, so the skirt of the coarser one closes the crack where its
+border lies above the finer one's (where it lies lower by more than twice the finer error, a gap can
+remain; not seen in the crack test). Skirt triangles are marked in the glb and are not part of the
+certified surface.
 
 Every tile is an independent task per stage (decision 5): it reads its own windows, so tasks run on threads
-of the calling process (the default: the kernels release the GIL), a local process pool or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; stage 1 journals
+of the calling process (the default below 6 M samples: the kernels release the GIL), a local process pool
+or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; stage 1 journals
 each tile's TIN and borders, stage 2 writes the glb and journals the tile's result
 (:mod:`citylod.core.journal`: append-only files, one per thread, not a file per tile and stage), so an
 interrupted build resumes without redoing either.
@@ -626,6 +628,12 @@ def _border_additions(stage1: dict[str, TileResult]) -> dict[str, dict[str, list
     return out
 
 
+def _side(side: str, last_r: int, last_c: int) -> tuple[int, int, int]:
+    """A tile side as (axis of the fixed index: 0 = row, 1 = column; that index; the last index along it):
+    "n" row 0, "s" the last row, "w" column 0, "e" the last column."""
+    return {"n": (0, 0, last_c), "s": (0, last_r, last_c), "w": (1, 0, last_r), "e": (1, last_c, last_r)}[side]
+
+
 def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str, tuple[int, ...]],
                             last_r: int, last_c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Insert border samples into the border edges they lie on.
@@ -637,16 +645,13 @@ def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str,
     (new ones appended), the faces (the unchanged ones first, in their order, then the fans) and the faces
     that were replaced.
     """
-    r, c = vij[:, 0].astype(np.int64), vij[:, 1].astype(np.int64)
+    rc = (vij[:, 0].astype(np.int64), vij[:, 1].astype(np.int64))
     along: dict[str, np.ndarray] = {}
     for side, idx in extra.items():
+        ax, line, limit = _side(side, last_r, last_c)
+        fixed, pos_of = rc[ax], rc[1 - ax]
         pos = np.unique(np.asarray(idx, np.int64))
-        if side in "ns":
-            line = last_r if side == "s" else 0
-            pos = pos[(pos >= 0) & (pos <= last_c) & ~np.isin(pos, c[r == line])]
-        else:
-            line = last_c if side == "e" else 0
-            pos = pos[(pos >= 0) & (pos <= last_r) & ~np.isin(pos, r[c == line])]
+        pos = pos[(pos >= 0) & (pos <= limit) & ~np.isin(pos, pos_of[fixed == line])]
         if len(pos):
             along[side] = pos
     if not along:
@@ -656,14 +661,10 @@ def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str,
     for k in range(3):
         a, b = f[:, k], f[:, (k + 1) % 3]
         for side, pts in along.items():
-            if side in "ns":
-                line = last_r if side == "s" else 0
-                on = np.flatnonzero((r[a] == line) & (r[b] == line))
-                pa, pb = c[a[on]], c[b[on]]
-            else:
-                line = last_c if side == "e" else 0
-                on = np.flatnonzero((c[a] == line) & (c[b] == line))
-                pa, pb = r[a[on]], r[b[on]]
+            ax, line, _ = _side(side, last_r, last_c)
+            fixed, pos_of = rc[ax], rc[1 - ax]
+            on = np.flatnonzero((fixed[a] == line) & (fixed[b] == line))
+            pa, pb = pos_of[a[on]], pos_of[b[on]]
             inside = (np.searchsorted(pts, np.maximum(pa, pb), "left")
                       - np.searchsorted(pts, np.minimum(pa, pb), "right"))
             hit[on[inside > 0]] = True
@@ -674,7 +675,7 @@ def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str,
     index: dict[tuple[int, int], int] = {}
 
     def at(i: int) -> tuple[int, int]:
-        return (int(r[i]), int(c[i])) if i < n_old else added[i - n_old]
+        return (int(rc[0][i]), int(rc[1][i])) if i < n_old else added[i - n_old]
 
     def vid(p: tuple[int, int]) -> int:
         if p not in index:
@@ -683,20 +684,14 @@ def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str,
         return index[p]
 
     def between(a: int, b: int) -> list[int]:
-        (ra, ca), (rb, cb) = at(a), at(b)
+        pa, pb = at(a), at(b)
         for side, pts in along.items():
-            if side in "ns":
-                line = last_r if side == "s" else 0
-                if ra == rb == line:
-                    sel = pts[(pts > min(ca, cb)) & (pts < max(ca, cb))].tolist()
-                    sel = sel if ca < cb else sel[::-1]
-                    return [vid((line, p)) for p in sel]
-            else:
-                line = last_c if side == "e" else 0
-                if ca == cb == line:
-                    sel = pts[(pts > min(ra, rb)) & (pts < max(ra, rb))].tolist()
-                    sel = sel if ra < rb else sel[::-1]
-                    return [vid((p, line)) for p in sel]
+            ax, line, _ = _side(side, last_r, last_c)
+            if pa[ax] == pb[ax] == line:
+                u, w = pa[1 - ax], pb[1 - ax]
+                sel = pts[(pts > min(u, w)) & (pts < max(u, w))].tolist()
+                sel = sel if u < w else sel[::-1]
+                return [vid((line, p) if ax == 0 else (p, line)) for p in sel]
         return []
 
     def split(tri: tuple[int, int, int]) -> list[tuple[int, int, int]]:
@@ -760,9 +755,11 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     bd = e[counts == 1]
     r, c = vij[:, 0], vij[:, 1]
     a, b = bd[:, 0], bd[:, 1]
-    rows = [v for v, side in ((0, "n"), (last_r, "s")) if side in sides]
-    cols = [v for v, side in ((0, "w"), (last_c, "e")) if side in sides]
-    on_border = (((r[a] == r[b]) & np.isin(r[a], rows)) | ((c[a] == c[b]) & np.isin(c[a], cols)))
+    on_border = np.zeros(len(bd), bool)
+    for side in sides:
+        ax, line, _ = _side(side, last_r, last_c)
+        fixed = (r, c)[ax]
+        on_border |= (fixed[a] == line) & (fixed[b] == line)
     bd = bd[on_border]
     sources = np.unique(bd)
     dup = np.full(len(local), -1, np.int64)

@@ -50,8 +50,8 @@ def _worker_init() -> None:
 
     A worker that has run numba-compiled kernels takes about 0.4 s to tear its interpreter down (LLVM and
     module finalisers), and the pool waits for that at shutdown, once per build. Workers hold no state
-    that needs it: every task writes and closes its own files before it returns. So the last exit handler
-    flushes the standard streams and ends the process at once.
+    that needs it: every task writes its files, or flushes its journal record, before it returns. So the
+    last exit handler flushes the standard streams and ends the process at once.
     """
     atexit.register(_exit_now)
 

@@ -58,12 +58,21 @@ def _quantize(xyz: F64, cube_lo: F64, scale: float) -> I64:  # pragma: no cover 
 
 
 def bounds(xyz: F64) -> tuple[F64, F64]:
-    """(3,) float64 lower and upper corner of (N, 3) positions, N > 0.
+    """(3,) float64 lower and upper corner of (N, 3) positions, N > 0, in one compiled pass without the GIL
+    (numpy reduces an (N, 3) array along axis 0 about 20 times slower than column by column)."""
+    return _bounds(np.ascontiguousarray(xyz, np.float64))
 
-    Column by column: numpy reduces an (N, 3) array along axis 0 about 20 times slower than each
-    column on its own (measured on 849k points: 32 ms against 1.4 ms).
-    """
-    return (np.array([xyz[:, a].min() for a in range(3)]), np.array([xyz[:, a].max() for a in range(3)]))
+
+@numba.njit(cache=True, nogil=True)
+def _bounds(xyz: F64) -> tuple[F64, F64]:  # pragma: no cover - compiled
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(xyz.shape[0]):
+        for a in range(3):
+            v = xyz[i, a]
+            lo[a] = min(lo[a], v)
+            hi[a] = max(hi[a], v)
+    return lo, hi
 
 
 @numba.njit(cache=True, nogil=True)
@@ -268,19 +277,6 @@ def point_columns(raw: npt.NDArray[np.uint8], xyz: F64, order: I64, runs: I64, b
             rgb[k, 0], rgb[k, 1], rgb[k, 2] = raw[i, 28], raw[i, 29], raw[i, 30]
             k += 1
     return pos, rgb, inten, cls, ret
-
-
-@numba.njit(cache=True, nogil=True)
-def bounds_nb(xyz: F64) -> tuple[F64, F64]:  # pragma: no cover - compiled
-    """:func:`bounds` without the GIL (N ≥ 1)."""
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for i in range(xyz.shape[0]):
-        for a in range(3):
-            v = xyz[i, a]
-            lo[a] = min(lo[a], v)
-            hi[a] = max(hi[a], v)
-    return lo, hi
 
 
 def batch_shuffle(n: int, seed: int, batch: int = 32) -> I64:

@@ -40,7 +40,7 @@ import shutil
 import time
 import zlib
 from collections.abc import Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Executor, ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Executor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from os import PathLike
@@ -68,7 +68,6 @@ from citylod.lod.octree import (
     MAX_LEVEL,
     QBITS,
     bounds,
-    bounds_nb,
     cluster,
     counting_sort,
     lookup_error,
@@ -282,7 +281,7 @@ def _columns(recs: Recs, xyz: F64, order: I64, key: str, center: F64, has_rgb: b
 def _leaf(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, int, int],
           stats: _Stats) -> _Summary:
     key = _key(level, idx)
-    lo, hi = bounds_nb(np.ascontiguousarray(xyz))
+    lo, hi = bounds(xyz)
     center = (lo + hi) / 2.0
     points = _columns(recs, xyz, morton_order(q, level), key, center, p.has_rgb)
     uri = _write(p, _file_key(level, idx), TileContent(points=points), stats)
@@ -440,29 +439,30 @@ def _set_error(spec: TileSpec, exact: float) -> None:
 
 # ----------------------------------------------------------------------------------------------- tasks
 def _scan_segment(cube_lo: tuple[float, float, float], cube_size: float, path: str, start: int, count: int,
-                  raw: str, memory: bool = False) -> tuple[I64, I64, int, F64, F64, I64]:
+                  raw: str, memory: bool = False
+                  ) -> tuple[I64, I64, F64, F64, I64, tuple[str, Recs, F64, I64] | None]:
     """Pass 1: decode a segment, park it as raw records, count it on the 128³ grid.
 
-    Returns the occupied grid cells (sorted), their counts, the number of points, the tight bounds and
-    the histogram of intensities (65536 bins).
+    Returns the occupied grid cells (sorted), their counts, the tight bounds, the histogram of intensities
+    (65536 bins) and, for an in-memory build (``memory``: a thread of the calling process, which builds
+    the cloud as one chunk from them), the segment's id, records, positions and grid coordinates in place
+    of a parked file and grid counts.
     """
     parts = list(iter_points(path, start=start, count=count, chunk_points=min(count, 1_000_000)))
     recs = _concat_recs(parts)
-    _store(raw, recs, memory)
     xyz = _xyz(recs)
     q = quantize(xyz, np.asarray(cube_lo), cube_size)
     # The histogram, not a percentile: segments' percentiles do not combine, histograms add up, so the
     # intensity scale does not depend on how the input was cut into segments.
     hist = np.bincount(recs["intensity"], minlength=1 << 16).astype(np.int64)
-    if memory:  # built as one chunk from these arrays: no grid counts needed, positions kept
-        _store(raw + ".xyz", xyz, memory)
-        _store(raw + ".q", q, memory)
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), len(recs), *bounds(xyz), hist
+    if memory:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), *bounds(xyz), hist, (raw, recs, xyz, q)
+    _save_npy(raw, recs)
     g = q >> (QBITS - SCAN_BITS)
     flat = g[:, 0] | (g[:, 1] << SCAN_BITS) | (g[:, 2] << (2 * SCAN_BITS))
     cnt = np.bincount(flat, minlength=1 << (3 * SCAN_BITS))
     cells = np.flatnonzero(cnt)
-    return cells, cnt[cells].astype(np.int64), len(recs), *bounds(xyz), hist
+    return cells, cnt[cells].astype(np.int64), *bounds(xyz), hist, None
 
 
 def _percentile99(hist: I64) -> float:
@@ -540,39 +540,20 @@ def _save_npy(path: str | Path, arr: np.ndarray) -> None:
     atomic_write(path, lambda t: np.save(t, arr), suffix=".npy")  # np.save appends .npy otherwise
 
 
-# Intermediates of an in-process build (threads share them): parking decoded segments as files and
-# reading them back cost a third of the time of a small build. Keys are the paths the files would have.
-_MEMORY: dict[str, Any] = {}
-
-
-def _store(path: str | Path, value: Any, memory: bool) -> None:
-    if memory:
-        _MEMORY[str(path)] = value
-    else:
-        _save_npy(path, value)
-
-
-def _release(tmp: Path) -> None:
-    for k in [k for k in _MEMORY if k.startswith(str(tmp))]:
-        del _MEMORY[k]
-
-
 @contextmanager
-def _executor(workers: int | None, scheduler: Any, threads: bool, tmp: Path) -> Iterator[Executor]:
-    if not threads:
+def _executor(workers: int | None, scheduler: Any, memory: bool, partial: Path) -> Iterator[Executor]:
+    """The build's executor; an in-memory build (threads of this process) cannot resume, so when it fails
+    it leaves nothing behind."""
+    if not memory:
         with make_executor(workers, scheduler) as ex:
             yield ex
         return
-    pool = ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="citylod-points")
     try:
-        yield pool
+        with make_executor(None, None, threads=True) as ex:
+            yield ex
     except BaseException:
-        pool.shutdown(wait=True, cancel_futures=True)
-        shutil.rmtree(tmp.parent, ignore_errors=True)  # an in-memory build cannot resume: leave nothing
+        shutil.rmtree(partial, ignore_errors=True)
         raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-        _release(tmp)
 
 
 def _chunks_from_counts(counts: I64, max_chunk_points: int) -> list[tuple[int, int, int, int, int]]:
@@ -738,7 +719,6 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
     # Such a build is redone whole when interrupted (seconds); large builds resume from their files.
     memory = workers is None and scheduler is None and meta.point_count < INLINE_BELOW
     if memory:
-        workers = 0
         segment_points = max(segment_points, INLINE_BELOW)  # one segment per file: seeking in LAZ decodes
     out = Path(out_dir)
     partial = out.with_name(out.name + ".partial")
@@ -757,7 +737,7 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
             sid = len(segments)
             segments.append((str(info.path), start, min(segment_points, info.point_count - start),
                              str(tmp / "raw" / f"{sid:06d}.npy")))
-    with _executor(workers, scheduler, memory, tmp) as ex:
+    with _executor(workers, scheduler, memory, partial) as ex:
         # Pass 1: scan.
         scan = tmp / "scan.npz"
         if memory or not scan.exists():
@@ -765,12 +745,15 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
             lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
             ihist = np.zeros(1 << 16, np.int64)
             lo_t = tuple(float(v) for v in cube_lo)
-            for cells, cnt, _n, slo, shi, sp in run_tasks(ex, _scan_segment,
-                                                          [(lo_t, cube_size, *s, memory) for s in segments],
-                                                          progress=progress, desc="scan"):
+            decoded: dict[str, tuple[Recs, F64, I64]] = {}  # in memory: segment id -> its arrays
+            for cells, cnt, slo, shi, sp, arrays in run_tasks(ex, _scan_segment,
+                                                              [(lo_t, cube_size, *s, memory) for s in segments],
+                                                              progress=progress, desc="scan"):
                 counts[cells] += cnt
                 lo, hi = np.minimum(lo, slo), np.maximum(hi, shi)
                 ihist += sp
+                if arrays is not None:
+                    decoded[arrays[0]] = arrays[1:]
             p99 = _percentile99(ihist)
             if not memory:
                 occupied = np.flatnonzero(counts)  # sparse: the dense grid is 16 MB
@@ -789,10 +772,11 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         if memory:
             # One chunk, the whole cloud: its nodes are tasks on this process's threads (passes 2 and 5
             # exist to bound memory, which a cloud this small does not need).
-            raws = [s_[3] for s_ in segments]
-            recs = _concat_recs([_MEMORY.pop(r) for r in raws])
-            xyz = np.concatenate([_MEMORY.pop(r + ".xyz") for r in raws])
-            q = np.concatenate([_MEMORY.pop(r + ".q") for r in raws])
+            seg = [decoded.pop(s_[3]) for s_ in segments]  # in segment order: the same cloud as on disk
+            recs = _concat_recs([a[0] for a in seg])
+            xyz = np.concatenate([a[1] for a in seg])
+            q = np.concatenate([a[2] for a in seg])
+            del seg
             root = _subtree(params, recs, q, xyz, 0, (0, 0, 0), stats, pool=ex, progress=progress)
             del recs, xyz, q
             n_chunks = 1
