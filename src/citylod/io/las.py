@@ -232,13 +232,44 @@ def _to_records(pts: Any, has_rgb: bool) -> npt.NDArray[np.void]:
     return out
 
 
+def point_fields(pts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The raw columns of a laspy point record behind :data:`POINT_DTYPE`, whatever the point format,
+    for a caller that converts them in a compiled pass of its own (no copies: views where laspy has them).
+
+    Returns
+    -------
+    X, Y, Z
+        (n,) int32 unscaled coordinates; position = ``X * scales[0] + offsets[0]`` (as laspy scales).
+    scales, offsets
+        (3,) float64.
+    intensity
+        (n,) uint16.
+    classification, return_number
+        (n,) uint8.
+    red, green, blue
+        (n,) uint16 (LAS colour is 16-bit; its high byte is the 8-bit colour), or (0,) when the format
+        has none.
+    """
+    a = pts.array
+    names = a.dtype.names or ()
+    empty = np.zeros(0, np.uint16)
+    red, green, blue = (a[c] if c in names else empty for c in ("red", "green", "blue"))
+    return (a["X"], a["Y"], a["Z"], np.asarray(pts.scales, np.float64), np.asarray(pts.offsets, np.float64),
+            a["intensity"], np.asarray(pts.classification, np.uint8), np.asarray(pts.return_number, np.uint8),
+            red, green, blue)
+
+
 def iter_points(path: str | PathLike[str], *, start: int = 0, count: int | None = None,
-                chunk_points: int = 1_000_000) -> Iterator[npt.NDArray[np.void]]:
+                chunk_points: int = 1_000_000, raw: bool = False) -> Iterator[Any]:
     """Decode points ``[start, start + count)`` of one file in chunks of at most ``chunk_points``.
+
+    ``raw``: yield laspy's point records as decoded, for a caller that converts them itself (see
+    :func:`point_fields`).
 
     Yields
     ------
-    (n,) POINT_DTYPE arrays, n ≤ ``chunk_points``.
+    (n,) POINT_DTYPE arrays, n ≤ ``chunk_points`` (laspy ``ScaleAwarePointRecord`` with ``raw``).
 
     Raises
     ------
@@ -262,9 +293,8 @@ def iter_points(path: str | PathLike[str], *, start: int = 0, count: int | None 
                 pts = reader.read_points(min(chunk_points, count - got))
                 if len(pts) == 0:
                     break
-                recs = _to_records(pts, has_rgb)
-                got += len(recs)
-                yield recs
+                got += len(pts)
+                yield pts if raw else _to_records(pts, has_rgb)
     except CitylodError:
         raise
     except FileNotFoundError:
