@@ -272,3 +272,24 @@ def test_delft_build_speed_and_quads(tmp_path: Path) -> None:
     assert hybrid.quads > 0 and plain.quads == 0
     ts = open_tileset(tmp_path / "hybrid")
     assert sum(t.load_content().point_count for t in ts.walk() if not t.children) == 848_942
+
+
+def test_partition_on_threads_equals_one_pass() -> None:
+    """The root split first and its octants partitioned side by side give the same order and node table
+    as one compiled pass (clustered points: deep, uneven subtrees; a single-point octant; a leaf root)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from citylod.lod.octree import MAX_LEVEL, QBITS, partition
+
+    rng = np.random.default_rng(5)
+    top = 1 << QBITS
+    blobs = [rng.normal(c, s, (n, 3)) for c, s, n in ((0.2 * top, 1e6, 30_000), (0.7 * top, 1e8, 20_000),
+                                                      (0.4 * top, 1e3, 5_000))]
+    q = np.clip(np.concatenate(blobs + [np.full((1, 3), 0.9 * top)]), 0, top - 1).astype(np.int64)
+    with ThreadPoolExecutor(2) as pool:
+        for max_leaf in (500, 4_000, 100_000):
+            o1, n1 = partition(q, 0, (0, 0, 0), max_leaf, MAX_LEVEL)
+            o2, n2 = partition(q, 0, (0, 0, 0), max_leaf, MAX_LEVEL, pool)
+            np.testing.assert_array_equal(o1, o2)
+            np.testing.assert_array_equal(n1, n2)
+            assert len(n1) > 1 or max_leaf >= len(q)

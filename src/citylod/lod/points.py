@@ -71,6 +71,7 @@ from citylod.lod.octree import (
     bounds,
     cluster,
     counting_sort,
+    gather_points,
     lookup_error,
     morton_order,
     partition,
@@ -357,13 +358,8 @@ def _subtree(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[in
     cloud built as one chunk keeps both cores busy to the root, which one task per chunk did not (the
     largest chunk held one core for a third of the build while the other idled).
     """
-    order, nodes = partition(q, level, idx, p.max_leaf_points, MAX_LEVEL)
-    if pool is not None:  # the largest gather on the other core
-        gather = pool.submit(_take, recs, order)
-        q, xyz = _take(q, order), _take(xyz, order)
-        recs = gather.result()
-    else:
-        recs, q, xyz = _take(recs, order), _take(q, order), _take(xyz, order)
+    order, nodes = partition(q, level, idx, p.max_leaf_points, MAX_LEVEL, pool)
+    recs, q, xyz = gather_points(recs, q, xyz, order, pool)
     children: list[list[int]] = [[] for _ in range(len(nodes))]
     for k in range(1, len(nodes)):
         children[int(nodes[k, 6])].append(k)
