@@ -116,19 +116,17 @@ def octant_keys(q: I64, level: int) -> I64:
     return ((q[:, 0] >> s) & 1) | (((q[:, 1] >> s) & 1) << 1) | (((q[:, 2] >> s) & 1) << 2)
 
 
-def cell_keys(q: I64, level: int) -> I64:
-    """(N,) int64 flat index (x + 64·y + 64²·z) of each point's cell in the 64³ grid of its level-``level`` node."""
-    s = QBITS - level - CLUSTER_BITS
-    m = (1 << CLUSTER_BITS) - 1
-    return ((q[:, 0] >> s) & m) | (((q[:, 1] >> s) & m) << CLUSTER_BITS) | (((q[:, 2] >> s) & m) << (2 * CLUSTER_BITS))
-
-
 @numba.njit(cache=True, nogil=True)
-def _cluster(keys: I64, xyz: F64, sums: F64, counts: I64, nbins: int
+def _cluster(q: I64, shift: int, xyz: F64, sums: F64, counts: I64, nbins: int
              ) -> tuple[I64, I64, F64, I64]:  # pragma: no cover - compiled
     # Only the occupied cells are visited (not all 64³); candidates are taken in input order, so each
     # cell gets the same sums (same order of additions) and the same representative (the first nearest)
-    # as a stable counting sort by cell would give.
+    # as a stable counting sort by cell would give. Keys: the flat cell x + 64·y + 64²·z in the node's grid.
+    mask = (1 << CLUSTER_BITS) - 1
+    keys = np.empty(q.shape[0], np.int64)
+    for i in range(q.shape[0]):
+        keys[i] = (((q[i, 0] >> shift) & mask) | (((q[i, 1] >> shift) & mask) << CLUSTER_BITS)
+                   | (((q[i, 2] >> shift) & mask) << (2 * CLUSTER_BITS)))
     slot = np.full(nbins, -1, np.int32)
     cells = np.empty(keys.shape[0], np.int64)
     ncell = 0
@@ -191,7 +189,7 @@ def cluster(q: I64, xyz: F64, sums: F64, counts: I64, level: int) -> tuple[I64, 
     sums, counts
         (C, 3) float64 and (C,) int64 aggregated over the cell.
     """
-    return _cluster(cell_keys(q, level), xyz, sums, counts, 1 << (3 * CLUSTER_BITS))
+    return _cluster(q, QBITS - level - CLUSTER_BITS, xyz, sums, counts, 1 << (3 * CLUSTER_BITS))
 
 
 @numba.njit(cache=True, nogil=True)

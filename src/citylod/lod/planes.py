@@ -300,14 +300,14 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
         nx, ny, nz = n[0], n[1], n[2]
         ninl = 0
         cx = cy = cz = 0.0
-        for t in range(na):
+        for t in range(na):  # branch-free, so it vectorises
             ok = abs(nx * sub[t, 0] + ny * sub[t, 1] + nz * sub[t, 2] + d) <= thr
             inl[t] = ok
-            if ok:
-                ninl += 1
-                cx += sub[t, 0]
-                cy += sub[t, 1]
-                cz += sub[t, 2]
+            wgt = 1.0 if ok else 0.0
+            ninl += ok
+            cx += wgt * sub[t, 0]
+            cy += wgt * sub[t, 1]
+            cz += wgt * sub[t, 2]
         if ninl < min_inliers:
             break
         cx, cy, cz = cx / ninl, cy / ninl, cz / ninl
@@ -329,8 +329,7 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
         for t in range(na):
             ok = abs((sub[t, 0] - cx) * mx + (sub[t, 1] - cy) * my + (sub[t, 2] - cz) * mz) <= thr
             inl2[t] = ok
-            if ok:
-                ninl2 += 1
+            ninl2 += ok
         if ninl2 >= ninl:
             nx, ny, nz = mx, my, mz
             for t in range(na):
