@@ -8,6 +8,7 @@ triangle interpolator, and compare with the raster.
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pyproj
@@ -286,19 +287,60 @@ def test_dask_localcluster_builds_the_same_tileset(tmp_path) -> None:
             assert (tmp_path / "inline" / x.content_uri).read_bytes() == (tmp_path / "dask" / y.content_uri).read_bytes()
 
 
-def test_threads_build_the_same_tileset_as_one_process(tmp_path) -> None:
-    """The default build runs its tiles on threads sharing one raster source: same tiles as inline."""
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers are a Linux default only")
+def test_threads_and_forked_workers_build_the_same_tileset_as_one_process(tmp_path, monkeypatch) -> None:
+    """The default build runs its tiles on forked worker processes where that is safe, else on threads
+    sharing one raster source: the same tiles as inline, either way. The parent has the raster open (and
+    a journal) when it forks: the workers must open their own."""
+    import citylod.lod.executor as executor
+
     z = city_like(300, 260, seed=4)
     z[100:120, 30:50] = NODATA
     write_raster(tmp_path / "dsm.tif", z)
-    build_dsm(tmp_path / "dsm.tif", tmp_path / "inline", tile_size=33, workers=0, progress=False)
-    build_dsm(tmp_path / "dsm.tif", tmp_path / "threads", tile_size=33, progress=False)  # default: threads
-    a, b = list(open_tileset(tmp_path / "inline").walk()), list(open_tileset(tmp_path / "threads").walk())
+    reports = {"inline": build_dsm(tmp_path / "dsm.tif", tmp_path / "inline", tile_size=33, workers=0,
+                                   progress=False)}
+    for name, safe in (("threads", False), ("fork", True)):
+        monkeypatch.setattr(executor, "fork_is_safe", lambda safe=safe: safe)
+        reports[name] = build_dsm(tmp_path / "dsm.tif", tmp_path / name, tile_size=33, progress=False)
+    assert reports["inline"].executor == "inline"
+    assert reports["threads"].executor.endswith("threads")
+    assert reports["fork"].executor.endswith("forked processes")
+    a = list(open_tileset(tmp_path / "inline").walk())
     assert len(a) > 50
-    assert [t.geometric_error for t in a] == [t.geometric_error for t in b]
-    for x, y in zip(a, b, strict=True):
-        if x.content_uri:
-            assert (tmp_path / "inline" / x.content_uri).read_bytes() == (tmp_path / "threads" / y.content_uri).read_bytes()
+    for name in ("threads", "fork"):
+        b = list(open_tileset(tmp_path / name).walk())
+        assert [t.geometric_error for t in a] == [t.geometric_error for t in b]
+        for x, y in zip(a, b, strict=True):
+            if x.content_uri:
+                assert (tmp_path / "inline" / x.content_uri).read_bytes() == (tmp_path / name / y.content_uri).read_bytes()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork")
+def test_forked_worker_opens_its_own_raster_and_journal(tmp_path) -> None:
+    """A forked child does not inherit the forking thread's open datasets or journal files (it would
+    share their file offsets with the parent, or write into the parent's journal)."""
+    import multiprocessing
+
+    from citylod.core import journal
+    from citylod.io.raster import RasterSource
+
+    write_raster(tmp_path / "dsm.tif", city_like(40, 40, seed=1))
+    src = RasterSource(tmp_path / "dsm.tif")
+    src.read_window(0, 0, 8, 8)
+    journal.append(tmp_path / "j", "k", b"parent")
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        opened, handles = pool.apply(_inherited_handles)
+    assert opened == 0 and handles == 0
+    assert _inherited_handles() != (0, 0)  # the parent's thread has both
+    journal.close(tmp_path / "j")
+    src.close()
+
+
+def _inherited_handles() -> tuple[int, int]:
+    from citylod.core import journal
+    from citylod.io import raster
+
+    return (len(getattr(raster._LOCAL, "datasets", {})), len(getattr(journal._LOCAL, "handles", {})))
 
 
 def test_one_raster_source_read_from_many_threads(tmp_path) -> None:

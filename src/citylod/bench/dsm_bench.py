@@ -10,7 +10,6 @@ way here.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -88,10 +87,8 @@ def run_pymartini(z: np.ndarray, max_error: float, valid: np.ndarray | None = No
 
 def executor_label(report: dict[str, Any]) -> str:
     """What the default executor of a ``build_dsm`` run was, from its report (as a dict)."""
-    from citylod.lod.dsm import _THREADS_BELOW_SAMPLES
-
-    threads = report["width"] * report["height"] < _THREADS_BELOW_SAMPLES
-    return f"{os.cpu_count()} {'threads' if threads else 'worker processes'}"
+    label: str = report.get("executor") or "?"
+    return label
 
 
 def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progress: bool = True) -> dict[str, Any]:

@@ -32,6 +32,16 @@ _LOCAL = threading.local()
 _MAX_OPEN = 4  # journals a thread keeps open (a long-lived Dask worker thread serves many builds)
 
 
+def _forget_after_fork() -> None:
+    # A forked worker must not append to the forking thread's journal files (one writer per file): it
+    # starts files of its own. The inherited handles are dropped, not closed (nothing is buffered in
+    # them: every record is flushed).
+    _LOCAL.__dict__.pop("handles", None)
+
+
+os.register_at_fork(after_in_child=_forget_after_fork)
+
+
 @dataclass(frozen=True)
 class Entry:
     """Where one record's payload lies."""

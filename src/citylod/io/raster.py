@@ -68,6 +68,15 @@ _LOCAL = threading.local()
 _SHARED_MAX = 8
 
 
+def _forget_after_fork() -> None:
+    # A forked worker inherits the forking thread's datasets, whose file offsets it would share with the
+    # parent and its siblings: it opens its own. The inherited objects are dropped, not closed.
+    _LOCAL.__dict__.pop("datasets", None)
+
+
+os.register_at_fork(after_in_child=_forget_after_fork)
+
+
 def _shared() -> OrderedDict[tuple[str, int, int, int], Any]:
     d: OrderedDict[tuple[str, int, int, int], Any] | None = getattr(_LOCAL, "datasets", None)
     if d is None:

@@ -14,6 +14,7 @@ import atexit
 import multiprocessing
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import (
     FIRST_COMPLETED,
@@ -65,9 +66,27 @@ def _exit_now() -> None:
     os._exit(0)
 
 
+def progress_bar(**kwargs: Any) -> Any:
+    """A tqdm bar (``tqdm.auto``) that starts no monitor thread: tqdm's monitor, a thread of its own,
+    would make :func:`fork_is_safe` false for the next build of the process."""
+    from tqdm.auto import tqdm
+
+    class _Bar(tqdm):  # type: ignore[misc, valid-type]
+        monitor_interval = 0
+
+    return _Bar(**kwargs)
+
+
+def fork_is_safe() -> bool:
+    """Whether worker processes may be forked from this one: Linux, and no other Python thread running
+    (a thread holding a lock at the fork would leave it locked in the child)."""
+    return (sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+            and threading.active_count() == 1)
+
+
 @contextmanager
-def make_executor(workers: int | None = None, scheduler: Any = None, *, threads: bool = False
-                  ) -> Iterator[Executor]:
+def make_executor(workers: int | None = None, scheduler: Any = None, *, threads: bool = False,
+                  fork: bool = False) -> Iterator[Executor]:
     """An executor for build tasks, shut down when the ``with`` block ends.
 
     Parameters
@@ -79,6 +98,10 @@ def make_executor(workers: int | None = None, scheduler: Any = None, *, threads:
         Threads of the calling process instead of worker processes: for tasks whose compiled kernels
         release the GIL, no start-up (a spawned worker imports numpy, numba, rasterio and loads the
         compiled kernels, ≈1 s) and no pickling of results.
+    fork
+        Worker processes forked from this one instead of spawned: no start-up (they inherit the imported
+        modules and the loaded kernels) and no GIL shared between tasks. Only where
+        :func:`fork_is_safe`; the caller checks, as the threads of the process are its business.
     scheduler
         A Dask scheduler address (``tcp://HOST:PORT``), or a ``distributed.Client``; the tasks then run
         on that cluster's workers, which need citylod importable and the build's files reachable at
@@ -111,9 +134,9 @@ def make_executor(workers: int | None = None, scheduler: Any = None, *, threads:
         finally:
             tpool.shutdown(wait=True, cancel_futures=True)
         return
-    # spawn, not fork: the parent may hold threads (Dask, tqdm monitor, OpenMP) that fork would copy
-    # in a locked state, and spawn behaves the same on Linux, macOS and Windows.
-    pool = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"),
+    # spawn unless asked to fork: the parent may hold threads (Dask, tqdm monitor, OpenMP) that fork
+    # would copy in a locked state, and spawn behaves the same on Linux, macOS and Windows.
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork" if fork else "spawn"),
                                initializer=_worker_init)
     try:
         yield pool
@@ -145,11 +168,9 @@ def run_tasks(executor: Executor, fn: Callable[..., T], tasks: Iterable[Any], *,
     desc
         The progress bar's label.
     """
-    from tqdm.auto import tqdm
-
     items = [t if isinstance(t, tuple) else (t,) for t in tasks]
     limit = max_in_flight or 4096
-    bar = tqdm(total=len(items), desc=desc, disable=not progress, unit="task", leave=False)
+    bar = progress_bar(total=len(items), desc=desc, disable=not progress, unit="task", leave=False)
     pending: set[Future[T]] = set()
     it = iter(items)
     try:

@@ -63,7 +63,7 @@ from citylod.io.tiles3d import (
     write_content,
     write_tileset,
 )
-from citylod.lod.executor import make_executor, run_tasks
+from citylod.lod.executor import make_executor, progress_bar, run_tasks
 from citylod.lod.octree import (
     CLUSTER_BITS,
     MAX_LEVEL,
@@ -388,10 +388,8 @@ def _subtree(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[in
         for k in range(len(nodes) - 1, -1, -1):  # pre-order reversed: children before their parent
             done(*build(k))
     else:
-        from tqdm.auto import tqdm
-
         waiting = [len(c) for c in children]
-        bar = tqdm(total=len(nodes), desc="nodes", disable=not progress, unit="node", leave=False)
+        bar = progress_bar(total=len(nodes), desc="nodes", disable=not progress, unit="node", leave=False)
         todo = {pool.submit(build, k) for k in range(len(nodes) - 1, -1, -1) if not children[k]}
         try:
             while todo:
