@@ -50,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--ortho", type=Path, help="orthophoto to texture the tiles with")
     d.add_argument("--max-error", type=float, help="leaf error bound in metres (default: half the sample spacing)")
     d.add_argument("--tile-size", type=int, default=129, help="samples per tile side, 2^k+1 (default 129)")
-    d.add_argument("--workers", type=int, help="local worker processes (default: one per CPU; threads of this process below 6 M samples)")
+    d.add_argument("--workers", type=int, help="local worker processes, spawned (default: one per CPU, forked from this process on Linux)")
     d.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786")
     pt = bsub.add_parser("points", help="LAS/LAZ files to a 3D Tiles octree")
     pt.add_argument("files", type=Path, nargs="+")

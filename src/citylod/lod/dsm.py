@@ -33,9 +33,9 @@ border lies above the finer one's (where it lies lower by more than twice the fi
 remain; not seen in the crack test). Skirt triangles are marked in the glb and are not part of the
 certified surface.
 
-Every tile is an independent task per stage (decision 5): it reads its own windows, so tasks run on threads
-of the calling process (the default below 6 M samples: the kernels release the GIL), a local process pool
-or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; stage 1 journals
+Every tile is an independent task per stage (decision 5): it reads its own windows, so tasks run on worker
+processes forked from the builder (the default where forking is safe), threads of the calling process
+(the kernels release the GIL), spawned worker processes or a Dask cluster. Output goes to ``OUT.partial/`` and is renamed when complete; stage 1 journals
 each tile's TIN and borders, stage 2 writes the glb and journals the tile's result
 (:mod:`citylod.core.journal`: append-only files, one per thread, not a file per tile and stage), so an
 interrupted build resumes without redoing either.
@@ -68,7 +68,8 @@ from citylod.lod.certify import certify, edge_table, grid_error_lower_bound
 # certified error is accepted as it is (and written as the tile's bound).
 _MAX_REFINE_PASSES = 4
 _REFINE_GAIN = 0.9  # a refinement pass is kept when it lowers the certified error by 10 % or more
-# Default executor: threads below this many raster samples, worker processes above (measured on 2 cores:
+# Default executor where workers cannot be forked: threads below this many raster samples, spawned worker
+# processes above (measured on 2 cores:
 # 2049² city 4.2 s on threads against 6.3 s on processes; 4097² city 22-23 s against 19-20 s; 4097² natural
 # terrain 9.6-10 s against 7.0-7.3 s).
 _THREADS_BELOW_SAMPLES = 6_000_000
@@ -838,9 +839,10 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     tile_size
         Samples per tile side, 2^k + 1.
     workers, scheduler
-        None (default): one thread per CPU in this process for rasters under 6 M samples, else one worker
-        process per CPU; N: N local worker processes (0: this process, no threads); or a Dask scheduler
-        address (``tcp://host:port``).
+        None (default): one worker process per CPU forked from this one where that is safe (Linux, no
+        other Python thread), else one thread per CPU for rasters under 6 M samples and one spawned
+        worker process per CPU above; N: N spawned local worker processes (0: this process, no
+        threads); or a Dask scheduler address (``tcp://host:port``).
     """
     t0 = time.perf_counter()
     if tile_size < 3 or (tile_size - 1) & (tile_size - 2):
