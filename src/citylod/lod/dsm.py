@@ -147,7 +147,8 @@ class DsmBuildReport:
 
     def summary(self) -> str:
         lines = [f"{self.output}: {self.tiles} tiles on {self.levels} levels from {self.width}×{self.height} "
-                 f"samples in {self.seconds:.1f} s ({self.samples_per_s / 1e6:.2f} M samples/s, "
+                 f"samples in {self.seconds:.1f} s{f' on {self.executor}' if self.executor else ''} "
+                 f"({self.samples_per_s / 1e6:.2f} M samples/s, "
                  f"peak {self.peak_rss_mb:.0f} MB){f', {self.resumed} tiles resumed' if self.resumed else ''}"]
         lines.append("level  tiles   triangles   target_m   max_error_m")
         for lv in self.per_level:
