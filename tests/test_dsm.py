@@ -340,7 +340,7 @@ def _inherited_handles() -> tuple[int, int]:
     from citylod.core import journal
     from citylod.io import raster
 
-    return (len(getattr(raster._LOCAL, "datasets", {})), len(getattr(journal._LOCAL, "handles", {})))
+    return len(raster._DATASETS), len(journal._HANDLES)
 
 
 def test_one_raster_source_read_from_many_threads(tmp_path) -> None:

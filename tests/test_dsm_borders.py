@@ -66,11 +66,11 @@ def test_nothing_to_insert_returns_the_input() -> None:
     assert out_v is vij and out_f is faces and len(replaced) == 0
 
 
-@pytest.mark.parametrize("workers", [0, None], ids=["inline", "threads"])
+@pytest.mark.parametrize("workers", [0, None], ids=["inline", "default"])
 def test_interrupted_in_stage_two_resumes_with_matching_borders(tmp_path, monkeypatch, workers) -> None:
     """Stop after some tiles were finished: the resumed build redoes no stage-1 work and neighbours still
-    match (finished tiles and the rest were fitted to the same stage-1 borders). On threads, the records
-    journalled by the pool's threads (their files closed as the threads end) are what the resume reads."""
+    match (finished tiles and the rest were fitted to the same stage-1 borders). With the default executor
+    (threads, or forked workers), the records journalled by the pool's workers are what the resume reads."""
     import citylod.lod.dsm as dsm
     from citylod.io.tiles3d import open_tileset
     from test_dsm import _borders_match, check_tileset, city_like, write_raster

@@ -85,15 +85,19 @@ def run_pymartini(z: np.ndarray, max_error: float, valid: np.ndarray | None = No
     return MesherRow("pymartini (RTIN)", seconds, len(faces), max_error, err)
 
 
-def executor_label(report: dict[str, Any]) -> str:
-    """What the default executor of a ``build_dsm`` run was, from its report (as a dict)."""
-    label: str = report.get("executor") or "?"
-    return label
+def json_from_child(code: str) -> dict[str, Any]:
+    """Run ``code`` in a fresh Python process and return the JSON it printed after ``@@`` (a build measured
+    there has its own memory peak and starts as a user's command does)."""
+    proc = subprocess.run([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)  # stderr: progress
+    if proc.returncode != 0:
+        raise RuntimeError(f"benchmark child failed (exit {proc.returncode}; its error is above)")
+    result: dict[str, Any] = json.loads(proc.stdout.split("@@", 1)[1])
+    return result
 
 
 def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progress: bool = True) -> dict[str, Any]:
-    """Build ``raster`` (default: one thread per CPU; ``workers``: that many processes), then mesh it with
-    the baselines; returns a result dict."""
+    """Build ``raster`` with ``build_dsm``'s default executor (``workers``: that many spawned processes),
+    then mesh it with the baselines; returns a result dict."""
     import rasterio
 
     tiles_dir = out_dir / f"tiles_{raster.stem}"
@@ -108,12 +112,9 @@ def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progre
             "import dataclasses; d=dataclasses.asdict(r); d['warm_seconds']=w.seconds; "
             "print('@@'+json.dumps(d))")
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    report = json_from_child(code)
     wall = time.perf_counter() - t0
-    if proc.returncode != 0:
-        raise RuntimeError(f"build failed: {proc.stderr[-2000:]}")
-    report = json.loads(proc.stdout.split("@@", 1)[1])
-    where = executor_label(report) if workers is None else f"{workers} worker processes"
+    where = report["executor"]
     with rasterio.open(raster) as ds:
         band = ds.read(1, masked=True)
     valid = ~np.ma.getmaskarray(band)

@@ -75,19 +75,15 @@ def _section(title: str) -> None:
 def _build_in_child(raster: Path, tiles: Path, progress: bool) -> dict[str, Any]:
     """``build_dsm`` (the default executor) in a child process, so its peak memory is the build's own (this
     process holds rasters and render state by then)."""
-    import subprocess
-    import sys
+    from citylod.bench.dsm_bench import json_from_child
 
-    code = ("import dataclasses, json; from citylod.lod.dsm import build_dsm; "
-            f"r = build_dsm({str(raster)!r}, {str(tiles)!r}, progress={progress}); "
-            "print('@@' + json.dumps(dataclasses.asdict(r)))")
-    proc = subprocess.run([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, check=True)
-    report: dict[str, Any] = json.loads(proc.stdout.split("@@", 1)[1])
-    return report
+    return json_from_child("import dataclasses, json; from citylod.lod.dsm import build_dsm; "
+                           f"r = build_dsm({str(raster)!r}, {str(tiles)!r}, progress={progress}); "
+                           "print('@@' + json.dumps(dataclasses.asdict(r)))")
 
 
 def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress: bool = True) -> int:
-    from citylod.bench.dsm_bench import bench_dsm, dsm_markdown, executor_label
+    from citylod.bench.dsm_bench import bench_dsm, dsm_markdown
     from citylod.bench.report import run_bench
     from citylod.core.camera import load_cameras
     from citylod.io.sample import make_sample
@@ -138,7 +134,7 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
             raster = make(out / f"raster_{name}" / "dsm.tif")
             brep = _build_in_child(raster, out / f"tiles_{name}", progress)
             results[f"build_{name}"] = {k: brep[k] for k in ("seconds", "tiles", "per_level", "peak_rss_mb")}
-            md.append(f"{title} built by default ({executor_label(brep)}) in {brep['seconds']:.0f} s ({brep['tiles']} tiles, "
+            md.append(f"{title} built by default ({brep['executor']}) in {brep['seconds']:.0f} s ({brep['tiles']} tiles, "
                       f"peak {brep['peak_rss_mb']:.0f} MB).\n")
             rep4 = run_bench([out / f"tiles_{name}"], None, taus, (960, 540), out / f"render_{name}", progress,
                              repeats=1)
@@ -246,14 +242,11 @@ def _points_measure(files: list[str], out: str, repeats: int) -> dict[str, Any]:
 
 def _points_in_child(files: list[Path], out: Path, repeats: int) -> dict[str, Any]:
     """:func:`_points_measure` in a fresh process."""
-    import subprocess
-    import sys
+    from citylod.bench.dsm_bench import json_from_child
 
-    code = ("import json; from citylod.bench.suite import _points_measure; "
-            f"print('@@' + json.dumps(_points_measure({[str(f) for f in files]!r}, {str(out)!r}, {repeats})))")
-    proc = subprocess.run([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, check=True)
-    result: dict[str, Any] = json.loads(proc.stdout.split("@@", 1)[1])
-    return result
+    return json_from_child("import json; from citylod.bench.suite import _points_measure; "
+                           f"print('@@' + json.dumps(_points_measure({[str(f) for f in files]!r}, {str(out)!r}, "
+                           f"{repeats})))")
 
 
 def _count(path: Path) -> int:

@@ -26,20 +26,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+from citylod.core.perthread import PerThread
+
 MAGIC = b"CLJ1"
 _HEAD = struct.Struct("<4sIII")
-_LOCAL = threading.local()
+_HANDLES = PerThread()  # folder -> open journal file, per thread; a forked child starts files of its own
 _MAX_OPEN = 4  # journals a thread keeps open (a long-lived Dask worker thread serves many builds)
-
-
-def _forget_after_fork() -> None:
-    # A forked worker must not append to the forking thread's journal files (one writer per file): it
-    # starts files of its own. The inherited handles are dropped, not closed (nothing is buffered in
-    # them: every record is flushed).
-    _LOCAL.__dict__.pop("handles", None)
-
-
-os.register_at_fork(after_in_child=_forget_after_fork)
 
 
 @dataclass(frozen=True)
@@ -60,10 +52,7 @@ class Entry:
 
 
 def _handles() -> OrderedDict[str, BinaryIO]:
-    h: OrderedDict[str, BinaryIO] | None = getattr(_LOCAL, "handles", None)
-    if h is None:
-        h = _LOCAL.handles = OrderedDict()
-    return h
+    return _HANDLES.get()
 
 
 def append(folder: str | os.PathLike[str], key: str, payload: bytes) -> None:

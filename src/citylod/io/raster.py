@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ import numpy.typing as npt
 import pyproj
 
 from citylod.core.errors import EmptyInputError, GeoreferenceError, InputError
+from citylod.core.perthread import PerThread
 from citylod.io.crs import is_geographic, utm_crs_for
 
 
@@ -61,27 +61,14 @@ class RasterInfo:
 
 # Open datasets, per thread and file, shared by the RasterSource objects of that file: a build sends each
 # tile task its own (unpickled) source, and reopening the file per task would also drop GDAL's cache of
-# decompressed blocks. GDAL handles are not thread-safe, hence one per thread, kept in thread-local storage
-# (a build on threads must not let one thread's eviction close another's dataset); a thread's datasets are
-# closed with it.
-_LOCAL = threading.local()
+# decompressed blocks. GDAL handles are not thread-safe, hence one per thread (a build on threads must not
+# let one thread's eviction close another's dataset); a thread's datasets are closed with it.
+_DATASETS = PerThread()  # (path, inode, size, mtime) -> dataset, per thread; a forked child opens its own
 _SHARED_MAX = 8
 
 
-def _forget_after_fork() -> None:
-    # A forked worker inherits the forking thread's datasets, whose file offsets it would share with the
-    # parent and its siblings: it opens its own. The inherited objects are dropped, not closed.
-    _LOCAL.__dict__.pop("datasets", None)
-
-
-os.register_at_fork(after_in_child=_forget_after_fork)
-
-
 def _shared() -> OrderedDict[tuple[str, int, int, int], Any]:
-    d: OrderedDict[tuple[str, int, int, int], Any] | None = getattr(_LOCAL, "datasets", None)
-    if d is None:
-        d = _LOCAL.datasets = OrderedDict()
-    return d
+    return _DATASETS.get()
 
 
 def _open_shared(path: Path) -> Any:

@@ -351,14 +351,14 @@ def build_tile(job: DsmJob) -> TileResult:
     res = TileResult(key, job.level, job.row, job.col, False, target=job.target)
     g = _tile_grid(job)
     if g is None:
-        _write_sidecar(job.out_dir, key, res)
+        _journal_result(job.out_dir, key, res)
         return res
     stride, rpos, cpos = g
     fp = _Footprint(src, rpos, cpos)
     heights, valid = fp.grid()
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
     if valid.sum() < 3:
-        _write_sidecar(job.out_dir, key, res)
+        _journal_result(job.out_dir, key, res)
         return res
     to_metric = _to_metric(info, job)
 
@@ -387,7 +387,7 @@ def build_tile(job: DsmJob) -> TileResult:
                 return _stage1_done(job, res, key, quick, 1, valid, stride, last_r, last_c, t0)
     best = attempt(job.target, None, check=stride > 1)
     if len(best[2]) == 0:
-        _write_sidecar(job.out_dir, key, res)
+        _journal_result(job.out_dir, key, res)
         return res
     cell_err = best[4]
     passes = 1
@@ -566,7 +566,7 @@ def finish_tile(job: DsmJob) -> TileResult:
     res.vertices = len(vij)
     res.borders = _border_sets(vij, last_r, last_c)
     res.seconds += time.perf_counter() - t0
-    _write_sidecar(job.out_dir, key, res)
+    _journal_result(job.out_dir, key, res)
     return res
 
 
@@ -784,12 +784,12 @@ def _as_doc(res: TileResult) -> dict[str, Any]:
     return {f.name: getattr(res, f.name) for f in dataclasses.fields(res)}  # flat fields: no deep copy
 
 
-def _write_sidecar(out_dir: str, key: str, res: TileResult) -> None:
+def _journal_result(out_dir: str, key: str, res: TileResult) -> None:
     """Record a finished tile (its glb, when it has content, is written before)."""
     journal.append(_journal_dir(out_dir), "done/" + key, json.dumps(_as_doc(res)).encode())
 
 
-def _read_sidecar(out_dir: Path, key: str, idx: dict[str, journal.Entry]) -> TileResult | None:
+def _read_result(out_dir: Path, key: str, idx: dict[str, journal.Entry]) -> TileResult | None:
     """A finished tile's result (its glb exists), or None."""
     entry = idx.get("done/" + key)
     if entry is None:
@@ -885,7 +885,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
                 job = DsmJob(src, str(partial), d, i, j, levels, tile_size, leaf * 2 ** (levels - d),
                              None if ortho is None else str(ortho), tex, metric.to_wkt())
                 all_jobs[key] = job
-                prev = _read_sidecar(partial, key, idx)
+                prev = _read_result(partial, key, idx)
                 tin = _read_stage1(key, idx)
                 if prev is not None and (tin is not None or not prev.has_content):
                     # finished; its stage-1 borders are what its neighbours are fitted to
@@ -901,7 +901,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         stage1 = stage1[:_stop_after]
     # Coarse tiles first: they take longest, so starting them first keeps the workers busy to the end.
     stage1.sort(key=lambda j: j.level)
-    from citylod.lod.executor import fork_is_safe, make_executor, run_tasks
+    from citylod.lod.executor import describe, fork_is_safe, make_executor, run_tasks
 
     # The default executor: worker processes forked from this one where that is safe (Linux, no other
     # thread here). They start at once with everything imported, and each task has a GIL of its own: on
@@ -915,9 +915,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     if fork:
         _preload_kernels()
     threads = default and not fork and info.width * info.height < _THREADS_BELOW_SAMPLES
-    n_workers = (os.cpu_count() or 1) if workers is None else workers
-    where = ("a Dask cluster" if scheduler is not None else "inline" if n_workers <= 0
-             else f"{n_workers} {'threads' if threads else 'forked processes' if fork else 'processes'}")
+    where = describe(workers, scheduler, threads=threads, fork=fork)
     try:
         with make_executor(workers=workers, scheduler=scheduler, threads=threads, fork=fork) as ex:
             for r in run_tasks(ex, build_tile, stage1, progress=progress, desc="dsm tiles"):

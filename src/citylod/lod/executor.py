@@ -11,6 +11,7 @@ It must not import VTK or Qt, and it imports ``distributed`` only when a schedul
 from __future__ import annotations
 
 import atexit
+import functools
 import multiprocessing
 import os
 import sys
@@ -66,15 +67,20 @@ def _exit_now() -> None:
     os._exit(0)
 
 
-def progress_bar(**kwargs: Any) -> Any:
-    """A tqdm bar (``tqdm.auto``) that starts no monitor thread: tqdm's monitor, a thread of its own,
-    would make :func:`fork_is_safe` false for the next build of the process."""
+@functools.cache
+def _bar_class() -> Any:
     from tqdm.auto import tqdm
 
     class _Bar(tqdm):  # type: ignore[misc, valid-type]
         monitor_interval = 0
 
-    return _Bar(**kwargs)
+    return _Bar
+
+
+def progress_bar(**kwargs: Any) -> Any:
+    """A tqdm bar (``tqdm.auto``) that starts no monitor thread: tqdm's monitor, a thread of its own,
+    would make :func:`fork_is_safe` false for the next build of the process."""
+    return _bar_class()(**kwargs)
 
 
 def fork_is_safe() -> bool:
@@ -82,6 +88,21 @@ def fork_is_safe() -> bool:
     (a thread holding a lock at the fork would leave it locked in the child)."""
     return (sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
             and threading.active_count() == 1)
+
+
+def _worker_count(workers: int | None) -> int:
+    return (os.cpu_count() or 1) if workers is None else int(workers)
+
+
+def describe(workers: int | None = None, scheduler: Any = None, *, threads: bool = False,
+             fork: bool = False) -> str:
+    """Where :func:`make_executor` with these arguments runs the tasks, in words ("2 forked processes")."""
+    if scheduler is not None:
+        return "a Dask cluster"
+    n = _worker_count(workers)
+    if n <= 0:
+        return "inline"
+    return f"{n} {'threads' if threads else 'forked processes' if fork else 'processes'}"
 
 
 @contextmanager
@@ -123,7 +144,7 @@ def make_executor(workers: int | None = None, scheduler: Any = None, *, threads:
             if own:
                 client.close()
         return
-    n = (os.cpu_count() or 1) if workers is None else int(workers)
+    n = _worker_count(workers)
     if n <= 0:
         yield InlineExecutor()
         return

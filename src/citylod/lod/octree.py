@@ -47,15 +47,21 @@ def quantize(xyz: F64, cube_lo: F64, cube_size: float) -> I64:
     return _quantize(np.asarray(xyz, np.float64), np.asarray(cube_lo, np.float64), float(1 << QBITS) / cube_size)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def grid_coord(v: float, lo: float, scale: float) -> int:  # pragma: no cover - compiled
+    """One coordinate on the integer grid (``scale`` = 2^QBITS / cube size), clamped into the cube."""
+    g = np.floor((v - lo) * scale)
+    top = (1 << QBITS) - 1
+    return 0 if not g > 0 else top if g > top else int(g)
+
+
 @numba.njit(cache=True, nogil=True)
 def _quantize(xyz: F64, cube_lo: F64, scale: float) -> I64:  # pragma: no cover - compiled
     n = xyz.shape[0]
     q = np.empty((n, 3), np.int64)
-    top = (1 << QBITS) - 1
     for i in range(n):
         for a in range(3):
-            v = np.floor((xyz[i, a] - cube_lo[a]) * scale)
-            q[i, a] = 0 if not v > 0 else top if v > top else np.int64(v)
+            q[i, a] = grid_coord(xyz[i, a], cube_lo[a], scale)
     return q
 
 
@@ -110,10 +116,12 @@ def counting_sort(keys: I64, nbins: int) -> tuple[I64, I64]:  # pragma: no cover
     return order, offsets
 
 
-def octant_keys(q: I64, level: int) -> I64:
-    """(N,) int64 child octant (0–7, bit 0 = x) of points in a node of ``level``."""
-    s = QBITS - level - 1
-    return ((q[:, 0] >> s) & 1) | (((q[:, 1] >> s) & 1) << 1) | (((q[:, 2] >> s) & 1) << 2)
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cell_key(q: I64, i: int, shift: int) -> int:  # pragma: no cover - compiled
+    # Flat index x + 64·y + 64²·z of point i's cell in the 64³ grid of a node (``shift`` = QBITS − level − 6).
+    mask = (1 << CLUSTER_BITS) - 1
+    return (((q[i, 0] >> shift) & mask) | (((q[i, 1] >> shift) & mask) << CLUSTER_BITS)
+            | (((q[i, 2] >> shift) & mask) << (2 * CLUSTER_BITS)))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -121,12 +129,10 @@ def _cluster(q: I64, shift: int, xyz: F64, sums: F64, counts: I64, nbins: int
              ) -> tuple[I64, I64, F64, I64]:  # pragma: no cover - compiled
     # Only the occupied cells are visited (not all 64³); candidates are taken in input order, so each
     # cell gets the same sums (same order of additions) and the same representative (the first nearest)
-    # as a stable counting sort by cell would give. Keys: the flat cell x + 64·y + 64²·z in the node's grid.
-    mask = (1 << CLUSTER_BITS) - 1
+    # as a stable counting sort by cell would give.
     keys = np.empty(q.shape[0], np.int64)
     for i in range(q.shape[0]):
-        keys[i] = (((q[i, 0] >> shift) & mask) | (((q[i, 1] >> shift) & mask) << CLUSTER_BITS)
-                   | (((q[i, 2] >> shift) & mask) << (2 * CLUSTER_BITS)))
+        keys[i] = _cell_key(q, i, shift)
     slot = np.full(nbins, -1, np.int32)
     cells = np.empty(keys.shape[0], np.int64)
     ncell = 0
@@ -245,13 +251,25 @@ def _radix_argsort30(codes: I64) -> I64:  # pragma: no cover - compiled
     return order
 
 
+def shuffled_runs(n: int, seed: int, batch: int) -> I64:
+    """The order in which a node's ``n`` Morton-ordered points are written: runs of ``batch`` consecutive
+    points, the runs shuffled (what :func:`point_columns` takes).
+
+    Each run stays spatially compact (cache-friendly) while any prefix of the result is a roughly uniform
+    subsample of the node, so a renderer with a point budget can draw the first k points (smooth
+    refinement, Kehl et al.; Potree's point budgets). ``seed`` makes the order reproducible, so every
+    executor writes the same tileset.
+    """
+    return np.random.default_rng(seed).permutation(-(-n // batch))
+
+
 @numba.njit(cache=True, nogil=True)
-def point_columns(raw: npt.NDArray[np.uint8], xyz: F64, order: I64, runs: I64, batch: int, center: F64
+def point_columns(recs: npt.NDArray[np.void], xyz: F64, order: I64, runs: I64, batch: int, center: F64
                   ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8], npt.NDArray[np.uint16],
                              npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:  # pragma: no cover - compiled
     """A node's drawn columns in one compiled pass, without the GIL: the points ``order[t]`` taken in runs
-    of ``batch`` whose order is ``runs`` (what :func:`batch_shuffle` gives), split out of the 31-byte
-    records (``raw``, their bytes) into contiguous arrays.
+    of ``batch`` whose order is ``runs`` (:func:`shuffled_runs`), split out of their records (``recs``,
+    POINT_DTYPE) into contiguous arrays.
 
     Returns positions relative to ``center`` (float32), RGB, intensity, classification and return number.
     The per-node numpy calls it replaces held the GIL for most of a leaf's time, which kept a build's two
@@ -271,29 +289,13 @@ def point_columns(raw: npt.NDArray[np.uint8], xyz: F64, order: I64, runs: I64, b
             pos[k, 0] = xyz[i, 0] - cx
             pos[k, 1] = xyz[i, 1] - cy
             pos[k, 2] = xyz[i, 2] - cz
-            inten[k] = raw[i, 24] | (np.uint16(raw[i, 25]) << 8)
-            cls[k] = raw[i, 26]
-            ret[k] = raw[i, 27]
-            rgb[k, 0], rgb[k, 1], rgb[k, 2] = raw[i, 28], raw[i, 29], raw[i, 30]
+            rec = recs[i]
+            inten[k] = rec.intensity
+            cls[k] = rec.classification
+            ret[k] = rec.return_number
+            rgb[k, 0], rgb[k, 1], rgb[k, 2] = rec.red, rec.green, rec.blue
             k += 1
     return pos, rgb, inten, cls, ret
-
-
-def batch_shuffle(n: int, seed: int, batch: int = 32) -> I64:
-    """(n,) int64 permutation that keeps runs of ``batch`` consecutive items and shuffles the runs.
-
-    Applied to Morton-ordered points, each run stays spatially compact (cache-friendly) while any prefix
-    of the result is a roughly uniform subsample of the node, so a renderer with a point budget can draw
-    the first k points (smooth refinement, Kehl et al.; Potree's point budgets). ``seed`` makes the
-    order reproducible, so every executor writes the same tileset.
-    """
-    if n == 0:
-        return np.zeros(0, np.int64)
-    nb = -(-n // batch)
-    starts = np.random.default_rng(seed).permutation(nb) * batch
-    lens = np.minimum(starts + batch, n) - starts
-    out_start = np.concatenate([[0], np.cumsum(lens)[:-1]])
-    return np.repeat(starts - out_start, lens) + np.arange(n)
 
 
 def partition(q: I64, level: int, idx: tuple[int, int, int], max_leaf_points: int, max_level: int,
@@ -428,12 +430,9 @@ def _lookup_error(q: I64, xyz: F64, shift: int, cells: I64, elem: F64) -> float:
     lut = np.full(1 << (3 * CLUSTER_BITS), -1, np.int32)
     for c in range(cells.shape[0]):
         lut[cells[c]] = c
-    mask = (1 << CLUSTER_BITS) - 1
     best = 0.0
     for i in range(q.shape[0]):
-        k = (((q[i, 0] >> shift) & mask) | (((q[i, 1] >> shift) & mask) << CLUSTER_BITS)
-             | (((q[i, 2] >> shift) & mask) << (2 * CLUSTER_BITS)))
-        e = lut[k]
+        e = lut[_cell_key(q, i, shift)]
         if e < 0:
             return -1.0
         dx, dy, dz = xyz[i, 0] - elem[e, 0], xyz[i, 1] - elem[e, 1], xyz[i, 2] - elem[e, 2]

@@ -72,11 +72,13 @@ from citylod.lod.octree import (
     cluster,
     counting_sort,
     gather_points,
+    grid_coord,
     lookup_error,
     morton_order,
     partition,
     point_columns,
     quantize,
+    shuffled_runs,
 )
 from citylod.lod.planes import encode_png, find_planes, quad_mesh_arrays, splat_colors
 
@@ -84,12 +86,8 @@ F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 Recs = npt.NDArray[np.void]
 
-#: Points per run of the shuffled order within a node (see :func:`~citylod.lod.octree.batch_shuffle`).
+#: Points per run of the shuffled order within a node (see :func:`~citylod.lod.octree.shuffled_runs`).
 _BATCH = 32
-# point_columns reads the records' bytes at these offsets.
-_FIELDS: Any = POINT_DTYPE.fields
-assert [_FIELDS[f][1] for f in ("intensity", "classification", "return_number", "red", "green", "blue")] \
-    == [24, 26, 27, 28, 29, 30] and POINT_DTYPE.itemsize == 31
 
 #: Levels of the scan grid: 2^7 = 128 cells per axis.
 SCAN_BITS = 7
@@ -271,11 +269,9 @@ def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
 
 
 def _columns(recs: Recs, xyz: F64, order: I64, key: str, center: F64, has_rgb: bool) -> PointData:
-    """The drawn points ``order`` of a node, shuffled in runs (:func:`~citylod.lod.octree.batch_shuffle`)."""
-    n = len(order)
-    runs = np.random.default_rng(_seed(key)).permutation(-(-n // _BATCH))
-    raw = np.ascontiguousarray(recs).view(np.uint8).reshape(len(recs), recs.dtype.itemsize)
-    pos, rgb, inten, cls, ret = point_columns(raw, np.ascontiguousarray(xyz), order, runs, _BATCH, center)
+    """The drawn points ``order`` of a node, shuffled in runs (:func:`~citylod.lod.octree.shuffled_runs`)."""
+    runs = shuffled_runs(len(order), _seed(key), _BATCH)
+    pos, rgb, inten, cls, ret = point_columns(recs, np.ascontiguousarray(xyz), order, runs, _BATCH, center)
     return PointData(positions=pos, rgb=rgb if has_rgb else None, intensity=inten, classification=cls,
                      return_number=ret)
 
@@ -443,7 +439,6 @@ def _scan_kernel(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, scales: F64, offse
     :func:`~citylod.lod.octree.quantize`), the intensity histogram and the bounds, written into the
     given arrays. Done with numpy, the conversion and the four passes after it took 3–4 times as long
     as the compiled pass beyond laspy's decoding of the Delft cloud."""
-    top = (1 << QBITS) - 1
     sx, sy, sz = scales[0], scales[1], scales[2]
     ox, oy, oz = offsets[0], offsets[1], offsets[2]
     has_rgb = red.shape[0] > 0
@@ -466,8 +461,7 @@ def _scan_kernel(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, scales: F64, offse
             v = xyz[i, a]
             lo[a] = min(lo[a], v)
             hi[a] = max(hi[a], v)
-            g = np.floor((v - cube_lo[a]) * qscale)
-            q[i, a] = 0 if not g > 0 else top if g > top else np.int64(g)
+            q[i, a] = grid_coord(v, cube_lo[a], qscale)
 
 
 def _scan_segment(cube_lo: tuple[float, float, float], cube_size: float, path: str, start: int, count: int,

@@ -228,7 +228,7 @@ class _PointProps:
         self.actor.GetProperty().LightingOff()
         self.data: Any = None
         # Smooth refinement draws a prefix of the tile's points: builders store them in shuffled Morton
-        # batches, so any prefix is a uniform subsample (citylod.lod.octree.batch_shuffle).
+        # batches, so any prefix is a uniform subsample (citylod.lod.octree.shuffled_runs).
         self.total = 0
         self.drawn = 0
         self.fade_start_s: float | None = None
