@@ -32,7 +32,7 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], 
     return p
 
 
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes | memoryview) -> Path:
     """Write ``data`` to ``path`` atomically."""
     return atomic_write(path, lambda t: t.write_bytes(data))
 

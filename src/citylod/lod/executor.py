@@ -14,21 +14,47 @@ import atexit
 import functools
 import multiprocessing
 import os
+import queue
 import sys
 import threading
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import (
-    FIRST_COMPLETED,
-    Executor,
-    Future,
-    ProcessPoolExecutor,
-    ThreadPoolExecutor,
-    wait,
-)
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
 T = TypeVar("T")
+
+
+class Completions(Generic[T]):
+    """Submitted futures handed back in the order they finish.
+
+    Each future's done-callback queues it, so taking the next one costs the same however many are
+    pending. ``concurrent.futures.wait(pending, FIRST_COMPLETED)`` installs and removes a waiter on
+    every pending future at each call: O(n²) lock operations under the GIL for n tasks, which on a
+    point build held the GIL for ≈ 50 ms that the build threads waited for.
+    """
+
+    def __init__(self) -> None:
+        self._done: queue.SimpleQueue[Future[T]] = queue.SimpleQueue()
+        self.pending: set[Future[T]] = set()
+
+    def add(self, fut: Future[T]) -> None:
+        self.pending.add(fut)
+        fut.add_done_callback(self._done.put)
+
+    def __len__(self) -> int:
+        return len(self.pending)
+
+    def next(self) -> Future[T]:
+        """The next finished future (blocks until one is)."""
+        fut = self._done.get()
+        self.pending.discard(fut)
+        return fut
+
+    def cancel(self) -> None:
+        """Cancel the futures not started yet."""
+        for fut in self.pending:
+            fut.cancel()
 
 
 class InlineExecutor(Executor):
@@ -192,22 +218,20 @@ def run_tasks(executor: Executor, fn: Callable[..., T], tasks: Iterable[Any], *,
     items = [t if isinstance(t, tuple) else (t,) for t in tasks]
     limit = max_in_flight or 4096
     bar = progress_bar(total=len(items), desc=desc, disable=not progress, unit="task", leave=False)
-    pending: set[Future[T]] = set()
+    running: Completions[T] = Completions()
     it = iter(items)
     try:
         while True:
-            while len(pending) < limit:
+            while len(running) < limit:
                 args = next(it, None)
                 if args is None:
                     break
-                pending.add(executor.submit(fn, *args))
-            if not pending:
+                running.add(executor.submit(fn, *args))
+            if not running:
                 break
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                bar.update(1)
-                yield fut.result()
+            fut = running.next()
+            bar.update(1)
+            yield fut.result()
     finally:
-        for f in pending:
-            f.cancel()
+        running.cancel()
         bar.close()

@@ -134,21 +134,50 @@ class Quad:
 
 @dataclass(frozen=True)
 class PlaneResult:
-    """The quads of one node and what they replaced.
+    """The quads of one node and what they replaced, as arrays (a node has tens of quads; objects per quad
+    cost more Python time than the compiled search that found them).
 
     Attributes
     ----------
-    quads
-        Accepted quads.
+    corners
+        (Q, 4, 3) float64, each quad's corners as `Quad.corners`.
+    sizes
+        (Q, 2) int64 texture width and height in texels.
+    inliers
+        (Q,) int64 number of points each quad replaced.
+    tex, tex_off
+        The textures, flat uint8: quad q's (H, W, 4) RGBA texels are ``tex[tex_off[q]:tex_off[q + 1]]``.
+    texel
+        Texel spacing in metres.
     replaced
         (K,) bool: the point was splatted into a quad (it is no longer drawn as a point).
     elem
         (K, 3) float64: for replaced points the centre of their texel, else the point itself.
     """
 
-    quads: list[Quad]
+    corners: F64
+    sizes: npt.NDArray[np.int64]
+    inliers: npt.NDArray[np.int64]
+    tex: U8
+    tex_off: npt.NDArray[np.int64]
+    texel: float
     replaced: npt.NDArray[np.bool_]
     elem: F64
+
+    @property
+    def n_quads(self) -> int:
+        return len(self.inliers)
+
+    def quad(self, q: int) -> Quad:
+        """Quad ``q`` as an object."""
+        w, h = (int(v) for v in self.sizes[q])
+        return Quad(self.corners[q].copy(), self.tex[self.tex_off[q]:self.tex_off[q + 1]].reshape(h, w, 4),
+                    self.texel, int(self.inliers[q]))
+
+    @property
+    def quads(self) -> list[Quad]:
+        """Accepted quads, as objects."""
+        return [self.quad(q) for q in range(self.n_quads)]
 
 
 def find_planes(p: F64, colors: U8, texel: float, *, phi: float = 8.0, seed: int = 0,
@@ -183,9 +212,8 @@ def find_planes(p: F64, colors: U8, texel: float, *, phi: float = 8.0, seed: int
                   float(phi), int(seed & 0x7FFFFFFFFFFF), int(n_candidates), int(max_planes), int(min_inliers),
                   int(max_failures), int(window))
     replaced, elem, corners, size, inliers, tex, tex_off = res
-    quads = [Quad(corners[q].copy(), tex[tex_off[q]:tex_off[q + 1]].reshape(int(size[q, 1]), int(size[q, 0]), 4),
-                  float(texel), int(inliers[q])) for q in range(len(inliers))]
-    return PlaneResult(quads, replaced, elem)
+    return PlaneResult(corners, size.astype(np.int64), inliers.astype(np.int64), tex, tex_off.astype(np.int64),
+                       float(texel), replaced, elem)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -458,7 +486,44 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
     return (replaced, elem, q_corners[:nq], q_size[:nq], q_inl[:nq], tex[:tex_off[nq]], tex_off[:nq + 1])
 
 
-def pack_atlas(quads: list[Quad]) -> tuple[U8, list[tuple[int, int]]]:
+@numba.njit(cache=True, nogil=True)
+def _pack_atlas(sizes: npt.NDArray[np.int64], tex: U8, tex_off: npt.NDArray[np.int64]
+                ) -> tuple[U8, npt.NDArray[np.int64]]:  # pragma: no cover - compiled
+    """:func:`pack_atlas` on the arrays of a :class:`PlaneResult`, compiled and without the GIL."""
+    n = sizes.shape[0]
+    gap = 1  # transparent texel between textures so linear filtering does not bleed colour across
+    area = 0
+    wmax = 0
+    for k in range(n):
+        area += (sizes[k, 0] + gap) * (sizes[k, 1] + gap)
+        wmax = max(wmax, sizes[k, 0])
+    width = max(wmax + gap, int(np.ceil(np.sqrt(area) * 1.15)))
+    order = np.argsort(-sizes[:, 1], kind="mergesort")  # tallest first, ties in the order given
+    offsets = np.zeros((n, 2), np.int64)
+    x = 0
+    y = 0
+    shelf = 0
+    for k in order:
+        w, h = sizes[k, 0], sizes[k, 1]
+        if x + w > width:
+            x, y, shelf = 0, y + shelf + gap, 0
+        offsets[k, 0], offsets[k, 1] = x, y
+        x += w + gap
+        shelf = max(shelf, h)
+    atlas = np.zeros((y + shelf, width, 4), np.uint8)
+    for k in range(n):
+        w, h = sizes[k, 0], sizes[k, 1]
+        ox, oy = offsets[k, 0], offsets[k, 1]
+        t = tex_off[k]
+        for r in range(h):
+            for c in range(w):
+                for b in range(4):
+                    atlas[oy + r, ox + c, b] = tex[t]
+                    t += 1
+    return atlas, offsets
+
+
+def pack_atlas(res: PlaneResult) -> tuple[U8, npt.NDArray[np.int64]]:
     """Shelf-pack the quads' textures into one RGBA atlas (one texture per node draws in one call).
 
     Returns
@@ -466,31 +531,13 @@ def pack_atlas(quads: list[Quad]) -> tuple[U8, list[tuple[int, int]]]:
     atlas
         (H, W, 4) uint8.
     offsets
-        (x, y) texel offset of each quad's texture in the atlas, in the order given.
+        (Q, 2) int64 (x, y) texel offset of each quad's texture in the atlas, in the order given.
     """
-    gap = 1  # transparent texel between textures so linear filtering does not bleed colour across
-    sizes = [(q.rgba.shape[1], q.rgba.shape[0]) for q in quads]
-    area = sum((w + gap) * (h + gap) for w, h in sizes)
-    width = max(max(w for w, _ in sizes) + gap, int(np.ceil(np.sqrt(area) * 1.15)))
-    order = sorted(range(len(quads)), key=lambda k: -sizes[k][1])
-    offsets: list[tuple[int, int]] = [(0, 0)] * len(quads)
-    x = y = shelf = 0
-    for k in order:
-        w, h = sizes[k]
-        if x + w > width:
-            x, y, shelf = 0, y + shelf + gap, 0
-        offsets[k] = (x, y)
-        x += w + gap
-        shelf = max(shelf, h)
-    atlas = np.zeros((y + shelf, width, 4), np.uint8)
-    for k, (ox, oy) in enumerate(offsets):
-        h, w = quads[k].rgba.shape[:2]
-        atlas[oy:oy + h, ox:ox + w] = quads[k].rgba
-    return atlas, offsets
+    return _pack_atlas(res.sizes, res.tex, res.tex_off)
 
 
-def quad_mesh_arrays(quads: list[Quad]) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32],
-                                                 npt.NDArray[np.float32], U8]:
+def quad_mesh_arrays(res: PlaneResult) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32],
+                                                npt.NDArray[np.float32], U8]:
     """Vertex, face, uv arrays and the atlas image for a node's quads.
 
     Returns
@@ -504,14 +551,15 @@ def quad_mesh_arrays(quads: list[Quad]) -> tuple[npt.NDArray[np.float32], npt.ND
     atlas
         (H, W, 4) uint8.
     """
-    atlas, offsets = pack_atlas(quads)
+    atlas, offsets = pack_atlas(res)
     ah, aw = atlas.shape[:2]
-    pos = np.concatenate([q.corners for q in quads]).astype(np.float32)
-    uv = np.empty((4 * len(quads), 2), np.float32)
-    for k, (q, (ox, oy)) in enumerate(zip(quads, offsets, strict=True)):
-        h, w = q.rgba.shape[:2]
-        uv[4 * k:4 * k + 4] = np.array([[ox, oy], [ox + w, oy], [ox + w, oy + h], [ox, oy + h]]) / [aw, ah]
-    base = 4 * np.arange(len(quads), dtype=np.uint32)[:, None]
+    pos = res.corners.reshape(-1, 3).astype(np.float32)
+    ox, oy = offsets[:, 0], offsets[:, 1]
+    w, h = res.sizes[:, 0], res.sizes[:, 1]
+    u = np.stack([ox, ox + w, ox + w, ox], axis=1) / aw
+    v = np.stack([oy, oy, oy + h, oy + h], axis=1) / ah
+    uv = np.stack([u, v], axis=2).reshape(-1, 2).astype(np.float32)
+    base = 4 * np.arange(res.n_quads, dtype=np.uint32)[:, None]
     faces = np.concatenate([base + np.array([0, 1, 2], np.uint32), base + np.array([0, 2, 3], np.uint32)], axis=1)
     return pos, faces.reshape(-1, 3), uv, atlas
 

@@ -40,7 +40,7 @@ import shutil
 import time
 import zlib
 from collections.abc import Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Executor, wait
+from concurrent.futures import Executor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from os import PathLike
@@ -63,7 +63,7 @@ from citylod.io.tiles3d import (
     write_content,
     write_tileset,
 )
-from citylod.lod.executor import make_executor, progress_bar, run_tasks
+from citylod.lod.executor import Completions, make_executor, progress_bar, run_tasks
 from citylod.lod.octree import (
     CLUSTER_BITS,
     MAX_LEVEL,
@@ -259,12 +259,12 @@ def _seed(key: str) -> int:
 
 
 def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
-    path = content_path(p.out, key)
-    if not p.memory and path.exists():  # resumed build: this node was finished before the interruption
-        stats.bytes += path.stat().st_size
-        return path.relative_to(p.out).as_posix()
+    path = str(content_path(p.out, key))
+    if not p.memory and os.path.exists(path):  # resumed build: this node was finished before the interruption
+        stats.bytes += os.path.getsize(path)
+        return Path(path).relative_to(p.out).as_posix()
     uri = write_content(p.out, key, content, atomic=not p.memory)
-    stats.bytes += path.stat().st_size
+    stats.bytes += os.path.getsize(path)
     return uri
 
 
@@ -323,15 +323,15 @@ def _internal(p: _Params, level: int, idx: tuple[int, int, int], children: list[
         colors = splat_colors(np.stack([rrecs["red"], rrecs["green"], rrecs["blue"]], axis=1)[m] if p.has_rgb
                               else None, rrecs["classification"][m], rrecs["intensity"][m], p.intensity_scale)
         res = find_planes(_take(rxyz, m) - center, colors, texel, phi=p.phi, seed=_seed(key))
-        if res.quads:
+        if res.n_quads:
             elem = rxyz.copy()
             elem[m] = res.elem + center
             drawn = m[~res.replaced]
-            pos, faces, uv, atlas = quad_mesh_arrays(res.quads)
+            pos, faces, uv, atlas = quad_mesh_arrays(res)
             meshes.append(MeshData(positions=pos, faces=faces, uv=uv, texture=encode_png(atlas), name="quads"))
             corners = pos.astype(np.float64) + center
             lo, hi = np.minimum(lo, corners.min(axis=0)), np.maximum(hi, corners.max(axis=0))
-            nquads = len(res.quads)
+            nquads = res.n_quads
             stats.quads += nquads
             stats.quad_points += int(res.replaced.sum())
     points = _columns(rrecs, rxyz, drawn, key, center, p.has_rgb) if len(drawn) else None
@@ -386,22 +386,22 @@ def _subtree(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[in
     else:
         waiting = [len(c) for c in children]
         bar = progress_bar(total=len(nodes), desc="nodes", disable=not progress, unit="node", leave=False)
-        todo = {pool.submit(build, k) for k in range(len(nodes) - 1, -1, -1) if not children[k]}
+        todo: Completions[tuple[int, _Summary, _Stats]] = Completions()
+        for k in range(len(nodes) - 1, -1, -1):
+            if not children[k]:
+                todo.add(pool.submit(build, k))
         try:
             while todo:
-                finished, todo = wait(todo, return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    k, node, st = fut.result()
-                    done(k, node, st)
-                    bar.update(1)
-                    parent = int(nodes[k, 6])
-                    if parent >= 0:
-                        waiting[parent] -= 1
-                        if waiting[parent] == 0:
-                            todo.add(pool.submit(build, parent))
+                k, node, st = todo.next().result()
+                done(k, node, st)
+                bar.update(1)
+                parent = int(nodes[k, 6])
+                if parent >= 0:
+                    waiting[parent] -= 1
+                    if waiting[parent] == 0:
+                        todo.add(pool.submit(build, parent))
         finally:
-            for fut in todo:
-                fut.cancel()
+            todo.cancel()
             bar.close()
     root = built[0]
     assert root is not None
