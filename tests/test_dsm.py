@@ -153,6 +153,29 @@ def test_city_with_cliffs_holes_and_large_coordinates(tmp_path) -> None:
     assert not list((tmp_path / "out").rglob("*.json"))[1:]
 
 
+def test_leaf_bound_from_the_kernel_holds_against_the_certifier(tmp_path) -> None:
+    """By default a leaf's error is the TIN kernel's bound (its target) plus the float32 rounding of its heights,
+    with only the faces stage 2 changed certified; ``certify_leaves`` measures the same TINs with the certifier
+    instead (exact: every sample and grid-edge crossing). The bound must hold against that measurement."""
+    z = city_like(260, 230, seed=5)
+    z[90:120, 30:80] = NODATA
+    valid = z != NODATA
+    write_raster(tmp_path / "dsm.tif", z)
+    build_dsm(tmp_path / "dsm.tif", tmp_path / "kernel", tile_size=65, workers=0, progress=False)
+    build_dsm(tmp_path / "dsm.tif", tmp_path / "certified", tile_size=65, workers=0, progress=False,
+              certify_leaves=True)
+    a = {t.key: t for t in check_tileset(tmp_path / "kernel", z, valid)[0].walk()}
+    b = {t.key: t for t in check_tileset(tmp_path / "certified", z, valid)[0].walk()}
+    assert a.keys() == b.keys()
+    leaves = [k for k, t in a.items() if not t.children and t.content_uri]
+    assert len(leaves) > 4
+    for k in leaves:
+        ma, mb = a[k].load(), b[k].load()
+        assert np.array_equal(ma.faces, mb.faces) and np.array_equal(ma.vertices, mb.vertices)  # the same TIN
+        assert b[k].geometric_error <= a[k].geometric_error <= 0.5 + 1e-3, k
+    assert any(b[k].geometric_error < a[k].geometric_error for k in leaves)  # measured, not bounded
+
+
 def _borders_match(by_key, ts) -> bool:
     """Same-level tiles side by side (east-west) carry the same surface vertices on their shared border."""
     pairs = 0

@@ -52,6 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--tile-size", type=int, default=129, help="samples per tile side, 2^k+1 (default 129)")
     d.add_argument("--workers", type=int, help="local worker processes, spawned (default: one per CPU, forked from this process on Linux)")
     d.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786")
+    d.add_argument("--certify-leaves", action="store_true",
+                   help="certify the leaves against the raster too (default: the TIN kernel's exact bound)")
     pt = bsub.add_parser("points", help="LAS/LAZ files to a 3D Tiles octree")
     pt.add_argument("files", type=Path, nargs="+")
     pt.add_argument("-o", "--output", type=Path, required=True)
@@ -136,7 +138,7 @@ def _dispatch(args: argparse.Namespace, progress: bool) -> int:
 
         report = build_dsm(
             args.raster, args.output, ortho=args.ortho, max_error=args.max_error, tile_size=args.tile_size,
-            workers=args.workers, scheduler=args.scheduler, progress=progress,
+            workers=args.workers, scheduler=args.scheduler, progress=progress, certify_leaves=args.certify_leaves,
         )
         print(report.summary())
         return 0

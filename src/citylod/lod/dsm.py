@@ -6,10 +6,14 @@ of samples (every second sample), so a level-d tile has a sample stride of ``2^(
 whose vertices lie on its grid, simplified to a target that doubles per level (the leaf target defaults to
 half the sample spacing).
 
-The guarantee: every tile's TIN is certified against the *full-resolution* raster, exactly, by
+The guarantee: every coarse tile's TIN is certified against the *full-resolution* raster, exactly, by
 :mod:`citylod.lod.certify` (vertical L∞ at every sample and every crossing of a TIN edge with a grid edge),
-after quantisation to float32. Where the certificate exceeds the level's target, the builder forces the grid
-vertices of the offending cells into the TIN and tries again; ``geometricError`` is the certified value plus
+after quantisation to float32. A leaf's grid is the raster itself, on which the TIN kernel already evaluates
+that same exact distance for every face it keeps: its bound is the kernel's (the target) plus the float32
+rounding of its heights, and only the faces stage 2 changes are certified (``certify_leaves`` certifies
+whole leaves as well, for a measured value instead of a bound; it cost a third of a leaf's build). Where
+a coarse tile's certificate exceeds the level's target, the builder forces the grid vertices of the
+offending cells into the TIN and tries again; ``geometricError`` is the certified value plus
 the horizontal quantisation error, so it is a true bound even where a coarse grid cannot reach its target
 (a one-sample chimney cannot be represented on a grid of stride 16). This is provably conservative, which is
 what the issue allows in place of Wahl's l−2 reference bookkeeping. A tile's footprint is read once, in one
@@ -22,9 +26,10 @@ no-data boundary made the kernel add, which differ between neighbours. Stage 2 (
 each tile the vertices its same-level neighbours have on the shared border and it lacks, by splitting the
 border edge they lie on into a fan (no re-triangulation, no other triangle changes), so both sides carry the
 same border vertices wherever both have a surface; one round suffices, since a split adds vertices on that
-border only. Every tile is certified on its final TIN: leaves once, in stage 2; coarser tiles in stage 1
-(refinement is steered by the certificate) and, where stage 2 changed them, again, on the faces it changed
-(the certificate is a maximum over faces, and each face evaluates to the same numbers in any subset).
+border only. Every coarse tile is certified on its final TIN: in stage 1 (refinement is steered by the
+certificate) and, where stage 2 changed it, again, on the faces it changed (the certificate is a maximum over
+faces, and each face evaluates to the same numbers in any subset); a leaf's changed faces are certified in
+stage 2, beside the kernel's bound for the others.
 
 Skirts (Wahl 2004: "a triangle strip along the border that reaches down") hang from each tile's outer
 border, except along the raster's own edges, by twice its error: two neighbours differ along a shared
@@ -102,6 +107,7 @@ class DsmJob:
     border_extra: tuple[tuple[str, tuple[int, ...]], ...] = ()
     stage1: TileResult | None = None  # stage 2 only: this tile's stage-1 result
     stage1_tin: journal.Entry | None = None  # stage 2 only: where its stage-1 TIN is journalled
+    certify_leaves: bool = False  # certify leaves against the raster too (see finish_tile)
 
 
 @dataclass
@@ -125,6 +131,8 @@ class TileResult:
     passes: int = 0
     projection: float = 0.0
     borders: dict[str, list[int]] = field(default_factory=dict)
+    # Leaves: the TIN kernel's bound on the tile's own (full-resolution) grid, NaN when it has none
+    kernel_bound: float = math.nan
 
 
 @dataclass
@@ -158,10 +166,12 @@ class DsmBuildReport:
 
 
 def _triangulate(heights: np.ndarray, valid: np.ndarray, max_error: float,
-                 must_include: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    from citylod.lod.tin import triangulate
+                 must_include: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int]:
+    """The TIN kernel's vertices, faces and number of triangles it left above ``max_error`` (0 but for a bug)."""
+    from citylod.lod.tin import build
 
-    return triangulate(heights, valid, max_error, must_include=must_include)
+    r = build(heights, valid, max_error, must_include=must_include)
+    return r.vertices_ij, r.faces, r.stuck
 
 
 def _grid_positions(start: int, count: int, stride: int, limit: int) -> tuple[np.ndarray, np.ndarray]:
@@ -320,7 +330,7 @@ def _refit(heights: np.ndarray, valid: np.ndarray, vij: np.ndarray, tol: float, 
            last_c: int) -> tuple[np.ndarray, np.ndarray] | None:
     """A TIN within ``tol`` on the tile's grid that keeps every vertex of ``vij`` and has exactly its border
     vertices, or None when the kernel needed another border vertex."""
-    v2, f2 = _triangulate(heights, valid, tol, np.ascontiguousarray(vij, dtype=np.int32))
+    v2, f2, _ = _triangulate(heights, valid, tol, np.ascontiguousarray(vij, dtype=np.int32))
     if len(f2) == 0 or _border_sets(v2, last_r, last_c) != _border_sets(vij, last_r, last_c):
         return None
     return v2, f2
@@ -339,8 +349,9 @@ def _grid_cell_error(fp: _Footprint, rpos: np.ndarray, cpos: np.ndarray, heights
 def build_tile(job: DsmJob) -> TileResult:
     """Stage 1 of a tile, on a worker: read its grid and choose its TIN.
 
-    Leaves are triangulated once (the kernel's bound is exact on their own grid; certification against the
-    raster happens once, in :func:`finish_tile`). Coarser tiles are certified here, because refinement is
+    Leaves are triangulated once (the kernel's bound is exact on their own grid, and is recorded as the leaf's
+    ``kernel_bound`` unless the kernel left a triangle above it; :func:`finish_tile` certifies the faces it
+    changes, or the whole leaf without that bound or with ``certify_leaves``). Coarser tiles are certified here, because refinement is
     steered by where the certificate is exceeded. The TIN is journalled with its stage-1 result (border vertices,
     certificate), so the build resumes from it.
     """
@@ -362,9 +373,12 @@ def build_tile(job: DsmJob) -> TileResult:
         return res
     to_metric = _to_metric(info, job)
 
+    stuck = 0
+
     def attempt(tol: float, must: np.ndarray | None, check: bool = True,
                 per_cell: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        vij, faces = _triangulate(heights, valid, tol, must)
+        nonlocal stuck
+        vij, faces, stuck = _triangulate(heights, valid, tol, must)
         vz = heights[vij[:, 0], vij[:, 1]]
         if len(faces) == 0 or not check:
             return math.nan, vij, faces, vz, np.zeros((cells, cells))
@@ -389,6 +403,8 @@ def build_tile(job: DsmJob) -> TileResult:
     if len(best[2]) == 0:
         _journal_result(job.out_dir, key, res)
         return res
+    if stride == 1 and stuck == 0:
+        res.kernel_bound = job.target
     cell_err = best[4]
     passes = 1
     must: np.ndarray | None = None
@@ -498,7 +514,17 @@ def finish_tile(job: DsmJob) -> TileResult:
             n_kept = len(faces) - len(replaced)
             vij, faces = vij2, faces2
     local, center, q_xy, vr, vc, zq = _place(info, to_metric, rpos, cpos, vij, vz)
-    if fp is not None and old_center is not None and not math.isnan(err) and np.array_equal(center, old_center):
+    limit = job.target  # above this, the fans made the tile miss what stage 1 met
+    if stride == 1 and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves:
+        # A leaf's grid is the raster's: the kernel evaluated the exact vertical distance at every sample and
+        # every grid-edge crossing of every face (what certify computes) and left none above its bound; float32
+        # heights move a face by at most its vertices' rounding. Only the fans are new: they are certified.
+        # (Certifying every leaf again cost a third of the leaf's build; ``certify_leaves`` still does.)
+        err = limit = res.kernel_bound + float(np.max(np.abs(zq - vz), initial=0.0))
+        if len(replaced):
+            assert fp is not None
+            err = max(err, _certify(fp, vr, vc, zq, faces[n_kept:], cells, stride)[0])
+    elif fp is not None and old_center is not None and not math.isnan(err) and np.array_equal(center, old_center):
         # Certified in stage 1, and the old vertices quantise as they did: the certificate is a maximum
         # over faces, so the fans, and where needed the faces they replaced or kept, are evaluated (exactly,
         # with the same numbers as in stage 1) instead of the whole tile.
@@ -513,7 +539,7 @@ def finish_tile(job: DsmJob) -> TileResult:
             err = e_fans  # the kept faces are at most stage 1's err
     elif fp is not None or math.isnan(err):
         err, _ = _certify(fp or _Footprint(job.source, rpos, cpos), vr, vc, zq, faces, cells, stride)
-    if len(replaced) and err > job.target and not res.certified > job.target:
+    if len(replaced) and err > limit and not res.certified > job.target:
         # The fans pushed a tile that met its target over it (not seen on real data, but possible): re-mesh
         # with every current vertex forced, and keep that when it adds no border vertex and is certified
         # lower. Otherwise the fans stay, with their (certified, so still true) error.
@@ -824,7 +850,7 @@ def plan_levels(info: RasterInfo, tile_size: int) -> int:
 def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, ortho: str | os.PathLike[str] | None = None,
               max_error: float | None = None, tile_size: int = 129, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, texture_size: int | None = None,
-              _stop_after: int | None = None) -> DsmBuildReport:
+              certify_leaves: bool = False, _stop_after: int | None = None) -> DsmBuildReport:
     """Build a 3D Tiles quadtree from a DSM raster. See the module docstring for the method.
 
     Parameters
@@ -844,6 +870,11 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         other Python thread), else one thread per CPU for rasters under 6 M samples and one spawned
         worker process per CPU above; N: N spawned local worker processes (0: this process, no
         threads); or a Dask scheduler address (``tcp://host:port``).
+    certify_leaves
+        Certify the leaves against the raster as well (coarser tiles always are). By default a leaf's error
+        is the TIN kernel's own exact bound on the full-resolution grid plus the float32 rounding of its
+        heights, and only the faces stage 2 changed are certified: the same guarantee, a fraction of the
+        time, a bound instead of the measured maximum (at most the target).
     """
     t0 = time.perf_counter()
     if tile_size < 3 or (tile_size - 1) & (tile_size - 2):
@@ -883,7 +914,8 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
             for j in range(nc):
                 key = f"{d}/{i}/{j}"
                 job = DsmJob(src, str(partial), d, i, j, levels, tile_size, leaf * 2 ** (levels - d),
-                             None if ortho is None else str(ortho), tex, metric.to_wkt())
+                             None if ortho is None else str(ortho), tex, metric.to_wkt(),
+                             certify_leaves=certify_leaves)
                 all_jobs[key] = job
                 prev = _read_result(partial, key, idx)
                 tin = _read_stage1(key, idx)
