@@ -260,7 +260,7 @@ def shuffled_runs(n: int, seed: int, batch: int) -> I64:
     refinement, Kehl et al.; Potree's point budgets). ``seed`` makes the order reproducible, so every
     executor writes the same tileset.
     """
-    return _permutation(-(-n // batch), seed & 0xFFFFFFFFFFFFFFFF)
+    return _permutation(-(-n // batch), seed & 0x7FFFFFFFFFFFFFFF)  # an int64 for the kernel
 
 
 @numba.njit(cache=True, nogil=True)

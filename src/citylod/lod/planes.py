@@ -174,11 +174,6 @@ class PlaneResult:
         return Quad(self.corners[q].copy(), self.tex[self.tex_off[q]:self.tex_off[q + 1]].reshape(h, w, 4),
                     self.texel, int(self.inliers[q]))
 
-    @property
-    def quads(self) -> list[Quad]:
-        """Accepted quads, as objects."""
-        return [self.quad(q) for q in range(self.n_quads)]
-
 
 def find_planes(p: F64, colors: U8, texel: float, *, phi: float = 8.0, seed: int = 0,
                 n_candidates: int = 100, max_planes: int = 32, min_inliers: int = 32,
@@ -212,8 +207,7 @@ def find_planes(p: F64, colors: U8, texel: float, *, phi: float = 8.0, seed: int
                   float(phi), int(seed & 0x7FFFFFFFFFFF), int(n_candidates), int(max_planes), int(min_inliers),
                   int(max_failures), int(window))
     replaced, elem, corners, size, inliers, tex, tex_off = res
-    return PlaneResult(corners, size.astype(np.int64), inliers.astype(np.int64), tex, tex_off.astype(np.int64),
-                       float(texel), replaced, elem)
+    return PlaneResult(corners, size, inliers, tex, tex_off, float(texel), replaced, elem)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -514,12 +508,7 @@ def _pack_atlas(sizes: npt.NDArray[np.int64], tex: U8, tex_off: npt.NDArray[np.i
     for k in range(n):
         w, h = sizes[k, 0], sizes[k, 1]
         ox, oy = offsets[k, 0], offsets[k, 1]
-        t = tex_off[k]
-        for r in range(h):
-            for c in range(w):
-                for b in range(4):
-                    atlas[oy + r, ox + c, b] = tex[t]
-                    t += 1
+        atlas[oy:oy + h, ox:ox + w] = tex[tex_off[k]:tex_off[k + 1]].reshape(h, w, 4)
     return atlas, offsets
 
 
