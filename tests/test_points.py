@@ -15,6 +15,7 @@ from citylod.core.errors import EmptyInputError, GeoreferenceError, InputError
 from citylod.io.tiles3d import Tile, open_tileset
 from citylod.lod.points import build_points
 from test_points_cloud import ROOF_NORMAL, WALL_NORMAL, X0, Y0, make_cloud
+from test_tiles3d import _vertex_attribute_layout_errors
 
 DELFT = Path(__file__).resolve().parents[2] / "shared" / "data" / "delft"
 SMALL = {"max_chunk_points": 20_000, "max_leaf_points": 4_000, "segment_points": 30_000}
@@ -102,6 +103,9 @@ def test_every_point_in_exactly_one_leaf_with_attributes(built: tuple[Path, np.n
     doc = json.loads((out / "tileset.json").read_text())
     assert doc["extras"]["citylod"]["kind"] == "points"
     assert not out.with_name(out.name + ".partial").exists()
+    # Every content file keeps glTF's 4-byte alignment of vertex attributes (RGB8, uint16 intensity, ...).
+    for f in sorted((out / "tiles").rglob("*.glb")):
+        assert _vertex_attribute_layout_errors(f.read_bytes()) == [], f
 
 
 def test_node_content_inside_bounds_and_errors_shrink(built: tuple[Path, np.ndarray, Path]) -> None:

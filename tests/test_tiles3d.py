@@ -60,6 +60,52 @@ def test_glb_roundtrip_mesh_and_points() -> None:
     assert back.points.extra["object_id"].dtype == np.int32
 
 
+def _vertex_attribute_layout_errors(data: bytes) -> list[str]:
+    """glTF 2.0 §3.6.2.4 data alignment, checked from the file's own JSON: every vertex attribute element
+    starts on a 4-byte boundary of the buffer (accessor and bufferView offsets, effective stride), and the
+    view holds every element."""
+    jlen = struct.unpack_from("<I", data, 12)[0]
+    gltf = json.loads(data[20:20 + jlen])
+    sizes = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+    ncomp = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+    errors = []
+    for mesh in gltf["meshes"]:
+        for prim in mesh["primitives"]:
+            for name, index in prim["attributes"].items():
+                acc = gltf["accessors"][index]
+                bv = gltf["bufferViews"][acc["bufferView"]]
+                elem = sizes[acc["componentType"]] * ncomp[acc["type"]]
+                stride = bv.get("byteStride", elem)
+                start = bv.get("byteOffset", 0) + acc.get("byteOffset", 0)
+                if start % 4 or stride % 4 or stride < elem:
+                    errors.append(f"{name}: offset {start}, stride {stride}, element {elem} bytes")
+                if acc.get("byteOffset", 0) + stride * (acc["count"] - 1) + elem > bv["byteLength"]:
+                    errors.append(f"{name}: view too short")
+    return errors
+
+
+def test_vertex_attributes_are_4_byte_aligned() -> None:
+    """Point tiles carry 1-, 2- and 3-byte attributes (classification, intensity, RGB8), which glTF only
+    allows padded to 4-byte elements; they round-trip unchanged."""
+    rng = np.random.default_rng(3)
+    for n in (1, 7, 100):
+        pts = PointData(rng.uniform(-5, 5, (n, 3)).astype(np.float32),
+                        rgb=rng.integers(0, 255, (n, 3), dtype=np.uint8),
+                        intensity=rng.integers(0, 65535, n, dtype=np.uint16),
+                        classification=rng.integers(0, 20, n, dtype=np.uint8),
+                        return_number=rng.integers(1, 5, n, dtype=np.uint8),
+                        extra={"flag": rng.integers(0, 2, n).astype(np.uint8),
+                               "w": rng.integers(0, 999, n).astype(np.uint16)})
+        data = encode_glb(TileContent([_mesh(rng)], pts))
+        assert _vertex_attribute_layout_errors(data) == []
+        back = decode_glb(data, "x.glb").points
+        assert back is not None
+        for attr in ("positions", "rgb", "intensity", "classification", "return_number"):
+            np.testing.assert_array_equal(getattr(back, attr), getattr(pts, attr))
+        for name in ("flag", "w"):
+            np.testing.assert_array_equal(back.extra[name], pts.extra[name])
+
+
 def test_glb_is_y_up_on_disk() -> None:
     """3D Tiles clients turn glTF y-up into z-up: a z-up point (1, 2, 3) is stored as (1, 3, -2)."""
     mesh = MeshData(np.array([[1, 2, 3], [0, 0, 0], [1, 0, 0]], np.float32), np.array([[0, 1, 2]], np.uint32))

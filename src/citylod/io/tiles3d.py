@@ -126,13 +126,15 @@ class _GlbBuilder:
             "buffers": [], "bufferViews": [], "accessors": [], "meshes": [], "nodes": [], "scenes": [],
         }
 
-    def view(self, data: bytes | np.ndarray, target: int | None = None) -> int:
+    def view(self, data: bytes | np.ndarray, target: int | None = None, stride: int | None = None) -> int:
         raw = (np.frombuffer(data, np.uint8) if isinstance(data, bytes)
                else np.ascontiguousarray(data).reshape(-1).view(np.uint8))
         self.size += -self.size % 4
         bv: dict[str, Any] = {"buffer": 0, "byteOffset": self.size, "byteLength": int(raw.size)}
         if target is not None:
             bv["target"] = target
+        if stride is not None:
+            bv["byteStride"] = stride
         self.parts.append((self.size, raw))
         self.size += int(raw.size)
         self.gltf["bufferViews"].append(bv)
@@ -142,10 +144,20 @@ class _GlbBuilder:
                  minmax: bool = False) -> int:
         ctype = _COMPONENT_TYPE[array.dtype]
         arr = np.ascontiguousarray(array)
-        acc: dict[str, Any] = {
-            "bufferView": self.view(arr, target), "componentType": ctype,
-            "count": int(arr.shape[0]), "type": kind,
-        }
+        n = int(arr.shape[0])
+        size = arr.dtype.itemsize * (arr.size // n if n else 1)
+        if target == 34962 and size % 4:
+            # glTF 2.0 §3.6.2.4: every element of a vertex attribute starts on a 4-byte boundary (the
+            # validator's MESH_PRIMITIVE_ACCESSOR_UNALIGNED). RGB8, uint16 and uint8 attributes are written
+            # padded to a stride of 4 bytes instead of tightly packed.
+            stride = size + (-size % 4)
+            padded = np.empty((n, stride), np.uint8)
+            padded[:, :size] = arr.reshape(n, -1).view(np.uint8)
+            padded[:, size:] = 0
+            bv = self.view(padded, target, stride)
+        else:
+            bv = self.view(arr, target)
+        acc: dict[str, Any] = {"bufferView": bv, "componentType": ctype, "count": n, "type": kind}
         if normalized:
             acc["normalized"] = True
         if minmax and len(arr):
