@@ -49,7 +49,6 @@ interrupted build resumes without redoing either.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
 import math
 import os
@@ -674,67 +673,20 @@ def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str,
     (new ones appended), the faces (the unchanged ones first, in their order, then the fans) and the faces
     that were replaced.
     """
-    rc = (vij[:, 0].astype(np.int64), vij[:, 1].astype(np.int64))
-    along: dict[str, np.ndarray] = {}
-    for side, idx in extra.items():
-        ax, line, limit = _side(side, last_r, last_c)
-        fixed, pos_of = rc[ax], rc[1 - ax]
-        pos = np.unique(np.asarray(idx, np.int64))
-        pos = pos[(pos >= 0) & (pos <= limit) & ~np.isin(pos, pos_of[fixed == line])]
-        if len(pos):
-            along[side] = pos
-    if not along:
+    if not extra:
         return vij, faces, faces[:0]
-    f = faces.astype(np.int64)
-    hit = np.zeros(len(f), bool)
-    for k in range(3):
-        a, b = f[:, k], f[:, (k + 1) % 3]
-        for side, pts in along.items():
-            ax, line, _ = _side(side, last_r, last_c)
-            fixed, pos_of = rc[ax], rc[1 - ax]
-            on = np.flatnonzero((fixed[a] == line) & (fixed[b] == line))
-            pa, pb = pos_of[a[on]], pos_of[b[on]]
-            inside = (np.searchsorted(pts, np.maximum(pa, pb), "left")
-                      - np.searchsorted(pts, np.minimum(pa, pb), "right"))
-            hit[on[inside > 0]] = True
+    from citylod.lod.tin_kernels import border_fans
+
+    sides = [_side(sd, last_r, last_c) for sd in extra]
+    want = [np.asarray(v, np.int64).reshape(-1) for v in extra.values()]
+    added, faces_out, hit = border_fans(
+        np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
+        np.ascontiguousarray(faces, np.int64), np.array([sd[0] for sd in sides], np.int64),
+        np.array([sd[1] for sd in sides], np.int64), np.array([sd[2] for sd in sides], np.int64),
+        np.concatenate(want), np.cumsum([0] + [len(w) for w in want]).astype(np.int64), last_r, last_c)
     if not hit.any():
         return vij, faces, faces[:0]
-    n_old = len(vij)
-    added: list[tuple[int, int]] = []
-    index: dict[tuple[int, int], int] = {}
-
-    def at(i: int) -> tuple[int, int]:
-        return (int(rc[0][i]), int(rc[1][i])) if i < n_old else added[i - n_old]
-
-    def vid(p: tuple[int, int]) -> int:
-        if p not in index:
-            index[p] = n_old + len(added)
-            added.append(p)
-        return index[p]
-
-    def between(a: int, b: int) -> list[int]:
-        pa, pb = at(a), at(b)
-        for side, pts in along.items():
-            ax, line, _ = _side(side, last_r, last_c)
-            if pa[ax] == pb[ax] == line:
-                u, w = pa[1 - ax], pb[1 - ax]
-                sel = pts[(pts > min(u, w)) & (pts < max(u, w))].tolist()
-                sel = sel if u < w else sel[::-1]
-                return [vid((line, p) if ax == 0 else (p, line)) for p in sel]
-        return []
-
-    def split(tri: tuple[int, int, int]) -> list[tuple[int, int, int]]:
-        for k in range(3):
-            a, b, o = tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3]
-            mids = between(a, b)
-            if mids:
-                chain = [a, *mids, b]
-                return [t for u, w in itertools.pairwise(chain) for t in split((u, w, o))]
-        return [tri]
-
-    new_faces = [t for row in f[hit].tolist() for t in split((row[0], row[1], row[2]))]
-    faces_out = np.concatenate([f[~hit], np.asarray(new_faces, np.int64).reshape(-1, 3)]).astype(faces.dtype)
-    return np.concatenate([vij, np.asarray(added, vij.dtype).reshape(-1, 2)]), faces_out, faces[hit]
+    return np.concatenate([vij, added.astype(vij.dtype)]), faces_out.astype(faces.dtype), faces[hit]
 
 
 # Stage 1's output per tile: one JSON header line (array shapes and dtypes, the stage-1 result), then the

@@ -1486,3 +1486,148 @@ def cell_coverage(
             for j in range(max(int(px.min()), 0), min(int(np.ceil(px.max())), shape_cells[1])):
                 cov[i, j] += _clip_area(px, py, 3, float(j), float(i))
     return cov
+
+
+# --------------------------------------------------------------------------------------------------
+# stage 2 of a DSM tile: neighbours' border samples inserted as fans (see dsm._insert_border_vertices)
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, nogil=True)
+def _mids(pos: np.ndarray, u: int, w: int) -> tuple[int, int]:
+    """The slice [i, j) of sorted ``pos`` strictly between ``u`` and ``w``."""
+    lo = min(u, w)
+    hi = max(u, w)
+    return np.searchsorted(pos, lo, side="right"), np.searchsorted(pos, hi, side="left")
+
+
+@njit(cache=True, nogil=True)
+def border_fans(vr: np.ndarray, vc: np.ndarray, faces: np.ndarray, side_ax: np.ndarray, side_line: np.ndarray,
+                side_limit: np.ndarray, want: np.ndarray, want_off: np.ndarray, last_r: int, last_c: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`citylod.lod.dsm._insert_border_vertices` compiled (the Python version was a third of a leaf's
+    stage 2). Side ``s`` is the grid line ``side_line[s]`` of axis ``side_ax[s]`` (0: a row, 1: a column),
+    positions 0..``side_limit[s]`` along it; the samples wanted on it are ``want[want_off[s]:want_off[s + 1]]``
+    (any order, repeats and positions off the side allowed: those and the ones already vertices on the
+    line are dropped).
+
+    Returns the added vertices (row, col) in order of first use, the faces (unchanged ones first, in their
+    order, then each replaced face's fan in order), and the replaced-face mask. A face is replaced when one
+    of its edges lies on a side and passes over one of its samples; it is split at the samples of the first
+    side (in the given order) its edge lies on, and each piece again, depth first, as the Python version
+    recursed.
+    """
+    m = faces.shape[0]
+    nsides = side_ax.shape[0]
+    n_old = vr.shape[0]
+    # The wanted samples of each side, sorted and distinct, without those already vertices on its line.
+    pos = np.empty(want.shape[0], np.int64)
+    pos_off = np.zeros(nsides + 1, np.int64)
+    for s in range(nsides):
+        limit = side_limit[s]
+        mark = np.zeros(limit + 1, np.bool_)
+        for i in range(want_off[s], want_off[s + 1]):
+            if 0 <= want[i] <= limit:
+                mark[want[i]] = True
+        for v in range(n_old):
+            if side_ax[s] == 0 and vr[v] == side_line[s] and 0 <= vc[v] <= limit:
+                mark[vc[v]] = False
+            elif side_ax[s] == 1 and vc[v] == side_line[s] and 0 <= vr[v] <= limit:
+                mark[vr[v]] = False
+        n = pos_off[s]
+        for p in range(limit + 1):
+            if mark[p]:
+                pos[n] = p
+                n += 1
+        pos_off[s + 1] = n
+    pos = pos[:pos_off[nsides]]
+    hit = np.zeros(m, np.bool_)
+    n_hit = 0
+    for t in range(m):
+        for k in range(3):
+            a = faces[t, k]
+            b = faces[t, (k + 1) % 3]
+            for s in range(nsides):
+                if side_ax[s] == 0:
+                    on = vr[a] == side_line[s] and vr[b] == side_line[s]
+                    u, w = vc[a], vc[b]
+                else:
+                    on = vc[a] == side_line[s] and vc[b] == side_line[s]
+                    u, w = vr[a], vr[b]
+                if on:
+                    i, j = _mids(pos[pos_off[s]:pos_off[s + 1]], u, w)
+                    if j > i:
+                        hit[t] = True
+        n_hit += hit[t]
+    width = last_c + 1
+    index = np.full((last_r + 1) * width, -1, np.int64)
+    added = np.empty((max(pos.shape[0], 1), 2), np.int64)
+    n_add = 0
+    out = np.empty((m - n_hit + 8 * n_hit + 4 * pos.shape[0], 3), np.int64)
+    n_out = 0
+    for t in range(m):
+        if not hit[t]:
+            out[n_out, 0], out[n_out, 1], out[n_out, 2] = faces[t, 0], faces[t, 1], faces[t, 2]
+            n_out += 1
+    stack = np.empty((3 * pos.shape[0] + 8, 3), np.int64)
+    chain = np.empty(pos.shape[0] + 2, np.int64)
+    for t0 in range(m):
+        if not hit[t0]:
+            continue
+        sp = 0
+        stack[0, 0], stack[0, 1], stack[0, 2] = faces[t0, 0], faces[t0, 1], faces[t0, 2]
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            t_a, t_b, t_c = stack[sp, 0], stack[sp, 1], stack[sp, 2]
+            split = False
+            for k in range(3):
+                if k == 0:
+                    a, b, o = t_a, t_b, t_c
+                elif k == 1:
+                    a, b, o = t_b, t_c, t_a
+                else:
+                    a, b, o = t_c, t_a, t_b
+                ra = vr[a] if a < n_old else added[a - n_old, 0]
+                ca = vc[a] if a < n_old else added[a - n_old, 1]
+                rb = vr[b] if b < n_old else added[b - n_old, 0]
+                cb = vc[b] if b < n_old else added[b - n_old, 1]
+                nm = 0
+                for s in range(nsides):
+                    line = side_line[s]
+                    if pos_off[s + 1] == pos_off[s]:
+                        continue  # no sample left on this side: as if it had not been asked for
+                    if side_ax[s] == 0:
+                        if not (ra == line and rb == line):
+                            continue
+                        u, w = ca, cb
+                    else:
+                        if not (ca == line and cb == line):
+                            continue
+                        u, w = ra, rb
+                    sub = pos[pos_off[s]:pos_off[s + 1]]
+                    i, j = _mids(sub, u, w)
+                    chain[0] = a
+                    for q in range(j - i):
+                        p = sub[i + q] if u < w else sub[j - 1 - q]
+                        r = line if side_ax[s] == 0 else p
+                        c = p if side_ax[s] == 0 else line
+                        key = r * width + c
+                        if index[key] < 0:
+                            index[key] = n_old + n_add
+                            added[n_add, 0], added[n_add, 1] = r, c
+                            n_add += 1
+                        chain[1 + q] = index[key]
+                    nm = j - i
+                    break  # the first side the edge lies on decides, as in the Python version
+                if nm > 0:
+                    chain[nm + 1] = b
+                    for q in range(nm, -1, -1):  # pushed in reverse: popped (and emitted) in chain order
+                        stack[sp, 0], stack[sp, 1], stack[sp, 2] = chain[q], chain[q + 1], o
+                        sp += 1
+                    split = True
+                    break
+            if not split:
+                out[n_out, 0], out[n_out, 1], out[n_out, 2] = t_a, t_b, t_c
+                n_out += 1
+    return added[:n_add].copy(), out[:n_out].copy(), hit
