@@ -1498,7 +1498,7 @@ def _mids(pos: np.ndarray, u: int, w: int) -> tuple[int, int]:
     """The slice [i, j) of sorted ``pos`` strictly between ``u`` and ``w``."""
     lo = min(u, w)
     hi = max(u, w)
-    return np.searchsorted(pos, lo, side="right"), np.searchsorted(pos, hi, side="left")
+    return int(np.searchsorted(pos, lo, side="right")), int(np.searchsorted(pos, hi, side="left"))
 
 
 @njit(cache=True, nogil=True)
