@@ -13,6 +13,8 @@ growing downwards is counter-clockwise seen from above in (x east, y north).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numba import njit
 
@@ -21,6 +23,8 @@ from numba import njit
 # atomic operation behind a call: with up to a dozen arrays per call and several calls per inserted vertex,
 # that was 16 % of the leaf kernels' time (perf), 4 % after. Inlining the helpers instead doubled the cold
 # compile (30 -> 58 s). The caller holds the references for the duration of the call.
+
+_NO_NRT: dict[str, Any] = {"_nrt": False}  # (a keyword numba's type stubs do not list)
 
 # Indices into the int64 counter array ``cnt`` shared by the kernels (numba has no mutable scalars).
 _NTRI, _NPEND, _NHEAP, _NVERT, _ERRORS_ON, _STUCK, _NBORDER_ADDED = 0, 1, 2, 3, 4, 5, 6
@@ -42,7 +46,7 @@ def _det3(dx: int, dy: int, ap: int, ex: int, ey: int, bp: int, fx: int, fy: int
     return dx * (ey * cp - bp * fy) - dy * (ex * cp - bp * fx) + ap * (ex * fy - ey * fx)
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _in_circle(ax: int, ay: int, bx: int, by: int, cx: int, cy: int, px: int, py: int) -> bool:
     """Whether p lies inside the circumcircle of (a, b, c) (``_orient(a, b, c) > 0``), ties perturbed.
 
@@ -75,7 +79,7 @@ def _in_circle(ax: int, ay: int, bx: int, by: int, cx: int, cy: int, px: int, py
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _heap_up(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int) -> None:
     t = heap[i]
     e = terr[t]
@@ -91,7 +95,7 @@ def _heap_up(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int) -> No
     hpos[t] = i
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _heap_down(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int, n: int) -> None:
     t = heap[i]
     e = terr[t]
@@ -111,7 +115,7 @@ def _heap_down(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int, n: 
     hpos[t] = i
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _heap_push(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.ndarray, t: int) -> None:
     i = cnt[_NHEAP]
     cnt[_NHEAP] = i + 1
@@ -120,7 +124,7 @@ def _heap_push(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.nda
     _heap_up(heap, hpos, terr, i)
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _heap_remove(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.ndarray, t: int) -> None:
     i = hpos[t]
     hpos[t] = -1
@@ -146,7 +150,7 @@ def _is_border(s: int, H: int, W: int) -> bool:
     return r == 0 or c == 0 or r == H - 1 or c == W - 1
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _pick(
     ss: np.ndarray,
     n: int,
@@ -188,7 +192,7 @@ def _pick(
     return best
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _edge_error(
     h: np.ndarray, px: int, py: int, qx: int, qy: int, info: np.ndarray, o: int, stop: float
 ) -> float:
@@ -333,7 +337,7 @@ def _row_span(y: int, xmin: int, xmax: int, a0: int, b0: int, c0: int, a1: int, 
     return lo, hi
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _triangle_error(
     h: np.ndarray,
     cellvalid: np.ndarray,
@@ -468,7 +472,7 @@ def _triangle_error(
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _add_triangle(
     tri: np.ndarray,
     half: np.ndarray,
@@ -511,7 +515,7 @@ def _add_triangle(
     return e
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _legalize(
     tri: np.ndarray,
     half: np.ndarray,
@@ -560,7 +564,7 @@ def _legalize(
         n += 2
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _locate(
     tri: np.ndarray,
     half: np.ndarray,
@@ -607,7 +611,7 @@ def _locate(
     return -1
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _insert(
     tri: np.ndarray,
     half: np.ndarray,
@@ -658,7 +662,7 @@ def _insert(
     return t0 // 3
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _split_edge(
     tri: np.ndarray,
     half: np.ndarray,
@@ -716,7 +720,7 @@ def _grown(a: np.ndarray, n: int, fill: int) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, **_NO_NRT)
 def _flush(
     h: np.ndarray,
     cellvalid: np.ndarray,
