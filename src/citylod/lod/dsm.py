@@ -67,6 +67,7 @@ from citylod.core.fileio import publish_dir
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod.certify import certify, edge_table, grid_error_lower_bound
+from citylod.lod.octree import bounds as xyz_bounds
 
 # Coarse levels may need several passes of "force the vertices of bad cells"; after this many the
 # certified error is accepted as it is (and written as the tile's bound).
@@ -291,7 +292,8 @@ def _place(info: RasterInfo, to_metric: pyproj.Transformer | None, rpos: np.ndar
     if to_metric is not None:
         x, y = to_metric.transform(x, y)
     xyz = np.column_stack([x, y, vz])
-    center = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
+    lo, hi = xyz_bounds(xyz) if len(xyz) else (xyz.min(axis=0), xyz.max(axis=0))
+    center = 0.5 * (lo + hi)
     local = (xyz - center).astype(np.float32)
     back = local.astype(np.float64) + center
     q_xy = float(np.max(np.hypot(back[:, 0] - xyz[:, 0], back[:, 1] - xyz[:, 1]), initial=0.0))
@@ -581,10 +583,11 @@ def finish_tile(job: DsmJob) -> TileResult:
             uv_v = np.column_stack([u, v]).astype(np.float32)
             uv = np.concatenate([uv_v, uv_v[skirt_src]])
     mesh = MeshData(positions, faces_all.astype(np.uint32), skirt=skirt, uv=uv, texture=texture, name="surface")
-    write_content(job.out_dir, key, TileContent([mesh]))
+    # Not atomic (no temporary name and rename): the tile counts as finished only through its journal record,
+    # written after this returns, so a glb torn by an interruption is rewritten when the build resumes.
+    write_content(job.out_dir, key, TileContent([mesh]), atomic=False)
     surf = local.astype(np.float64) + center
-    lo = surf.min(axis=0)
-    hi = surf.max(axis=0)
+    lo, hi = xyz_bounds(surf)
     lo[2] -= skirt_depth  # the skirt hangs below the surface; bounding volumes must hold it
     res.center, res.lo, res.hi = center.tolist(), lo.tolist(), hi.tolist()
     res.triangles = len(faces)
