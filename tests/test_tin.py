@@ -289,6 +289,31 @@ def test_corners_are_vertices_and_borders_follow_the_1d_simplification() -> None
         assert {to_ij(k) for k in tin.simplify_polyline(line, e).tolist()} <= have
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_forced_samples_are_forced_vertices_in_z_order(seed: int) -> None:
+    """The compiled preparation inserts exactly `forced_vertices`' samples and ``must_include``, ordered by
+    Z-order keys computed here bit by bit."""
+    from citylod.lod import tin_kernels
+
+    rng = np.random.default_rng(seed)
+    h = city((29 + seed, 41), seed=seed)
+    valid = rng.random(h.shape) > 0.1 if seed % 2 else np.ones(h.shape, bool)
+    e = 0.5
+    mi = np.stack([rng.integers(0, h.shape[0], 6), rng.integers(0, h.shape[1], 6)], axis=1)
+    fx, fy = tin_kernels.forced_in_morton_order(np.where(valid, h, 0.0), valid, tin.cell_validity(valid),
+                                                e * tin.BORDER_ERROR_FRACTION, mi[:, 0].copy(), mi[:, 1].copy())
+    want = tin.forced_vertices(h, valid, e)
+    want[mi[:, 0], mi[:, 1]] = True
+    assert {(int(r), int(c)) for r, c in zip(fy, fx, strict=True)} == {tuple(p) for p in np.argwhere(want).tolist()}
+    assert len(fx) == int(want.sum())
+
+    def z_key(r: int, c: int) -> int:
+        return sum((((c >> b) & 1) << (2 * b)) | (((r >> b) & 1) << (2 * b + 1)) for b in range(16))
+
+    keys = [z_key(int(r), int(c)) for r, c in zip(fy, fx, strict=True)]
+    assert keys == sorted(keys)
+
+
 def _border(vij: np.ndarray, col: int) -> set[int]:
     return set(vij[vij[:, 1] == col, 0].tolist())
 

@@ -196,15 +196,6 @@ def forced_vertices(heights: npt.ArrayLike, valid: npt.ArrayLike | None, max_err
     return out
 
 
-def _morton(r: I64, c: I64) -> I64:
-    """Z-order keys, so consecutive forced insertions are close and point location walks are short."""
-    key = np.zeros(r.shape, dtype=np.int64)
-    for b in range(16):
-        key |= ((c >> b) & 1) << (2 * b)
-        key |= ((r >> b) & 1) << (2 * b + 1)
-    return key
-
-
 def build(
     heights: npt.ArrayLike,
     valid: npt.ArrayLike | None,
@@ -234,33 +225,21 @@ def build(
     if not cv.any():
         return TinResult(np.zeros((0, 2), dtype=np.int32), empty_faces, 0, 0)
 
-    forced = forced_vertices(h, v, e)
     if must_include is not None:
         mi = np.asarray(must_include, dtype=np.int64).reshape(-1, 2)
         if mi.size and (mi.min() < 0 or (mi[:, 0] >= H).any() or (mi[:, 1] >= W).any()):
             raise ValueError("must_include holds indices outside the grid")
-        forced[mi[:, 0], mi[:, 1]] = True
-    fr, fc = np.nonzero(forced)
-    order = np.argsort(_morton(fr, fc), kind="stable")
+    else:
+        mi = np.zeros((0, 2), dtype=np.int64)
     hz = np.where(v, h, 0.0)
-    vx, vy, tris, stuck, border_added = _k.build_tin(
-        hz,
-        np.ascontiguousarray(cv),
-        fc[order].astype(np.int64),
-        fr[order].astype(np.int64),
-        e,
-        decimate=decimate,
-    )
-    # keep the triangles inside R (centroid cell valid; see the module docstring for why that suffices)
-    ci = np.minimum((vy[tris].sum(axis=1)) // 3, H - 2)
-    cj = np.minimum((vx[tris].sum(axis=1)) // 3, W - 2)
-    tris = tris[cv[ci, cj]]
-    # the vertices in some face, in index order, and the faces renumbered (what np.unique gives, in O(n))
-    used = np.zeros(len(vx), dtype=bool)
-    used[tris.reshape(-1)] = True
-    remap = np.cumsum(used, dtype=np.int32) - 1
-    vertices = np.stack([vy[used], vx[used]], axis=1).astype(np.int32)
-    return TinResult(vertices, remap[tris].astype(np.int32), border_added, stuck)
+    # forced_vertices' samples and must_include, in Z order (compiled: the same samples, in one pass)
+    fx, fy = _k.forced_in_morton_order(hz, v, cv, e * BORDER_ERROR_FRACTION, np.ascontiguousarray(mi[:, 0]),
+                                       np.ascontiguousarray(mi[:, 1]))
+    vx, vy, tris, stuck, border_added = _k.build_tin(hz, np.ascontiguousarray(cv), fx, fy, e, decimate=decimate)
+    # keep the triangles inside R (centroid cell valid; see the module docstring for why that suffices),
+    # and the vertices in some face, in index order, the faces renumbered
+    vertices, faces = _k.live_mesh(vx, vy, tris, cv)
+    return TinResult(vertices, faces, border_added, stuck)
 
 
 def triangulate(

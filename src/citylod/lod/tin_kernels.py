@@ -1641,3 +1641,118 @@ def border_fans(vr: np.ndarray, vc: np.ndarray, faces: np.ndarray, side_ax: np.n
                 out[n_out, 0], out[n_out, 1], out[n_out, 2] = t_a, t_b, t_c
                 n_out += 1
     return added[:n_add].copy(), out[:n_out].copy(), hit
+
+
+# --------------------------------------------------------------------------------------------------
+# `tin.build`'s preparation and clean-up, compiled (numpy's dozen small passes cost a millisecond a tile)
+# --------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, nogil=True)
+def forced_in_morton_order(hz: np.ndarray, valid: np.ndarray, cellvalid: np.ndarray, border_error: float,
+                           extra_r: np.ndarray, extra_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples `tin.forced_vertices` marks (grid of at least 2 × 2), plus ``(extra_r, extra_c)``, as
+    (columns, rows) in Z order (`tin._morton`), so consecutive insertions are close.
+
+    ``hz`` are the heights with no-data as 0, ``cellvalid`` `tin.cell_validity` of ``valid``, and
+    ``border_error`` the bound the borders are simplified to.
+    """
+    H, W = hz.shape
+    out = np.zeros((H, W), np.bool_)
+    out[0, 0] = out[0, W - 1] = out[H - 1, 0] = out[H - 1, W - 1] = True
+    for side in range(4):
+        if side == 0:
+            z, v = hz[0, :].copy(), valid[0, :].copy()
+        elif side == 1:
+            z, v = hz[H - 1, :].copy(), valid[H - 1, :].copy()
+        elif side == 2:
+            z, v = hz[:, 0].copy(), valid[:, 0].copy()
+        else:
+            z, v = hz[:, W - 1].copy(), valid[:, W - 1].copy()
+        keep = simplify_runs(z, v, border_error)
+        for k in range(keep.size):
+            if keep[k]:
+                if side == 0:
+                    out[0, k] = True
+                elif side == 1:
+                    out[H - 1, k] = True
+                elif side == 2:
+                    out[k, 0] = True
+                else:
+                    out[k, W - 1] = True
+    # a sample is on the boundary of the valid region iff some but not all of its in-grid cells are valid
+    for i in range(H):
+        for j in range(W):
+            n_cells = 0
+            n_valid = 0
+            for ci in range(i - 1, i + 1):
+                for cj in range(j - 1, j + 1):
+                    if 0 <= ci < H - 1 and 0 <= cj < W - 1:
+                        n_cells += 1
+                        n_valid += cellvalid[ci, cj]
+            if 0 < n_valid < n_cells:
+                out[i, j] = True
+    for t in range(extra_r.size):
+        out[extra_r[t], extra_c[t]] = True
+    n = 0
+    for i in range(H):
+        for j in range(W):
+            n += out[i, j]
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    keys = np.zeros(n, np.int64)
+    n = 0
+    for i in range(H):
+        for j in range(W):
+            if out[i, j]:
+                rows[n] = i
+                cols[n] = j
+                key = 0
+                for b in range(16):
+                    key |= ((j >> b) & 1) << (2 * b)
+                    key |= ((i >> b) & 1) << (2 * b + 1)
+                keys[n] = key
+                n += 1
+    order = np.argsort(keys, kind="mergesort")
+    return cols[order], rows[order]
+
+
+@njit(cache=True, nogil=True)
+def live_mesh(vx: np.ndarray, vy: np.ndarray, tris: np.ndarray, cellvalid: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles of ``build_tin`` inside the valid region (centroid cell valid; see `tin`), and the
+    vertices they use, in index order: (V, 2) int32 (row, col) and (F, 3) int32 renumbered faces."""
+    H = cellvalid.shape[0] + 1
+    W = cellvalid.shape[1] + 1
+    nt = tris.shape[0]
+    keep = np.zeros(nt, np.bool_)
+    used = np.zeros(vx.size, np.bool_)
+    nk = 0
+    for t in range(nt):
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        ci = min((vy[a] + vy[b] + vy[c]) // 3, H - 2)
+        cj = min((vx[a] + vx[b] + vx[c]) // 3, W - 2)
+        if cellvalid[ci, cj]:
+            keep[t] = True
+            used[a] = used[b] = used[c] = True
+            nk += 1
+    remap = np.full(vx.size, -1, np.int32)
+    n = 0
+    for v in range(vx.size):
+        if used[v]:
+            remap[v] = n
+            n += 1
+    vertices = np.empty((n, 2), np.int32)
+    for v in range(vx.size):
+        if used[v]:
+            vertices[remap[v], 0] = vy[v]
+            vertices[remap[v], 1] = vx[v]
+    faces = np.empty((nk, 3), np.int32)
+    k = 0
+    for t in range(nt):
+        if keep[t]:
+            faces[k, 0] = remap[tris[t, 0]]
+            faces[k, 1] = remap[tris[t, 1]]
+            faces[k, 2] = remap[tris[t, 2]]
+            k += 1
+    return vertices, faces
