@@ -66,7 +66,7 @@ from citylod.core.errors import InputError
 from citylod.core.fileio import publish_dir
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
-from citylod.lod.certify import certify, edge_table, grid_error_lower_bound
+from citylod.lod.certify import certify, grid_error_lower_bound, skirt_strip
 from citylod.lod.octree import bounds as xyz_bounds
 
 # Coarse levels may need several passes of "force the vertices of bad cells"; after this many the
@@ -735,30 +735,11 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     Returns positions, faces, the skirt mask per face, and for each appended vertex the surface vertex it
     hangs from (so attributes such as texture coordinates can be copied).
     """
-    e, _, counts = edge_table(faces, len(local))
-    bd = e[counts == 1]
-    r, c = vij[:, 0], vij[:, 1]
-    a, b = bd[:, 0], bd[:, 1]
-    on_border = np.zeros(len(bd), bool)
-    for side in sides:
-        ax, line, _ = _side(side, last_r, last_c)
-        fixed = (r, c)[ax]
-        on_border |= (fixed[a] == line) & (fixed[b] == line)
-    bd = bd[on_border]
-    sources = np.unique(bd)
-    dup = np.full(len(local), -1, np.int64)
-    dup[sources] = len(local) + np.arange(len(sources))
-    a, b = bd[:, 0], bd[:, 1]
-    a2, b2 = dup[a], dup[b]
-    # The surface runs a→b counter-clockwise seen from above, so outside is to the right: these two
-    # triangles are counter-clockwise seen from outside.
-    nf = np.concatenate([np.column_stack([b, a, a2]), np.column_stack([b, a2, b2])])
-    skirt_pos = local[sources].copy()
-    skirt_pos[:, 2] -= np.float32(depth)
-    positions = np.concatenate([local, skirt_pos]).astype(np.float32)
-    faces_all = np.concatenate([faces.astype(np.int64), nf])
-    skirt = np.concatenate([np.zeros(len(faces), bool), np.ones(len(nf), bool)])
-    return positions, faces_all, skirt, sources
+    sd = [_side(side, last_r, last_c) for side in sides]
+    return skirt_strip(np.ascontiguousarray(local, np.float32), np.ascontiguousarray(faces, np.int64),
+                       np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
+                       np.array([a for a, _, _ in sd], np.int64), np.array([line for _, line, _ in sd], np.int64),
+                       float(depth))
 
 
 def _as_doc(res: TileResult) -> dict[str, Any]:
