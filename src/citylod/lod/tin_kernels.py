@@ -1129,7 +1129,6 @@ def _decimate(
 
     Dead triangles get ``tri[3t] = -1``; their slots are reused by the hole's triangles.
     """
-    H, W = h.shape
     vedge = np.full(nv, -1, dtype=np.int64)
     for e in range(3 * ntri):
         vedge[tri[e]] = e
@@ -1142,12 +1141,25 @@ def _decimate(
     tstat = np.zeros((D, D, D), dtype=np.int64)
     dstat = np.zeros((D, D), dtype=np.int64)
     feas = np.zeros((D, D), dtype=np.int64)
-    gen = 0
     info = np.empty(4, dtype=np.int64)
     choice = np.zeros((D, D), dtype=np.int64)
     cand = np.empty((D * D * D // 6 + D, 3), dtype=np.int64)
     cerr = np.empty(D * D * D // 6 + D, dtype=np.float64)
     stk = np.empty(4 * D, dtype=np.int64)
+    return _decimate_run(h, tri, half, vx, vy, nv, nfixed, max_error, vedge, ring, ring_e, outer, lside, tstat,
+                         dstat, feas, info, choice, cand, cerr, stk)
+
+
+@njit(cache=True, nogil=True, **_NO_NRT)
+def _decimate_run(h: np.ndarray, tri: np.ndarray, half: np.ndarray, vx: np.ndarray, vy: np.ndarray, nv: int,
+                  nfixed: int, max_error: float, vedge: np.ndarray, ring: np.ndarray, ring_e: np.ndarray,
+                  outer: np.ndarray, lside: np.ndarray, tstat: np.ndarray, dstat: np.ndarray, feas: np.ndarray,
+                  info: np.ndarray, choice: np.ndarray, cand: np.ndarray, cerr: np.ndarray, stk: np.ndarray) -> int:
+    """`_decimate`'s loop over the vertices, on the work arrays it allocated: it allocates none, so it runs
+    without numba's reference counting (the inlined hole helpers pass arrays around at every step)."""
+    H, W = h.shape
+    D = _MAX_DEGREE
+    gen = 0
     removed = 0
     for v in range(nv - 1, nfixed - 1, -1):
         x = vx[v]
