@@ -289,10 +289,27 @@ def test_corners_are_vertices_and_borders_follow_the_1d_simplification() -> None
         assert {to_ij(k) for k in tin.simplify_polyline(line, e).tolist()} <= have
 
 
+def _forced_reference(h: np.ndarray, valid: np.ndarray, e: float) -> np.ndarray:
+    """The forced-sample rule written independently with numpy: corners, each border's valid runs
+    simplified (1D, to the border fraction of the bound), and every sample on the valid region's boundary
+    (some but not all of its in-grid cells valid)."""
+    H, W = h.shape
+    eb = e * tin.BORDER_ERROR_FRACTION
+    out = np.zeros((H, W), dtype=bool)
+    out[[0, 0, -1, -1], [0, -1, 0, -1]] = True
+    for line in (np.s_[0, :], np.s_[-1, :], np.s_[:, 0], np.s_[:, -1]):
+        out[line][tin.simplify_polyline(h[line], eb, valid=valid[line])] = True
+    cv = np.pad(tin.cell_validity(valid), 1).astype(np.int8)
+    n_valid = cv[:-1, :-1] + cv[1:, :-1] + cv[:-1, 1:] + cv[1:, 1:]
+    inside = np.pad(np.ones((H - 1, W - 1), dtype=np.int8), 1)
+    n_cells = inside[:-1, :-1] + inside[1:, :-1] + inside[:-1, 1:] + inside[1:, 1:]
+    return out | ((n_valid > 0) & (n_valid < n_cells))
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_forced_samples_are_forced_vertices_in_z_order(seed: int) -> None:
-    """The compiled preparation inserts exactly `forced_vertices`' samples and ``must_include``, ordered by
-    Z-order keys computed here bit by bit."""
+    """The compiled preparation inserts exactly the forced samples (checked against the rule written
+    independently above) and ``must_include``, ordered by Z-order keys computed here bit by bit."""
     from citylod.lod import tin_kernels
 
     rng = np.random.default_rng(seed)
@@ -300,9 +317,11 @@ def test_forced_samples_are_forced_vertices_in_z_order(seed: int) -> None:
     valid = rng.random(h.shape) > 0.1 if seed % 2 else np.ones(h.shape, bool)
     e = 0.5
     mi = np.stack([rng.integers(0, h.shape[0], 6), rng.integers(0, h.shape[1], 6)], axis=1)
-    fx, fy = tin_kernels.forced_in_morton_order(np.where(valid, h, 0.0), valid, tin.cell_validity(valid),
-                                                e * tin.BORDER_ERROR_FRACTION, mi[:, 0].copy(), mi[:, 1].copy())
-    want = tin.forced_vertices(h, valid, e)
+    assert np.array_equal(tin.forced_vertices(h, valid, e), _forced_reference(h, valid, e))
+    mask = tin.forced_vertices(h, valid, e)
+    mask[mi[:, 0], mi[:, 1]] = True
+    fx, fy = tin_kernels.z_ordered(mask)
+    want = _forced_reference(h, valid, e)
     want[mi[:, 0], mi[:, 1]] = True
     assert {(int(r), int(c)) for r, c in zip(fy, fx, strict=True)} == {tuple(p) for p in np.argwhere(want).tolist()}
     assert len(fx) == int(want.sum())

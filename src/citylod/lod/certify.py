@@ -20,22 +20,21 @@ raster or tile size. Written by hand because no library computes the exact overl
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from numba import njit
 
 from citylod.lod.octree import counting_sort
+from citylod.lod.tin_kernels import NO_NRT
 
 _EPS = 1e-9
 
-# The per-crossing helpers below take arrays and allocate none: compiled with ``_nrt=False`` so that a call
-# does not incref and decref each array argument (see tin_kernels).
-_NO_NRT: dict[str, Any] = {"_nrt": False}
+# The per-crossing helpers below take arrays and allocate none: compiled with ``_nrt=False`` (NO_NRT) so that
+# a call does not incref and decref each array argument (see tin_kernels).
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _f_row(F, V, r, x):  # F along the row line r at fractional column x (global coords already local)
     j = int(math.floor(x))
     if j < 0 or j + 1 >= F.shape[1] or r < 0 or r >= F.shape[0]:
@@ -46,7 +45,7 @@ def _f_row(F, V, r, x):  # F along the row line r at fractional column x (global
     return F[r, j] * (1.0 - f) + F[r, j + 1] * f
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _f_col(F, V, y, c):
     i = int(math.floor(y))
     if i < 0 or i + 1 >= F.shape[0] or c < 0 or c >= F.shape[1]:
@@ -57,7 +56,7 @@ def _f_col(F, V, y, c):
     return F[i, c] * (1.0 - f) + F[i + 1, c] * f
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _f_diag(F, V, y, k):  # on the diagonal line row - col = k
     i = int(math.floor(y))
     j = i - k
@@ -69,7 +68,7 @@ def _f_diag(F, V, y, k):  # on the diagonal line row - col = k
     return F[i, j] * (1.0 - f) + F[i + 1, j + 1] * f
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _record(err, y, x, cell_err, tr0, tc0, stride, best):
     # attribute an error to the level cell containing (y, x) (global full-resolution coordinates)
     ci = int(math.floor((y - tr0) / stride))
@@ -84,7 +83,7 @@ def _record(err, y, x, cell_err, tr0, tc0, stride, best):
         best[2] = x
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _cross(err, y, x, cell_err, tr0, tc0, stride, best, track):
     if track:
         _record(err, y, x, cell_err, tr0, tc0, stride, best)

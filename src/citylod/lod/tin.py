@@ -175,25 +175,10 @@ def forced_vertices(heights: npt.ArrayLike, valid: npt.ArrayLike | None, max_err
     valid region. On a border with valid cells along it, the border part depends only
     on that border's samples.
     """
-    h = np.asarray(heights, dtype=np.float64)
+    h = np.ascontiguousarray(heights, dtype=np.float64)
     v = _valid_mask(h, valid)
-    H, W = h.shape
     e = _check_error(max_error) * BORDER_ERROR_FRACTION
-    out = np.zeros((H, W), dtype=bool)
-    out[[0, 0, -1, -1], [0, -1, 0, -1]] = True
-    hz = np.where(v, h, 0.0)
-    out[0, :] |= _k.simplify_runs(hz[0, :].copy(), v[0, :].copy(), e)
-    out[-1, :] |= _k.simplify_runs(hz[-1, :].copy(), v[-1, :].copy(), e)
-    out[:, 0] |= _k.simplify_runs(hz[:, 0].copy(), v[:, 0].copy(), e)
-    out[:, -1] |= _k.simplify_runs(hz[:, -1].copy(), v[:, -1].copy(), e)
-    if H >= 2 and W >= 2:
-        # A sample is on the boundary of R iff some but not all of its in-grid cells are valid.
-        cv = np.pad(cell_validity(v), 1).astype(np.int8)
-        n_valid = cv[:-1, :-1] + cv[1:, :-1] + cv[:-1, 1:] + cv[1:, 1:]
-        inside = np.pad(np.ones((H - 1, W - 1), dtype=np.int8), 1)
-        n_cells = inside[:-1, :-1] + inside[1:, :-1] + inside[:-1, 1:] + inside[1:, 1:]
-        out |= (n_valid > 0) & (n_valid < n_cells)
-    return out
+    return _k.forced_mask(np.where(v, h, 0.0), v, cell_validity(v), e)
 
 
 def build(
@@ -225,16 +210,14 @@ def build(
     if not cv.any():
         return TinResult(np.zeros((0, 2), dtype=np.int32), empty_faces, 0, 0)
 
+    hz = np.where(v, h, 0.0)
+    forced = _k.forced_mask(hz, v, cv, e * BORDER_ERROR_FRACTION)  # forced_vertices
     if must_include is not None:
         mi = np.asarray(must_include, dtype=np.int64).reshape(-1, 2)
         if mi.size and (mi.min() < 0 or (mi[:, 0] >= H).any() or (mi[:, 1] >= W).any()):
             raise ValueError("must_include holds indices outside the grid")
-    else:
-        mi = np.zeros((0, 2), dtype=np.int64)
-    hz = np.where(v, h, 0.0)
-    # forced_vertices' samples and must_include, in Z order (compiled: the same samples, in one pass)
-    fx, fy = _k.forced_in_morton_order(hz, v, cv, e * BORDER_ERROR_FRACTION, np.ascontiguousarray(mi[:, 0]),
-                                       np.ascontiguousarray(mi[:, 1]))
+        forced[mi[:, 0], mi[:, 1]] = True
+    fx, fy = _k.z_ordered(forced)
     vx, vy, tris, stuck, border_added = _k.build_tin(hz, np.ascontiguousarray(cv), fx, fy, e, decimate=decimate)
     # keep the triangles inside R (centroid cell valid; see the module docstring for why that suffices),
     # and the vertices in some face, in index order, the faces renumbered

@@ -24,7 +24,7 @@ from numba import njit
 # that was 16 % of the leaf kernels' time (perf), 4 % after. Inlining the helpers instead doubled the cold
 # compile (30 -> 58 s). The caller holds the references for the duration of the call.
 
-_NO_NRT: dict[str, Any] = {"_nrt": False}  # (a keyword numba's type stubs do not list)
+NO_NRT: dict[str, Any] = {"_nrt": False}  # (a keyword numba's type stubs do not list)
 
 # Indices into the int64 counter array ``cnt`` shared by the kernels (numba has no mutable scalars).
 _NTRI, _NPEND, _NHEAP, _NVERT, _ERRORS_ON, _STUCK, _NBORDER_ADDED = 0, 1, 2, 3, 4, 5, 6
@@ -46,7 +46,7 @@ def _det3(dx: int, dy: int, ap: int, ex: int, ey: int, bp: int, fx: int, fy: int
     return dx * (ey * cp - bp * fy) - dy * (ex * cp - bp * fx) + ap * (ex * fy - ey * fx)
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _in_circle(ax: int, ay: int, bx: int, by: int, cx: int, cy: int, px: int, py: int) -> bool:
     """Whether p lies inside the circumcircle of (a, b, c) (``_orient(a, b, c) > 0``), ties perturbed.
 
@@ -79,7 +79,7 @@ def _in_circle(ax: int, ay: int, bx: int, by: int, cx: int, cy: int, px: int, py
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _heap_up(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int) -> None:
     t = heap[i]
     e = terr[t]
@@ -95,7 +95,7 @@ def _heap_up(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int) -> No
     hpos[t] = i
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _heap_down(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int, n: int) -> None:
     t = heap[i]
     e = terr[t]
@@ -115,7 +115,7 @@ def _heap_down(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, i: int, n: 
     hpos[t] = i
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _heap_push(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.ndarray, t: int) -> None:
     i = cnt[_NHEAP]
     cnt[_NHEAP] = i + 1
@@ -124,7 +124,7 @@ def _heap_push(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.nda
     _heap_up(heap, hpos, terr, i)
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _heap_remove(heap: np.ndarray, hpos: np.ndarray, terr: np.ndarray, cnt: np.ndarray, t: int) -> None:
     i = hpos[t]
     hpos[t] = -1
@@ -150,7 +150,7 @@ def _is_border(s: int, H: int, W: int) -> bool:
     return r == 0 or c == 0 or r == H - 1 or c == W - 1
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _pick(
     ss: np.ndarray,
     n: int,
@@ -192,7 +192,7 @@ def _pick(
     return best
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _edge_error(
     h: np.ndarray, px: int, py: int, qx: int, qy: int, info: np.ndarray, o: int, stop: float
 ) -> float:
@@ -337,7 +337,7 @@ def _row_span(y: int, xmin: int, xmax: int, a0: int, b0: int, c0: int, a1: int, 
     return lo, hi
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _triangle_error(
     h: np.ndarray,
     cellvalid: np.ndarray,
@@ -472,7 +472,7 @@ def _triangle_error(
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _add_triangle(
     tri: np.ndarray,
     half: np.ndarray,
@@ -515,7 +515,7 @@ def _add_triangle(
     return e
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _legalize(
     tri: np.ndarray,
     half: np.ndarray,
@@ -564,7 +564,7 @@ def _legalize(
         n += 2
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _locate(
     tri: np.ndarray,
     half: np.ndarray,
@@ -611,7 +611,7 @@ def _locate(
     return -1
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _insert(
     tri: np.ndarray,
     half: np.ndarray,
@@ -662,7 +662,7 @@ def _insert(
     return t0 // 3
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _split_edge(
     tri: np.ndarray,
     half: np.ndarray,
@@ -720,7 +720,7 @@ def _grown(a: np.ndarray, n: int, fill: int) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _flush(
     h: np.ndarray,
     cellvalid: np.ndarray,
@@ -1150,7 +1150,7 @@ def _decimate(
                          dstat, feas, info, choice, cand, cerr, stk)
 
 
-@njit(cache=True, nogil=True, **_NO_NRT)
+@njit(cache=True, nogil=True, **NO_NRT)
 def _decimate_run(h: np.ndarray, tri: np.ndarray, half: np.ndarray, vx: np.ndarray, vy: np.ndarray, nv: int,
                   nfixed: int, max_error: float, vedge: np.ndarray, ring: np.ndarray, ring_e: np.ndarray,
                   outer: np.ndarray, lside: np.ndarray, tstat: np.ndarray, dstat: np.ndarray, feas: np.ndarray,
@@ -1527,8 +1527,7 @@ def _mids(pos: np.ndarray, u: int, w: int) -> tuple[int, int]:
 def border_fans(vr: np.ndarray, vc: np.ndarray, faces: np.ndarray, side_ax: np.ndarray, side_line: np.ndarray,
                 side_limit: np.ndarray, want: np.ndarray, want_off: np.ndarray, last_r: int, last_c: int
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`citylod.lod.dsm._insert_border_vertices` compiled (the Python version was a third of a leaf's
-    stage 2). Side ``s`` is the grid line ``side_line[s]`` of axis ``side_ax[s]`` (0: a row, 1: a column),
+    """The kernel of :func:`citylod.lod.dsm._insert_border_vertices`. Side ``s`` is the grid line ``side_line[s]`` of axis ``side_ax[s]`` (0: a row, 1: a column),
     positions 0..``side_limit[s]`` along it; the samples wanted on it are ``want[want_off[s]:want_off[s + 1]]``
     (any order, repeats and positions off the side allowed: those and the ones already vertices on the
     line are dropped).
@@ -1536,8 +1535,7 @@ def border_fans(vr: np.ndarray, vc: np.ndarray, faces: np.ndarray, side_ax: np.n
     Returns the added vertices (row, col) in order of first use, the faces (unchanged ones first, in their
     order, then each replaced face's fan in order), and the replaced-face mask. A face is replaced when one
     of its edges lies on a side and passes over one of its samples; it is split at the samples of the first
-    side (in the given order) its edge lies on, and each piece again, depth first, as the Python version
-    recursed.
+    side (in the given order) its edge lies on, and each piece again, depth first.
     """
     m = faces.shape[0]
     nsides = side_ax.shape[0]
@@ -1596,7 +1594,6 @@ def border_fans(vr: np.ndarray, vc: np.ndarray, faces: np.ndarray, side_ax: np.n
     for t0 in range(m):
         if not hit[t0]:
             continue
-        sp = 0
         stack[0, 0], stack[0, 1], stack[0, 2] = faces[t0, 0], faces[t0, 1], faces[t0, 2]
         sp = 1
         while sp > 0:
@@ -1641,7 +1638,7 @@ def border_fans(vr: np.ndarray, vc: np.ndarray, faces: np.ndarray, side_ax: np.n
                             n_add += 1
                         chain[1 + q] = index[key]
                     nm = j - i
-                    break  # the first side the edge lies on decides, as in the Python version
+                    break  # the first side the edge lies on decides
                 if nm > 0:
                     chain[nm + 1] = b
                     for q in range(nm, -1, -1):  # pushed in reverse: popped (and emitted) in chain order
@@ -1661,14 +1658,10 @@ def border_fans(vr: np.ndarray, vc: np.ndarray, faces: np.ndarray, side_ax: np.n
 
 
 @njit(cache=True, nogil=True)
-def forced_in_morton_order(hz: np.ndarray, valid: np.ndarray, cellvalid: np.ndarray, border_error: float,
-                           extra_r: np.ndarray, extra_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The samples `tin.forced_vertices` marks (grid of at least 2 × 2), plus ``(extra_r, extra_c)``, as
-    (columns, rows) in Z order (`tin._morton`), so consecutive insertions are close.
-
-    ``hz`` are the heights with no-data as 0, ``cellvalid`` `tin.cell_validity` of ``valid``, and
-    ``border_error`` the bound the borders are simplified to.
-    """
+def forced_mask(hz: np.ndarray, valid: np.ndarray, cellvalid: np.ndarray, border_error: float) -> np.ndarray:
+    """`tin.forced_vertices` (grid of at least 2 × 2) in one compiled pass: the corners, each border's valid
+    runs simplified to ``border_error`` (`simplify_runs`), and every sample on the boundary of the valid
+    region. ``hz`` are the heights with no-data as 0, ``cellvalid`` `tin.cell_validity` of ``valid``."""
     H, W = hz.shape
     out = np.zeros((H, W), np.bool_)
     out[0, 0] = out[0, W - 1] = out[H - 1, 0] = out[H - 1, W - 1] = True
@@ -1704,19 +1697,25 @@ def forced_in_morton_order(hz: np.ndarray, valid: np.ndarray, cellvalid: np.ndar
                         n_valid += cellvalid[ci, cj]
             if 0 < n_valid < n_cells:
                 out[i, j] = True
-    for t in range(extra_r.size):
-        out[extra_r[t], extra_c[t]] = True
+    return out
+
+
+@njit(cache=True, nogil=True)
+def z_ordered(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of ``mask`` as (columns, rows) in Z order (bits of column and row interleaved), so
+    consecutive insertions are close and point location walks are short."""
+    H, W = mask.shape
     n = 0
     for i in range(H):
         for j in range(W):
-            n += out[i, j]
+            n += mask[i, j]
     rows = np.empty(n, np.int64)
     cols = np.empty(n, np.int64)
     keys = np.zeros(n, np.int64)
     n = 0
     for i in range(H):
         for j in range(W):
-            if out[i, j]:
+            if mask[i, j]:
                 rows[n] = i
                 cols[n] = j
                 key = 0
