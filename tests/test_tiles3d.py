@@ -106,6 +106,33 @@ def test_vertex_attributes_are_4_byte_aligned() -> None:
             np.testing.assert_array_equal(back.extra[name], pts.extra[name])
 
 
+def test_point_attributes_absent_or_converted() -> None:
+    """Point content with only some attributes, given in other dtypes (int64 intensity, a column slice of
+    positions): the absent ones are not written, the others come back converted as ``np.asarray`` would,
+    and POSITION's min/max are the extremes of the stored y-up positions."""
+    rng = np.random.default_rng(4)
+    n = 257
+    block = rng.uniform(-1e3, 1e3, (n, 5))
+    pts = PointData(block[:, 1:4],  # type: ignore[arg-type]  # float64, not contiguous: the encoder converts
+                    intensity=rng.integers(0, 65535, n), classification=rng.integers(0, 20, n).astype(np.int32))
+    data = encode_glb(TileContent(points=pts))
+    assert _vertex_attribute_layout_errors(data) == []
+    jlen = struct.unpack_from("<I", data, 12)[0]
+    gltf = json.loads(data[20:20 + jlen])
+    attrs = gltf["meshes"][0]["primitives"][0]["attributes"]
+    assert set(attrs) == {"POSITION", "_INTENSITY", "_CLASSIFICATION"}
+    back = decode_glb(data, "x.glb").points
+    assert back is not None and back.rgb is None and back.return_number is None
+    np.testing.assert_array_equal(back.positions, block[:, 1:4].astype(np.float32))
+    np.testing.assert_array_equal(back.intensity, pts.intensity.astype(np.uint16))
+    np.testing.assert_array_equal(back.classification, pts.classification.astype(np.uint8))
+    p32 = block[:, 1:4].astype(np.float32)
+    y_up = np.stack([p32[:, 0], p32[:, 2], -p32[:, 1]], axis=1)
+    acc = gltf["accessors"][attrs["POSITION"]]
+    assert acc["min"] == [float(v) for v in y_up.min(axis=0)]
+    assert acc["max"] == [float(v) for v in y_up.max(axis=0)]
+
+
 def test_glb_is_y_up_on_disk() -> None:
     """3D Tiles clients turn glTF y-up into z-up: a z-up point (1, 2, 3) is stored as (1, 3, -2)."""
     mesh = MeshData(np.array([[1, 2, 3], [0, 0, 0], [1, 0, 0]], np.float32), np.array([[0, 1, 2]], np.uint32))
