@@ -19,6 +19,10 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from citylod.core.jit import defer_blas_probe
+
+defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
+
 
 @numba.njit(cache=True, nogil=True)
 def point_vertex_columns(pos: npt.NDArray[np.float32], rgb: npt.NDArray[np.uint8],

@@ -16,6 +16,10 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from citylod.core.jit import defer_blas_probe
+
+defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
+
 #: Bits of the integer grid per axis. Level L nodes are 2^(QBITS-L) units wide.
 QBITS = 31
 #: Vertex clustering grid per node: 2^6 = 64 cells per axis (Wahl, Guthe, Klein, PG 2005).

@@ -20,6 +20,10 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from citylod.core.jit import defer_blas_probe
+
+defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
+
 F64 = npt.NDArray[np.float64]
 U8 = npt.NDArray[np.uint8]
 

@@ -2,7 +2,8 @@
 then bounded vertex removal (`_decimate`).
 
 The public API, its contracts and the reasoning about correctness live in `citylod.lod.tin`; this
-module holds only the numba kernels. It must not import anything but numpy and numba.
+module holds only the numba kernels. It must not import anything but numpy, numba and
+`citylod.core.jit` (which only makes numba's start cheaper).
 
 Layout of the triangulation (after mapbox/delatin, itself Garland & Heckbert 1995, algorithm III):
 triangle ``t`` owns half-edges ``3t, 3t+1, 3t+2``; ``tri[e]`` is the vertex where half-edge ``e``
@@ -17,6 +18,10 @@ from typing import Any
 
 import numpy as np
 from numba import njit
+
+from citylod.core.jit import defer_blas_probe
+
+defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
 
 # Helpers that take arrays but allocate, return and keep none are compiled with ``_nrt=False``. Otherwise
 # numba increfs every array argument of a (non-inlined) function on entry and decrefs it on exit, each an

@@ -31,7 +31,10 @@ import numpy.typing as npt
 from numba import njit
 
 from citylod.core.camera import Camera
+from citylod.core.jit import defer_blas_probe
 from citylod.render.depth import world_rays
+
+defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
 
 
 @dataclass(frozen=True)
