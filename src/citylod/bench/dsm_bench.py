@@ -56,22 +56,36 @@ def fill_nodata(z: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return z[tuple(idx)]
 
 
-def run_pydelatin(z: np.ndarray, max_error: float, valid: np.ndarray | None = None, repeats: int = 1) -> MesherRow:
-    """pydelatin on ``z``: the best of ``repeats`` timings (as the builds it is compared with), the mesh of
-    the last."""
+def pydelatin_input(z: np.ndarray) -> np.ndarray:
+    """The array pydelatin meshes: ``z`` as float32 (its native type)."""
+    return np.ascontiguousarray(z, np.float32)
+
+
+def time_pydelatin(z32: np.ndarray, max_error: float) -> float:
+    """Seconds pydelatin takes to mesh ``z32`` (:func:`pydelatin_input`) at ``max_error``, once."""
     from pydelatin import Delatin
 
-    z32 = z.astype(np.float32)
-    seconds = math.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        tin = Delatin(z32, max_error=max_error)
-        seconds = min(seconds, time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    Delatin(z32, max_error=max_error)
+    return time.perf_counter() - t0
+
+
+def run_pydelatin(z: np.ndarray, max_error: float, valid: np.ndarray | None = None, repeats: int = 1,
+                  seconds: float | None = None) -> MesherRow:
+    """pydelatin on ``z``: the best of ``repeats`` timings, or ``seconds`` when the caller timed it (see
+    :func:`bench_dsm`); triangles and true error of its mesh."""
+    from pydelatin import Delatin
+
+    z32 = pydelatin_input(z)
+    best = math.inf
+    for _ in range(repeats if seconds is None else 0):
+        best = min(best, time_pydelatin(z32, max_error))
+    tin = Delatin(z32, max_error=max_error)
     v = np.asarray(tin.vertices)  # (x=col, y=row, z)
     faces = np.asarray(tin.triangles).reshape(-1, 3)
     err = _true_error(z, v[:, 1], v[:, 0], faces, valid)
-    return MesherRow("pydelatin (greedy Delaunay)", seconds, len(faces), max_error, err,
-                     "bound checked at samples only")
+    return MesherRow("pydelatin (greedy Delaunay)", best if seconds is None else seconds, len(faces), max_error,
+                     err, "bound checked at samples only")
 
 
 def run_pymartini(z: np.ndarray, max_error: float, valid: np.ndarray | None = None) -> MesherRow | None:
@@ -101,38 +115,46 @@ def json_from_child(code: str) -> dict[str, Any]:
     return result
 
 
+def _filled(raster: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The raster's heights with no-data filled (what the baselines mesh) and its valid mask."""
+    import rasterio
+
+    with rasterio.open(raster) as ds:
+        band = ds.read(1, masked=True)
+    valid = ~np.ma.getmaskarray(band)
+    return fill_nodata(np.ma.getdata(band).astype(np.float64), valid), valid
+
+
 def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progress: bool = True) -> dict[str, Any]:
     """Build ``raster`` with ``build_dsm``'s default executor (``workers``: that many spawned processes),
     then mesh it with the baselines; returns a result dict."""
-    import rasterio
-
     tiles_dir = out_dir / f"tiles_{raster.stem}"
-    # The build runs in a child process so its peak memory is its own.
-    # Later builds in the same process, once the compiled kernels are loaded (numba's runtime starts in
-    # ≈0.5 s: its import and its first cached kernel), are timed as pydelatin is: its library loaded. The
-    # best of two, as pydelatin's is the best of two: this machine is shared, and one slow spell should not
-    # decide a ratio.
+    # The build runs in a child process so its peak memory is its own, and starts as a user's command does.
+    # Later builds in the same process, once the compiled kernels are loaded (numba's runtime start and its
+    # cached kernels), are timed as pydelatin is: its library loaded. pydelatin is timed in that process
+    # too, in turns with them (pydelatin, warm build, pydelatin, warm build), each side the best of its two:
+    # this machine's speed drifts by tens of per cent over seconds, and timing one side after the other
+    # (the warm builds, then pydelatin in the parent) let a drift decide the ratio.
     warm_dir = out_dir / f"tiles_{raster.stem}_warm"
-    code = ("import json,sys,shutil; from citylod.lod.dsm import build_dsm; "
+    code = ("import json,shutil; from pathlib import Path; from citylod.lod.dsm import build_dsm; "
+            "from citylod.bench.dsm_bench import _filled, pydelatin_input, time_pydelatin; "
             f"r=build_dsm({str(raster)!r}, {str(tiles_dir)!r}, workers={workers}, progress={progress}); "
-            "w=[]\n"
+            f"z32=pydelatin_input(_filled(Path({str(raster)!r}))[0]); w=[]; p=[]\n"
             "for _ in range(2):\n"
+            "    p.append(time_pydelatin(z32, r.leaf_target))\n"
             f"    w.append(build_dsm({str(raster)!r}, {str(warm_dir)!r}, workers={workers}, progress=False).seconds); "
             f"shutil.rmtree({str(warm_dir)!r})\n"
-            "import dataclasses; d=dataclasses.asdict(r); d['warm_seconds']=min(w); "
+            "import dataclasses; d=dataclasses.asdict(r); d['warm_seconds']=min(w); d['pydelatin_seconds']=min(p); "
             "print('@@'+json.dumps(d))")
     t0 = time.perf_counter()
     report = json_from_child(code)
     wall = time.perf_counter() - t0
     where = report["executor"]
-    with rasterio.open(raster) as ds:
-        band = ds.read(1, masked=True)
-    valid = ~np.ma.getmaskarray(band)
-    z = fill_nodata(np.ma.getdata(band).astype(np.float64), valid)
+    z, valid = _filled(raster)
     leaf = report["leaf_target"]
     levels = report["per_level"]
     leaf_tris = levels[-1]["triangles"]
-    rows = [run_pydelatin(z, leaf, valid, repeats=2)]
+    rows = [run_pydelatin(z, leaf, valid, seconds=report["pydelatin_seconds"])]
     m = run_pymartini(z, leaf, valid)
     if m is not None:
         rows.append(m)
