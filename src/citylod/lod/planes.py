@@ -358,8 +358,8 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
             ninl2 += ok
         if ninl2 >= ninl:
             nx, ny, nz = mx, my, mz
-            for t in range(na):
-                inl[t] = inl2[t]
+            inl, inl2 = inl2, inl  # the refit's inliers, without a copy
+            ninl = ninl2
         else:
             off = cx * nx + cy * ny + cz * nz + d  # project the centroid onto the RANSAC plane
             cx, cy, cz = cx - off * nx, cy - off * ny, cz - off * nz
@@ -370,10 +370,7 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
         un = np.sqrt(ux * ux + uy * uy + uz * uz)
         ux, uy, uz = ux / un, uy / un, uz / un
         vx, vy, vz = ny * uz - nz * uy, nz * ux - nx * uz, nx * uy - ny * ux
-        m = 0
-        for t in range(na):
-            if inl[t]:
-                m += 1
+        m = ninl  # the number of inliers, counted when they were marked
         idx = np.empty(m, np.int64)
         s = np.empty(m)
         tt = np.empty(m)
