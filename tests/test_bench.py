@@ -72,3 +72,28 @@ def test_run_bench_writes_a_consistent_report(tmp_path: Path) -> None:
     assert len(res.frames) == 3 * 3
     md = (tmp_path / "report" / "report.md").read_text()
     assert "| tau=8 |" in md and "full.png" in md
+
+
+def test_report_figure_counts_what_the_data_is_made_of(tmp_path: Path) -> None:
+    """The right panel of the speed-against-error figure counts points for a point cloud (whose triangle
+    counts are 0, which a log axis cannot show) and triangles for surfaces."""
+    import dataclasses
+
+    from citylod.bench.report import TauRow, _plot, _size_panel
+
+    def row(label: str, tau: float, triangles: float, points: float, ms: float, err: float) -> TauRow:
+        kw = {f.name: 0.0 for f in dataclasses.fields(TauRow)}
+        kw.update(label=label, tau_px=tau, triangles_median=triangles, points_median=points, frame_ms_median=ms,
+                  err_p99_px=err, err_near_p99_px=err)
+        for f in dataclasses.fields(TauRow):
+            if f.type in ("int", int):
+                kw[f.name] = int(kw[f.name])
+        return TauRow(**kw)
+
+    cloud = [row("full", 0, 0, 8e5, 100, 0), row("tau=1", 1, 0, 6e5, 80, 0.5), row("tau=4", 4, 12, 2e5, 40, 3)]
+    surface = [row("full", 0, 9e5, 0, 100, 0), row("tau=1", 1, 5e5, 0, 70, 0.4)]
+    assert _size_panel(cloud[0])[0] == "points_median"
+    assert _size_panel(surface[0])[0] == "triangles_median"
+    for name, rows in (("cloud", cloud), ("surface", surface)):
+        png = _plot(tmp_path / f"{name}.png", rows)
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -223,6 +223,15 @@ def _write_csv(path: Path, rows: list[dict[str, object]]) -> None:
     atomic_write_bytes(path, buf.getvalue().encode())
 
 
+def _size_panel(full: TauRow) -> tuple[str, str]:
+    """What the figure's right panel counts: the primitives the data is mostly made of at full resolution
+    (points for a point cloud, triangles for surfaces; a hybrid point octree's few quads are not what its
+    cost is made of). Its counts of 0 are left out of the plot: a log axis has no place for them."""
+    if full.points_median > full.triangles_median:
+        return "points_median", "points drawn, median"
+    return "triangles_median", "triangles drawn, median"
+
+
 def _plot(path: Path, rows: list[TauRow]) -> Path:
     import matplotlib
 
@@ -235,12 +244,14 @@ def _plot(path: Path, rows: list[TauRow]) -> Path:
     # Log axis: a floor keeps an exact (0 px) frame on the plot.
     err = [max(r.err_near_p99_px, 0.01) for r in lod]
     err_ray = [max(r.err_p99_px, 0.01) for r in lod]
-    for ax, key, label in ((axes[0], "frame_ms_median", "frame time, median (ms)"),
-                           (axes[1], "triangles_median", "triangles drawn, median")):
-        ys = [getattr(r, key) for r in lod]
-        ax.plot(err, ys, "o-", label="LOD (error: nearest point, p99)")
-        ax.plot(err_ray, ys, "s--", alpha=0.6, label="LOD (error: along the ray, p99)")
-        for r, x, y in zip(lod, err, ys, strict=True):
+    size_key, size_label = _size_panel(full)
+    for ax, key, label in ((axes[0], "frame_ms_median", "frame time, median (ms)"), (axes[1], size_key, size_label)):
+        ys = np.array([getattr(r, key) for r in lod], np.float64)
+        shown = ys > 0 if ax is axes[1] else np.ones(len(ys), bool)
+        xs, xs_ray = np.asarray(err)[shown], np.asarray(err_ray)[shown]
+        ax.plot(xs, ys[shown], "o-", label="LOD (error: nearest point, p99)")
+        ax.plot(xs_ray, ys[shown], "s--", alpha=0.6, label="LOD (error: along the ray, p99)")
+        for r, x, y in zip([r for r, k in zip(lod, shown, strict=True) if k], xs, ys[shown], strict=True):
             ax.annotate(f"τ={r.tau_px:g}", (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
         ax.axhline(getattr(full, key), color="k", ls=":", label="full resolution")
         ax.set_xlabel("measured screen-space error, worst frame p99 (px)")
