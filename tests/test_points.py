@@ -265,7 +265,7 @@ def test_bad_inputs_fail_cleanly(tmp_path: Path) -> None:
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_delft_build_speed_and_quads(tmp_path: Path) -> None:
+def test_delft_build_counts_and_quads(tmp_path: Path) -> None:
     files = sorted(DELFT.glob("ahn3_cropped_*.laz"))
     if len(files) != 2:
         pytest.skip(f"real data not found in {DELFT}")
