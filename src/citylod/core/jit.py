@@ -45,11 +45,15 @@ def defer_blas_probe() -> None:
 
 
 class _Finder(importlib.abc.MetaPathFinder):
+    # It stays on sys.meta_path once it has fired (the import system may be iterating that list when it
+    # is called), answering None to everything: one string comparison per import.
+    fired = False
+
     def find_spec(self, fullname: str, path: Sequence[str] | None,
                   target: ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
-        if fullname != _TARGET:
+        if self.fired or fullname != _TARGET:
             return None
-        sys.meta_path.remove(self)  # one shot; the real finders answer from here on
+        self.fired = True  # one shot; the real finders answer from here on (also the lookup below)
         spec = importlib.util.find_spec(fullname)
         if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
             return spec
