@@ -10,7 +10,6 @@ way here.
 from __future__ import annotations
 
 import json
-import math
 import subprocess
 import sys
 import time
@@ -70,22 +69,21 @@ def time_pydelatin(z32: np.ndarray, max_error: float) -> float:
     return time.perf_counter() - t0
 
 
-def run_pydelatin(z: np.ndarray, max_error: float, valid: np.ndarray | None = None, repeats: int = 1,
+def run_pydelatin(z: np.ndarray, max_error: float, valid: np.ndarray | None = None,
                   seconds: float | None = None) -> MesherRow:
-    """pydelatin on ``z``: the best of ``repeats`` timings, or ``seconds`` when the caller timed it (see
-    :func:`bench_dsm`); triangles and true error of its mesh."""
+    """pydelatin on ``z``: its mesh's triangles and true error, and ``seconds`` when the caller timed it
+    (:func:`bench_dsm` does, in turns with the builds), else one timing of its own."""
     from pydelatin import Delatin
 
     z32 = pydelatin_input(z)
-    best = math.inf
-    for _ in range(repeats if seconds is None else 0):
-        best = min(best, time_pydelatin(z32, max_error))
+    if seconds is None:
+        seconds = time_pydelatin(z32, max_error)
     tin = Delatin(z32, max_error=max_error)
     v = np.asarray(tin.vertices)  # (x=col, y=row, z)
     faces = np.asarray(tin.triangles).reshape(-1, 3)
     err = _true_error(z, v[:, 1], v[:, 0], faces, valid)
-    return MesherRow("pydelatin (greedy Delaunay)", best if seconds is None else seconds, len(faces), max_error,
-                     err, "bound checked at samples only")
+    return MesherRow("pydelatin (greedy Delaunay)", seconds, len(faces), max_error, err,
+                     "bound checked at samples only")
 
 
 def run_pymartini(z: np.ndarray, max_error: float, valid: np.ndarray | None = None) -> MesherRow | None:

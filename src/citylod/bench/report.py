@@ -241,17 +241,16 @@ def _plot(path: Path, rows: list[TauRow]) -> Path:
     lod = [r for r in rows if r.label != "full"]
     full = next(r for r in rows if r.label == "full")
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
-    # Log axis: a floor keeps an exact (0 px) frame on the plot.
-    err = [max(r.err_near_p99_px, 0.01) for r in lod]
-    err_ray = [max(r.err_p99_px, 0.01) for r in lod]
     size_key, size_label = _size_panel(full)
     for ax, key, label in ((axes[0], "frame_ms_median", "frame time, median (ms)"), (axes[1], size_key, size_label)):
-        ys = np.array([getattr(r, key) for r in lod], np.float64)
-        shown = ys > 0 if ax is axes[1] else np.ones(len(ys), bool)
-        xs, xs_ray = np.asarray(err)[shown], np.asarray(err_ray)[shown]
-        ax.plot(xs, ys[shown], "o-", label="LOD (error: nearest point, p99)")
-        ax.plot(xs_ray, ys[shown], "s--", alpha=0.6, label="LOD (error: along the ray, p99)")
-        for r, x, y in zip([r for r, k in zip(lod, shown, strict=True) if k], xs, ys[shown], strict=True):
+        shown = [r for r in lod if ax is axes[0] or getattr(r, key) > 0]  # no 0 on the log axis
+        ys = [getattr(r, key) for r in shown]
+        # Log axis: a floor keeps an exact (0 px) frame on the plot.
+        err = [max(r.err_near_p99_px, 0.01) for r in shown]
+        err_ray = [max(r.err_p99_px, 0.01) for r in shown]
+        ax.plot(err, ys, "o-", label="LOD (error: nearest point, p99)")
+        ax.plot(err_ray, ys, "s--", alpha=0.6, label="LOD (error: along the ray, p99)")
+        for r, x, y in zip(shown, err, ys, strict=True):
             ax.annotate(f"τ={r.tau_px:g}", (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
         ax.axhline(getattr(full, key), color="k", ls=":", label="full resolution")
         ax.set_xlabel("measured screen-space error, worst frame p99 (px)")

@@ -6,6 +6,7 @@ float64; nothing here ever sees float32.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +38,14 @@ class Box:
         """From the 12 numbers of a 3D Tiles ``box``."""
         v = np.asarray(values, dtype=np.float64).reshape(12)
         return Box(v[:3].copy(), v[3:].reshape(3, 3).T.copy())
+
+    @staticmethod
+    def aabb_3dtiles(lo: Sequence[float], hi: Sequence[float]) -> list[float]:
+        """``Box.from_bounds(lo, hi).to_3dtiles()`` in plain float arithmetic (the same numbers, without
+        the numpy objects: a tileset writer calls it once per tile)."""
+        mid = [(a + b) / 2.0 for a, b in zip(lo, hi, strict=True)]
+        half = [(b - a) / 2.0 for a, b in zip(lo, hi, strict=True)]
+        return [*mid, half[0], 0.0, 0.0, 0.0, half[1], 0.0, 0.0, 0.0, half[2]]
 
     def to_3dtiles(self) -> list[float]:
         """The 12 numbers of a 3D Tiles ``box``."""
