@@ -24,6 +24,26 @@ def _border(vij: np.ndarray, shape: tuple[int, int]) -> set[tuple[int, int]]:
     return _set(vij[(r == 0) | (c == 0) | (r == H - 1) | (c == W - 1)])
 
 
+def _seeds(h: np.ndarray, valid: np.ndarray | None, e: float) -> np.ndarray:
+    """The seeds, computed here from their definition: interior samples at even row and column, four valid
+    cells, whose 3×3 neighbourhood departs from the bilinear interpolation of its corners by more than
+    ``SEED_DEVIATION·e``."""
+    H, W = h.shape
+    v = np.isfinite(h) if valid is None else valid & np.isfinite(h)
+    out = []
+    for r in range(2, H - 1, 2):
+        for c in range(2, W - 1, 2):
+            if not v[r - 1:r + 2, c - 1:c + 2].all():
+                continue
+            blk = h[r - 1:r + 2, c - 1:c + 2]
+            t = np.array([0.0, 0.5, 1.0])
+            bil = ((1 - t)[:, None] * ((1 - t)[None, :] * blk[0, 0] + t[None, :] * blk[0, 2])
+                   + t[:, None] * ((1 - t)[None, :] * blk[2, 0] + t[None, :] * blk[2, 2]))
+            if np.abs(blk - bil).max() > tin.SEED_DEVIATION * e:
+                out.append((r, c))
+    return np.array(out, dtype=np.int64).reshape(-1, 2)
+
+
 def _sample_city_window(size: int, r0: int, c0: int, n: int) -> tuple[np.ndarray, np.ndarray]:
     from citylod.io.sample_city import make_city
 
@@ -35,12 +55,16 @@ def _sample_city_window(size: int, r0: int, c0: int, n: int) -> tuple[np.ndarray
 
 
 def _check_against_greedy(h: np.ndarray, valid: np.ndarray | None, e: float) -> tuple[int, int]:
-    """Both TINs meet the bound; the decimated one keeps a subset of the greedy one's vertices, among
-    them every forced one and every border one. Returns (greedy faces, decimated faces)."""
-    v0, f0 = tin.triangulate(h, valid, e, decimate=False)
+    """The three TINs meet the bound (plain greedy, greedy from the seeds, and that decimated); the
+    decimated one keeps a subset of its greedy phase's vertices, among them every forced one and every
+    border one. Returns (seeded greedy faces, decimated faces)."""
+    vp, fp = tin.triangulate(h, valid, e, decimate=False)
+    assert_tile_ok(h, valid, vp, fp, e)
+    v0, f0 = tin.triangulate(h, valid, e, decimate=False, seed=True)
     v1, f1 = tin.triangulate(h, valid, e)
     assert_tile_ok(h, valid, v0, f0, e)
     assert_tile_ok(h, valid, v1, f1, e)
+    assert _set(_seeds(h, valid, e)) <= _set(v0)
     assert _set(v1) <= _set(v0)
     # forced samples touching no valid cell are in no face, hence in neither vertex list
     assert _set(np.argwhere(tin.forced_vertices(h, valid, e))) & _set(v0) <= _set(v1)
@@ -70,6 +94,18 @@ def test_sample_city_tile_about_30_percent_fewer_faces() -> None:
     h, valid = _sample_city_window(513, 256, 128, 129)
     n0, n1 = _check_against_greedy(h, valid, 0.5)
     assert n1 <= 0.85 * n0, (n0, n1)
+
+
+def test_seeds_are_removable_and_cost_no_faces() -> None:
+    # Seeds only save the greedy phase work: the decimation removes those the bound does not need (most of
+    # them on a city tile), and the result has about as many faces as without them.
+    h, valid = _sample_city_window(513, 256, 128, 129)
+    v1, f1 = tin.triangulate(h, valid, 0.5)
+    _, f2 = tin.triangulate(h, valid, 0.5, seed=False)
+    seeds = _set(_seeds(h, valid, 0.5))
+    assert len(seeds) > 100
+    assert len(seeds & _set(v1)) < 0.5 * len(seeds)
+    assert len(f1) <= 1.02 * len(f2), (len(f1), len(f2))
 
 
 def test_no_data_and_must_include() -> None:

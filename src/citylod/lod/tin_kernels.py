@@ -725,6 +725,17 @@ def _grown(a: np.ndarray, n: int, fill: int) -> np.ndarray:
     return out
 
 
+@njit(cache=True, nogil=True)
+def _grown_all(cap: int, vx: np.ndarray, vy: np.ndarray, tri: np.ndarray, half: np.ndarray, hpos: np.ndarray,
+               heap: np.ndarray, terr: np.ndarray, tcand: np.ndarray, pend: np.ndarray, inpend: np.ndarray,
+               stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                           np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`build_tin`'s arrays grown for ``cap`` vertices (the triangle arrays for ``cap`` triangles)."""
+    return (_grown(vx, cap, 0), _grown(vy, cap, 0), _grown(tri, 3 * cap, 0), _grown(half, 3 * cap, 0),
+            _grown(hpos, cap, -1), _grown(heap, cap, 0), _grown(terr, cap, 0), _grown(tcand, cap, -1),
+            _grown(pend, cap, 0), _grown(inpend, cap, 0), _grown(stack, 3 * cap, 0))
+
+
 @njit(cache=True, nogil=True, **NO_NRT)
 def _flush(
     h: np.ndarray,
@@ -772,6 +783,21 @@ def _flush(
     cnt[_NPEND] = 0
 
 
+@njit(cache=True, nogil=True, **NO_NRT)
+def _rough(h: np.ndarray, cellvalid: np.ndarray, y: int, x: int, limit: float) -> bool:
+    """True when interior sample (y, x) has its four cells valid and its 3×3 neighbourhood departs from the
+    bilinear interpolation of the neighbourhood's corners by more than ``limit`` (a seed; see `build_tin`)."""
+    if not (cellvalid[y - 1, x - 1] and cellvalid[y - 1, x] and cellvalid[y, x - 1] and cellvalid[y, x]):
+        return False
+    za = h[y - 1, x - 1]
+    zb = h[y - 1, x + 1]
+    zc = h[y + 1, x - 1]
+    zd = h[y + 1, x + 1]
+    return (abs(h[y - 1, x] - 0.5 * (za + zb)) > limit or abs(h[y + 1, x] - 0.5 * (zc + zd)) > limit
+            or abs(h[y, x - 1] - 0.5 * (za + zc)) > limit or abs(h[y, x + 1] - 0.5 * (zb + zd)) > limit
+            or abs(h[y, x] - 0.25 * (za + zb + zc + zd)) > limit)
+
+
 @njit(cache=True, nogil=True)
 def build_tin(
     h: np.ndarray,
@@ -781,9 +807,10 @@ def build_tin(
     max_error: float,
     crossings: bool = True,
     decimate: bool = True,
+    seed_limit: float = np.inf,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
-    """Greedy-insertion Delaunay TIN of grid ``h`` (H, W), H, W >= 2, after the forced vertices, then
-    (``decimate``) the vertices the bound does not need removed.
+    """Greedy-insertion Delaunay TIN of grid ``h`` (H, W), H, W >= 2, after the forced vertices and the
+    seeds, then (``decimate``) the vertices the bound does not need removed.
 
     Parameters
     ----------
@@ -802,6 +829,13 @@ def build_tin(
     decimate
         After the greedy phase, remove the vertices the bound does not need (`_decimate`); forced
         vertices and grid-border vertices stay.
+    seed_limit
+        Seeds: every interior sample at an even row and column whose four cells are valid and whose 3×3
+        neighbourhood departs from the bilinear interpolation of its corners by more than this is
+        inserted after the forced vertices, before any error is evaluated. Unlike forced vertices,
+        seeds can be removed by the decimation. They only save work: the greedy phase would insert
+        most of them (or a neighbour) anyway, one rescan of ever smaller triangles at a time. ``inf``:
+        no seeds.
 
     Returns
     -------
@@ -847,17 +881,23 @@ def build_tin(
     for k in range(forced_x.size):
         if 3 * (cnt[_NTRI] + 4) > tri.size:
             cap *= 2
-            vx, vy = _grown(vx, cap, 0), _grown(vy, cap, 0)
-            tri, half = _grown(tri, 3 * cap, 0), _grown(half, 3 * cap, 0)
-            hpos, heap = _grown(hpos, cap, -1), _grown(heap, cap, 0)
-            terr, tcand = _grown(terr, cap, 0), _grown(tcand, cap, -1)
-            pend, inpend, stack = _grown(pend, cap, 0), _grown(inpend, cap, 0), _grown(stack, 3 * cap, 0)
+            vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
+                cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
         t = _insert(
             tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, forced_x[k], forced_y[k], t
         )
 
     # Errors are only meaningful once every valid-region boundary sample is in (see tin.py).
     nfixed = cnt[_NVERT]
+    for y in range(2, H - 1, 2):
+        for x in range(2, W - 1, 2):
+            if vid[y * W + x] >= 0 or not _rough(h, cellvalid, y, x, seed_limit):
+                continue
+            if 3 * (cnt[_NTRI] + 4) > tri.size:
+                cap *= 2
+                vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
+                    cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
+            t = _insert(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, x, y, t)
     cnt[_ERRORS_ON] = 1
     for t in range(cnt[_NTRI]):
         pend[t] = t
@@ -889,11 +929,8 @@ def build_tin(
         s = tcand[t]
         if 3 * (cnt[_NTRI] + 4) > tri.size:
             cap *= 2
-            vx, vy = _grown(vx, cap, 0), _grown(vy, cap, 0)
-            tri, half = _grown(tri, 3 * cap, 0), _grown(half, 3 * cap, 0)
-            hpos, heap = _grown(hpos, cap, -1), _grown(heap, cap, 0)
-            terr, tcand = _grown(terr, cap, 0), _grown(tcand, cap, -1)
-            pend, inpend, stack = _grown(pend, cap, 0), _grown(inpend, cap, 0), _grown(stack, 3 * cap, 0)
+            vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
+                cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
         y = s // W
         x = s - y * W
         if vid[s] < 0 and _is_border(s, H, W):
