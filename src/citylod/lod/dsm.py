@@ -250,8 +250,11 @@ class _Footprint:
         r0, c0, r1, c1 = self.footprint
         if self.whole:
             h, v = self.read_block(r0, c0, *self.shape)
-            ix = np.ix_(self.rpos - r0, self.cpos - c0)
-            self._grid = (h[ix], v[ix])
+            if len(self.rpos) == self.shape[0] and len(self.cpos) == self.shape[1]:
+                self._grid = (h, v)  # every sample of the footprint (a leaf): the grid is the block itself
+            else:
+                ix = np.ix_(self.rpos - r0, self.cpos - c0)
+                self._grid = (h[ix], v[ix])
             return self._grid
         heights = np.zeros((len(self.rpos), len(self.cpos)))
         valid = np.zeros((len(self.rpos), len(self.cpos)), bool)
