@@ -38,10 +38,10 @@ then bounded vertex removal, compiled with numba in `citylod.lod.tin_kernels`:
    bound, its worst sample is the candidate and its crossings are not evaluated (they could only
    raise its key); they are once its samples are within the bound.
 4. Decimation (``decimate=True``, the default; without it, no seeds either unless asked for): greedy
-   insertion overshoots, mostly near façades where the crossings force vertices that later insertions make redundant. Each vertex that is
-   neither forced nor on the grid border is removed, newest first, when its hole can be
-   re-triangulated with every new triangle within the bound, samples and crossings evaluated exactly
-   as in step 3 (a dynamic programme over the hole's triangulations, `tin_kernels._decimate`). On the
+   insertion overshoots, mostly near façades where the crossings force vertices that later insertions
+   make redundant. Each vertex that is neither forced nor on the grid border is removed, newest first,
+   when its hole can be re-triangulated with every new triangle within the bound, samples and crossings
+   evaluated exactly as in step 3 (a dynamic programme over the hole's triangulations, `tin_kernels._decimate`). On the
    benchmark city rasters (0.5 m on 1 m samples) it removes a quarter of the triangles, leaving 0.9×
    what pydelatin makes with its samples-only bound, in about the time the lazy crossings of step 3
    save.
@@ -94,9 +94,9 @@ BORDER_ERROR_FRACTION = 0.5
 
 #: Seeds (step 2 of the module docstring): a sample at an even row and column whose 3×3 neighbourhood departs
 #: from the bilinear interpolation of its corners by more than this many times the bound. Measured on the
-#: leaves of the 2049² benchmark city (0.5 m bound, one process, call by call against unseeded):
-#: 1× 0.76 of the kernel time and +0.3 % triangles, 2× 0.77 and +0.1 %, 4× 0.78; every 8th sample without
-#: a test 0.87; every 2nd 0.75 and +0.5 %.
+#: leaves of the 2049² benchmark city (0.5 m bound, one process, call by call against unseeded), kernel
+#: time and triangles: 0.5× 0.76 and +0.5 %, 1× 0.76 and +0.3 %, 2× 0.77 and +0.1 %, 4× 0.78 and +0.1 %;
+#: every 8th sample without a test 0.87–0.89; the test at every sample, not every second, 1.14× this.
 SEED_DEVIATION = 2.0
 
 #: Largest grid side for which the integer Delaunay predicates are exact in int64.

@@ -889,15 +889,16 @@ def build_tin(
 
     # Errors are only meaningful once every valid-region boundary sample is in (see tin.py).
     nfixed = cnt[_NVERT]
-    for y in range(2, H - 1, 2):
-        for x in range(2, W - 1, 2):
-            if vid[y * W + x] >= 0 or not _rough(h, cellvalid, y, x, seed_limit):
-                continue
-            if 3 * (cnt[_NTRI] + 4) > tri.size:
-                cap *= 2
-                vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
-                    cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
-            t = _insert(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, x, y, t)
+    if seed_limit < np.inf:  # the seeds (none without a limit: no test of every second sample either)
+        for y in range(2, H - 1, 2):
+            for x in range(2, W - 1, 2):
+                if vid[y * W + x] >= 0 or not _rough(h, cellvalid, y, x, seed_limit):
+                    continue
+                if 3 * (cnt[_NTRI] + 4) > tri.size:
+                    cap *= 2
+                    vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
+                        cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
+                t = _insert(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, x, y, t)
     cnt[_ERRORS_ON] = 1
     for t in range(cnt[_NTRI]):
         pend[t] = t
