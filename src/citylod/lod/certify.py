@@ -281,15 +281,14 @@ def skirt_strip(local: np.ndarray, faces: np.ndarray, vr: np.ndarray, vc: np.nda
     second), the skirt mask per face and the surface vertex each skirt vertex hangs from (sorted)."""
     nf = faces.shape[0]
     nv = local.shape[0]
-    _, count = _edge_table(faces, nv)
     sel = np.empty(3 * nf, np.int64)
     ns = 0
     is_src = np.zeros(nv, np.bool_)
+    # An edge on a side line has faces on one side of it only (the tile ends there), so it belongs to one
+    # face: no edge table is needed to find the mesh border there (building one was 0.2 ms a leaf tile).
     for k in range(3):
         for t in range(nf):
             i = k * nf + t
-            if count[i] != 1:
-                continue
             a = faces[t, k]
             b = faces[t, (k + 1) % 3]
             on = False
