@@ -222,6 +222,26 @@ def test_one_row_raster_is_a_clear_error_or_empty(tmp_path) -> None:
     assert not (tmp_path / "row").exists()
 
 
+def test_the_empty_raster_check_scans_every_strip(tmp_path) -> None:
+    """check_has_data reads strips of the file's block height (64 rows at least) until one holds a valid
+    sample: data in the last row only is found, in a tiled file and in a striped one (1-row blocks)."""
+    from citylod.io.raster import RasterSource, check_has_data
+
+    z = np.full((300, 40), NODATA, np.float32)
+    z[-1, 7] = 12.0
+    tiled = tmp_path / "tiled.tif"
+    with rasterio.open(tiled, "w", driver="GTiff", width=40, height=300, count=1, dtype="float32",
+                       crs="EPSG:32632", transform=from_origin(500_000.0, 5_400_000.0, 1.0, 1.0), nodata=NODATA,
+                       tiled=True, blockxsize=16, blockysize=16) as ds:
+        ds.write(z, 1)
+    striped = write_raster(tmp_path / "striped.tif", z)
+    for path in (tiled, striped):
+        check_has_data(RasterSource(path))  # no error: the last strip has the sample
+    z[-1, 7] = NODATA
+    with pytest.raises(EmptyInputError, match="empty.tif"):
+        check_has_data(RasterSource(write_raster(tmp_path / "empty.tif", z)))
+
+
 def test_bad_input_is_a_clear_error(tmp_path) -> None:
     write_raster(tmp_path / "nodata.tif", np.full((50, 50), NODATA))
     with pytest.raises(EmptyInputError, match="nodata.tif"):

@@ -247,9 +247,13 @@ def read_info(path: str | os.PathLike[str]) -> RasterInfo:
 
 
 def check_has_data(src: RasterSource) -> None:
-    """Raise :class:`EmptyInputError` when every sample is no-data (scans a decimated grid, then blocks)."""
+    """Raise :class:`EmptyInputError` when every sample is no-data (reads strips of the raster's own block
+    height, 64 rows at least, until one holds a valid sample)."""
     info = src.info
-    block = 1024
+    # One strip of the file's blocks decompresses as much as a taller read would convert; a raster with data
+    # near its top is done after the first (the check once read 1024 rows: 60-90 ms of the 2049² city's
+    # build, on one core before the workers start).
+    block = min(max(64, int(src._dataset().block_shapes[src.band - 1][0])), 1024)
     for r in range(0, info.height, block):
         _, v = src.read(r, 0, min(block, info.height - r), info.width)
         if v.any():
