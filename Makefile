@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint sysdeps venv clean
+.PHONY: demo test bench lint sysdeps venv kernels clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -14,16 +14,21 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+# The DSM build's kernels compiled ahead of time (citylod.lod.aot): a no-op when they are up to date, a
+# minute when a kernel changed; builds run on the JIT kernels when this cannot compile them.
+kernels: $(STAMP)
+	@$(VENV)/bin/citylod build-kernels
+
 sysdeps:
 	@./scripts/sysdeps.sh
 
-demo: $(STAMP) sysdeps
+demo: $(STAMP) sysdeps kernels
 	$(VENV)/bin/citylod demo demo_out
 
-test: $(STAMP) sysdeps
+test: $(STAMP) sysdeps kernels
 	xvfb-run -a -s "-screen 0 1600x1200x24" $(PY) -m pytest -n 2 --dist loadfile -q
 
-bench: $(STAMP) sysdeps
+bench: $(STAMP) sysdeps kernels
 	$(VENV)/bin/citylod bench-suite bench_out
 
 lint: $(STAMP)

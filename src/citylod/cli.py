@@ -105,6 +105,11 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--exit", action="store_true", help="quit after loading (and the screenshot)")
     v.add_argument("--camera", type=Path)
 
+    bk = sub.add_parser("build-kernels", help="compile the DSM build's kernels ahead of time (what `make` runs; "
+                        "saves numba's start, ≈0.5 s, in every build)")
+    bk.add_argument("--force", action="store_true", help="compile again even when they are up to date")
+    bk.add_argument("--check", action="store_true", help="only say whether they are built; exit 1 when not")
+
     dm = sub.add_parser("demo", help="the main job on a built-in sample (what `make demo` runs)")
     dm.add_argument("out_dir", type=Path)
     dm.add_argument("--no-gui", action="store_true", help="render off-screen even when a display exists")
@@ -183,6 +188,16 @@ def _dispatch(args: argparse.Namespace, progress: bool) -> int:
         from citylod.app.main import run_app
 
         return run_app(args.sources, screenshot=args.screenshot, exit_after=args.exit, camera=args.camera)
+    if cmd == "build-kernels":
+        from citylod.lod import aot
+
+        if args.check:
+            ok = aot.available()
+            print(f"compiled-ahead kernels {'loaded' if ok else 'not built'}: {aot.kernel_dir()}")
+            return 0 if ok else 1
+        # Not built is not an error: every build still runs, on the JIT kernels; the reason is printed.
+        aot.build(force=args.force, log=lambda m: print(m, file=sys.stderr))
+        return 0
     if cmd == "demo":
         from citylod.demo import run_demo
 

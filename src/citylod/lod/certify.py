@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from citylod.lod.aot import kernel
 from citylod.lod.octree import counting_sort
 from citylod.lod.tin_kernels import NO_NRT
 
@@ -343,7 +344,7 @@ def edge_table(faces: npt.NDArray[np.int64], n_vertices: int) -> tuple[np.ndarra
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     if len(f) == 0:
         return e, np.zeros(0, bool), np.zeros(0, np.int64)
-    first, count = _edge_table(f, max(int(n_vertices), int(f.max()) + 1))
+    first, count = kernel(_edge_table, f, max(int(n_vertices), int(f.max()) + 1))
     return e, first, count
 
 
@@ -395,8 +396,8 @@ def certify(read_block, footprint: tuple[int, int, int, int], vr: npt.NDArray[np
             heights, valid = read_block(br, bc, nr, nc)
             if not valid.any():
                 continue
-            certify_block(heights, valid, br, bc, vr, vc, vz, f, edges, cell_err, float(r0), float(c0), float(stride),
-                          best, per_cell)
+            kernel(certify_block, heights, valid, br, bc, vr, vc, vz, f, edges, cell_err, float(r0), float(c0),
+                   float(stride), best, bool(per_cell))
     return float(best[0]), cell_err, (float(best[1]), float(best[2]))
 
 
@@ -452,6 +453,6 @@ def grid_error_lower_bound(read_block, footprint: tuple[int, int, int, int], rpo
             nr, nc = min(block + 1, r1 - br + 1), min(block + 1, c1 - bc + 1)
             heights, valid = read_block(br, bc, nr, nc)
             if valid.any():
-                worst = max(worst, _grid_sample_error(np.ascontiguousarray(heights, np.float64),
-                                                      np.ascontiguousarray(valid), br, bc, rp, cp, z, v))
+                worst = max(worst, kernel(_grid_sample_error, np.ascontiguousarray(heights, np.float64),
+                                          np.ascontiguousarray(valid), br, bc, rp, cp, z, v))
     return float(worst)

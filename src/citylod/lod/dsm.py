@@ -66,6 +66,8 @@ from citylod.core.errors import InputError
 from citylod.core.fileio import publish_dir
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
+from citylod.lod import aot
+from citylod.lod.aot import kernel
 from citylod.lod.certify import certify, grid_error_lower_bound, skirt_strip
 from citylod.lod.octree import bounds as xyz_bounds
 
@@ -685,7 +687,8 @@ def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str,
 
     sides = [_side(sd, last_r, last_c) for sd in extra]
     want = [np.asarray(v, np.int64).reshape(-1) for v in extra.values()]
-    added, faces_out, hit = border_fans(
+    added, faces_out, hit = kernel(
+        border_fans,
         np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
         np.ascontiguousarray(faces, np.int64), np.array([sd[0] for sd in sides], np.int64),
         np.array([sd[1] for sd in sides], np.int64), np.array([sd[2] for sd in sides], np.int64),
@@ -739,10 +742,10 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     hangs from (so attributes such as texture coordinates can be copied).
     """
     sd = [_side(side, last_r, last_c) for side in sides]
-    return skirt_strip(np.ascontiguousarray(local, np.float32), np.ascontiguousarray(faces, np.int64),
-                       np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
-                       np.array([a for a, _, _ in sd], np.int64), np.array([line for _, line, _ in sd], np.int64),
-                       float(depth))
+    return kernel(skirt_strip, np.ascontiguousarray(local, np.float32), np.ascontiguousarray(faces, np.int64),
+                  np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
+                  np.array([a for a, _, _ in sd], np.int64), np.array([line for _, line, _ in sd], np.int64),
+                  float(depth))
 
 
 def _as_doc(res: TileResult) -> dict[str, Any]:
@@ -883,7 +886,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     # each, imports and numba's cache), larger ones on spawned processes.
     default = workers is None and scheduler is None
     fork = default and fork_is_safe()
-    if fork:
+    if fork and not aot.available():
         _preload_kernels()
     threads = default and not fork and info.width * info.height < _THREADS_BELOW_SAMPLES
     where = describe(workers, scheduler, threads=threads, fork=fork)
@@ -947,12 +950,20 @@ _PRELOADED = False
 
 
 def _preload_kernels() -> None:
-    """Build a 40×40 raster inline, once per process, so that every compiled kernel a tile task calls is
-    loaded here before workers are forked: they inherit them. Otherwise every forked worker starts numba's
-    runtime and loads them itself (≈0.5 s), again at every build of the process."""
+    """:func:`exercise_kernels` once per process, so that every JIT kernel a tile task calls is loaded here
+    before workers are forked: they inherit them. Otherwise every forked worker starts numba's runtime and
+    loads them itself (≈0.5 s), again at every build of the process. Not needed where the compiled-ahead
+    kernels are loaded (:mod:`citylod.lod.aot`)."""
     global _PRELOADED
     if _PRELOADED:
         return
+    exercise_kernels()
+    _PRELOADED = True
+
+
+def exercise_kernels() -> None:
+    """Build a 40×40 raster inline, in a temporary folder: every compiled kernel a tile task calls runs
+    once, with the argument types a build passes (coarse levels, façades, no-data, border fans)."""
     import tempfile
 
     import rasterio
@@ -969,7 +980,6 @@ def _preload_kernels() -> None:
                            nodata=-9999.0) as ds:
             ds.write(z, 1)
         build_dsm(path, Path(tmp) / "tiles", tile_size=17, workers=0, progress=False)
-    _PRELOADED = True
 
 
 def _assemble(results: dict[str, TileResult], levels: int, info: RasterInfo, cells: int) -> TileSpec | None:

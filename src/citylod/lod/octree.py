@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod.core.jit import defer_blas_probe
+from citylod.lod.aot import kernel
 
 defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
 
@@ -72,7 +73,7 @@ def _quantize(xyz: F64, cube_lo: F64, scale: float) -> I64:  # pragma: no cover 
 def bounds(xyz: F64) -> tuple[F64, F64]:
     """(3,) float64 lower and upper corner of (N, 3) positions, N > 0, in one compiled pass without the GIL
     (numpy reduces an (N, 3) array along axis 0 about 20 times slower than column by column)."""
-    return _bounds(np.ascontiguousarray(xyz, np.float64))
+    return kernel(_bounds, np.ascontiguousarray(xyz, np.float64))
 
 
 @numba.njit(cache=True, nogil=True)

@@ -83,6 +83,7 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod.lod import tin_kernels as _k
+from citylod.lod.aot import kernel
 
 I32 = npt.NDArray[np.int32]
 I64 = npt.NDArray[np.int64]
@@ -177,7 +178,7 @@ def simplify_polyline(z: npt.ArrayLike, max_error: float, *, valid: npt.ArrayLik
     """
     za = np.ascontiguousarray(z, dtype=np.float64).reshape(-1)
     v = _valid_mask(za, valid)
-    keep = _k.simplify_runs(np.where(v, za, 0.0), v, _check_error(max_error))
+    keep = kernel(_k.simplify_runs, np.where(v, za, 0.0), v, _check_error(max_error))
     return np.flatnonzero(keep).astype(np.int64)
 
 
@@ -193,7 +194,7 @@ def forced_vertices(heights: npt.ArrayLike, valid: npt.ArrayLike | None, max_err
     h = np.ascontiguousarray(heights, dtype=np.float64)
     v = _valid_mask(h, valid)
     e = _check_error(max_error) * BORDER_ERROR_FRACTION
-    return _k.forced_mask(np.where(v, h, 0.0), v, cell_validity(v), e)
+    return kernel(_k.forced_mask, np.where(v, h, 0.0), v, cell_validity(v), e)
 
 
 def build(
@@ -227,19 +228,19 @@ def build(
         return TinResult(np.zeros((0, 2), dtype=np.int32), empty_faces, 0, 0)
 
     hz = np.where(v, h, 0.0)
-    forced = _k.forced_mask(hz, v, cv, e * BORDER_ERROR_FRACTION)  # forced_vertices
+    forced = kernel(_k.forced_mask, hz, v, cv, e * BORDER_ERROR_FRACTION)  # forced_vertices
     if must_include is not None:
         mi = np.asarray(must_include, dtype=np.int64).reshape(-1, 2)
         if mi.size and (mi.min() < 0 or (mi[:, 0] >= H).any() or (mi[:, 1] >= W).any()):
             raise ValueError("must_include holds indices outside the grid")
         forced[mi[:, 0], mi[:, 1]] = True
-    fx, fy = _k.z_ordered(forced)
+    fx, fy = kernel(_k.z_ordered, forced)
     seeded = decimate if seed is None else seed
-    vx, vy, tris, stuck, border_added = _k.build_tin(hz, np.ascontiguousarray(cv), fx, fy, e, decimate=decimate,
-                                                     seed_limit=SEED_DEVIATION * e if seeded else math.inf)
+    vx, vy, tris, stuck, border_added = kernel(_k.build_tin, hz, np.ascontiguousarray(cv), fx, fy, e, True,
+                                               bool(decimate), SEED_DEVIATION * e if seeded else math.inf)
     # keep the triangles inside R (centroid cell valid; see the module docstring for why that suffices),
     # and the vertices in some face, in index order, the faces renumbered
-    vertices, faces = _k.live_mesh(vx, vy, tris, cv)
+    vertices, faces = kernel(_k.live_mesh, vx, vy, tris, cv)
     return TinResult(vertices, faces, border_added, stuck)
 
 

@@ -1,0 +1,105 @@
+"""The compiled-ahead DSM kernels: the same results as the JIT kernels, used only where they may be."""
+
+from __future__ import annotations
+
+import shutil
+import threading
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tests.test_dsm import NODATA, city_like, write_raster
+
+import citylod.lod.tin_kernels as tk
+from citylod.io.tiles3d import open_tileset
+from citylod.lod import aot
+from citylod.lod.dsm import build_dsm
+
+
+@pytest.fixture(scope="module")
+def compiled() -> Path:
+    """The compiled-ahead module for this source (``make`` builds it; built here when it is missing)."""
+    folder = aot.build(log=lambda m: None)
+    assert folder is not None, "numba.pycc could not compile the kernels on this machine"
+    assert aot.load(), "the module built is not loaded"
+    return folder
+
+
+@pytest.fixture
+def counted(compiled, monkeypatch) -> Counter[str]:
+    """Calls of each compiled-ahead kernel, by name, while the test runs."""
+    calls: Counter[str] = Counter()
+    table = {}
+    for jit, variants in aot._table.items():
+        def wrap(fn, name=jit.__name__):
+            def counting(*args):
+                calls[name] += 1
+                return fn(*args)
+            return counting
+        table[jit] = [(wrap(fn), spec) for fn, spec in variants]
+    monkeypatch.setattr(aot, "_table", table)
+    return calls
+
+
+def test_hard_rasters_build_to_the_same_bytes_either_way(tmp_path, counted) -> None:
+    z = city_like(150, 133, seed=7)  # façades, chimneys, not a power of two
+    z[40:60, 20:45] = NODATA  # an inner hole
+    z[:, :5] = NODATA  # a no-data border
+    write_raster(tmp_path / "dsm.tif", z, y0=5_500_000.0)
+    build_dsm(tmp_path / "dsm.tif", tmp_path / "aot", tile_size=33, workers=0, progress=False)
+    used = dict(counted)
+    with aot.disabled():
+        build_dsm(tmp_path / "dsm.tif", tmp_path / "jit", tile_size=33, workers=0, progress=False)
+    assert dict(counted) == used  # nothing compiled ahead ran in the second build
+    for name in ("build_tin", "forced_mask", "z_ordered", "live_mesh", "certify_block", "skirt_strip",
+                 "_grid_sample_error", "_bounds", "border_fans"):
+        assert used.get(name, 0) > 0, name
+    tiles = [t for t in open_tileset(tmp_path / "aot").walk() if t.content_uri]
+    assert len(tiles) > 10
+    for t in tiles:
+        assert (tmp_path / "aot" / t.content_uri).read_bytes() == (tmp_path / "jit" / t.content_uri).read_bytes()
+    assert (tmp_path / "aot" / "tileset.json").read_bytes() == (tmp_path / "jit" / "tileset.json").read_bytes()
+
+
+def test_other_argument_types_and_other_threads_run_the_jit_kernel(counted) -> None:
+    mask = np.zeros((9, 12), bool)
+    mask[::3, 1::4] = True
+    want = tk.z_ordered(mask)
+    for args in ((mask,), (mask.view(np.int8),), (np.asfortranarray(mask),)):
+        got = aot.kernel(tk.z_ordered, *args)
+        assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
+    assert counted["z_ordered"] == 1  # the C-contiguous bool array only (an int8 one would be read as bool)
+    ro = mask.copy()
+    ro.flags.writeable = False
+    aot.kernel(tk.z_ordered, ro)
+    assert counted["z_ordered"] == 1  # read-only: a different numba type
+    out = []
+    th = threading.Thread(target=lambda: out.append(aot.kernel(tk.z_ordered, mask)))
+    th.start()
+    th.join()
+    assert counted["z_ordered"] == 1  # not on another thread (the compiled-ahead wrappers hold the GIL)
+    assert np.array_equal(out[0][0], want[0])
+
+
+def test_the_folder_follows_the_sources(tmp_path) -> None:
+    here = Path(aot.__file__).parent
+    for name in aot.SOURCES:
+        shutil.copy(here / name, tmp_path / name)
+    assert aot._key(tmp_path) == aot._key()
+    with open(tmp_path / "tin_kernels.py", "a") as f:
+        f.write("\n# an edit\n")
+    assert aot._key(tmp_path) != aot._key()
+
+
+def test_a_broken_folder_is_ignored_with_a_warning(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("CITYLOD_KERNEL_DIR", str(tmp_path))
+    folder = aot.kernel_dir()
+    folder.mkdir(parents=True)
+    (folder / "manifest.json").write_text('{"file": "missing.so", "exports": []}')
+    monkeypatch.setattr(aot, "_loaded", False)
+    monkeypatch.setattr(aot, "_table", {})
+    with pytest.warns(RuntimeWarning, match="JIT kernels run instead"):
+        assert not aot.load()
+    mask = np.ones((4, 4), bool)
+    assert np.array_equal(aot.kernel(tk.z_ordered, mask)[0], tk.z_ordered(mask)[0])
