@@ -47,10 +47,12 @@ def test_hard_rasters_build_to_the_same_bytes_either_way(tmp_path, counted) -> N
     z[40:60, 20:45] = NODATA  # an inner hole
     z[:, :5] = NODATA  # a no-data border
     write_raster(tmp_path / "dsm.tif", z, y0=5_500_000.0)
-    build_dsm(tmp_path / "dsm.tif", tmp_path / "aot", tile_size=33, workers=0, progress=False)
+    rep = build_dsm(tmp_path / "dsm.tif", tmp_path / "aot", tile_size=33, workers=0, progress=False)
+    assert rep.kernels == "compiled-ahead" and "compiled-ahead kernels" in rep.summary()
     used = dict(counted)
     with aot.disabled():
-        build_dsm(tmp_path / "dsm.tif", tmp_path / "jit", tile_size=33, workers=0, progress=False)
+        rep = build_dsm(tmp_path / "dsm.tif", tmp_path / "jit", tile_size=33, workers=0, progress=False)
+    assert rep.kernels == "JIT"
     assert dict(counted) == used  # nothing compiled ahead ran in the second build
     for name in ("build_tin", "forced_mask", "z_ordered", "live_mesh", "certify_block", "skirt_strip",
                  "_grid_sample_error", "_bounds", "border_fans"):

@@ -347,6 +347,7 @@ def test_threads_and_forked_workers_build_the_same_tileset_as_one_process(tmp_pa
         reports[name] = build_dsm(tmp_path / "dsm.tif", tmp_path / name, tile_size=33, progress=False)
     assert reports["inline"].executor == "inline"
     assert reports["threads"].executor.endswith("threads")
+    assert reports["threads"].kernels == "JIT"  # the compiled-ahead wrappers would hold the GIL
     assert reports["fork"].executor.endswith("forked processes")
     a = list(open_tileset(tmp_path / "inline").walk())
     assert len(a) > 50

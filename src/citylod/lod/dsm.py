@@ -154,10 +154,12 @@ class DsmBuildReport:
     per_level: list[dict[str, Any]]
     resumed: int = 0
     executor: str = ""  # where the tiles were built: "inline", "threads", "forked processes", ...
+    kernels: str = ""  # "compiled-ahead" (citylod.lod.aot) or "JIT"
 
     def summary(self) -> str:
         lines = [f"{self.output}: {self.tiles} tiles on {self.levels} levels from {self.width}×{self.height} "
-                 f"samples in {self.seconds:.1f} s{f' on {self.executor}' if self.executor else ''} "
+                 f"samples in {self.seconds:.1f} s{f' on {self.executor}' if self.executor else ''}"
+                 f"{f' ({self.kernels} kernels)' if self.kernels else ''} "
                  f"({self.samples_per_s / 1e6:.2f} M samples/s, "
                  f"peak {self.peak_rss_mb:.0f} MB){f', {self.resumed} tiles resumed' if self.resumed else ''}"]
         lines.append("level  tiles   triangles   target_m   max_error_m")
@@ -886,9 +888,12 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     # each, imports and numba's cache), larger ones on spawned processes.
     default = workers is None and scheduler is None
     fork = default and fork_is_safe()
-    if fork and not aot.available():
-        _preload_kernels()
     threads = default and not fork and info.width * info.height < _THREADS_BELOW_SAMPLES
+    # Tasks on the main thread of a process (inline, forked or spawned workers) run the compiled-ahead
+    # kernels where they are built; threads and Dask workers run the JIT ones (see citylod.lod.aot).
+    compiled_ahead = aot.available() and not threads and scheduler is None
+    if fork and not compiled_ahead:
+        _preload_kernels()
     where = describe(workers, scheduler, threads=threads, fork=fork)
     try:
         with make_executor(workers=workers, scheduler=scheduler, threads=threads, fork=fork) as ex:
@@ -943,6 +948,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         tiles=sum(1 for r in results.values() if r.has_content), seconds=seconds,
         samples_per_s=info.width * info.height / max(seconds, 1e-9), peak_rss_mb=_peak_rss_mb(),
         leaf_target=leaf, per_level=per_level, resumed=resumed, executor=where,
+        kernels="compiled-ahead" if compiled_ahead else "JIT",
     )
 
 
