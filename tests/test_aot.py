@@ -105,3 +105,11 @@ def test_a_broken_folder_is_ignored_with_a_warning(tmp_path, monkeypatch) -> Non
         assert not aot.load()
     mask = np.ones((4, 4), bool)
     assert np.array_equal(aot.kernel(tk.z_ordered, mask)[0], tk.z_ordered(mask)[0])
+
+
+def test_an_unwritable_folder_is_reported_and_nothing_is_built(tmp_path, monkeypatch) -> None:
+    (tmp_path / "a_file").write_text("")
+    monkeypatch.setenv("CITYLOD_KERNEL_DIR", str(tmp_path / "a_file"))
+    said: list[str] = []
+    assert aot.build(log=said.append) is None
+    assert "CITYLOD_KERNEL_DIR" in said[-1] and "JIT kernels will run" in said[-1]

@@ -210,6 +210,12 @@ def build(*, force: bool = False, log: Callable[[str], object] = print) -> Path 
         log(f"compiled-ahead kernels are up to date: {folder}")
         return folder
     try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        log(f"cannot write the compiled-ahead kernels to {folder.parent} ({exc}); set CITYLOD_KERNEL_DIR to a "
+            "writable folder. The JIT kernels will run")
+        return None
+    try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # numba.pycc's pending-deprecation notice
             from numba.pycc import CC
@@ -240,7 +246,6 @@ def build(*, force: bool = False, log: Callable[[str], object] = print) -> Path 
     if not exports:
         log("no kernel was called by the small build; nothing compiled")
         return None
-    folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=folder.name + ".", dir=folder.parent))
     try:
         cc.output_dir = str(tmp)
