@@ -113,3 +113,25 @@ def test_an_unwritable_folder_is_reported_and_nothing_is_built(tmp_path, monkeyp
     said: list[str] = []
     assert aot.build(log=said.append) is None
     assert "CITYLOD_KERNEL_DIR" in said[-1] and "JIT kernels will run" in said[-1]
+
+
+def test_a_folder_built_meanwhile_by_another_process_stays(tmp_path, monkeypatch) -> None:
+    folder, tmp = tmp_path / "key", tmp_path / "key.tmp"
+    tmp.mkdir()
+    (tmp / "manifest.json").write_text("mine")
+    real = aot.os.replace
+
+    def racing(src, dst):  # the other process renames its folder in first
+        (tmp_path / "theirs").mkdir()
+        (tmp_path / "theirs" / "manifest.json").write_text("theirs")
+        real(tmp_path / "theirs", dst)
+        real(src, dst)  # a non-empty folder is not replaced: OSError
+
+    monkeypatch.setattr(aot.os, "replace", racing)
+    aot._install(tmp, folder, force=False)
+    assert (folder / "manifest.json").read_text() == "theirs" and not tmp.exists()
+    monkeypatch.setattr(aot.os, "replace", real)
+    tmp.mkdir()
+    (tmp / "manifest.json").write_text("mine")
+    aot._install(tmp, folder, force=True)
+    assert (folder / "manifest.json").read_text() == "mine" and not tmp.exists()

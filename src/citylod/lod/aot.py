@@ -257,12 +257,23 @@ def build(*, force: bool = False, log: Callable[[str], object] = print) -> Path 
         if len(built) != 1:
             raise RuntimeError(f"numba.pycc wrote {sorted(p.name for p in tmp.iterdir())}")
         (tmp / _MANIFEST).write_text(json.dumps({"file": built[0], "exports": exports}, indent=1))
-        if folder.exists():
-            shutil.rmtree(folder)
-        os.replace(tmp, folder)
+        _install(tmp, folder, force)
     except Exception as exc:  # no C compiler, a numba without pycc support for a construct, ...
         shutil.rmtree(tmp, ignore_errors=True)
         log(f"compiling ahead of time failed ({type(exc).__name__}: {exc}); the JIT kernels will run")
         return None
     log(f"compiled-ahead kernels written to {folder}")
     return folder
+
+
+def _install(tmp: Path, folder: Path, force: bool) -> None:
+    """Rename the complete ``tmp`` to ``folder``. Another process may have built the same kernels meanwhile
+    (two test workers, two builds): then theirs stay, unless ``force``."""
+    if folder.exists() and (force or not (folder / _MANIFEST).is_file()):
+        shutil.rmtree(folder)  # replaced on request, or a folder without its manifest (not written by build)
+    try:
+        os.replace(tmp, folder)
+    except OSError:
+        if not (folder / _MANIFEST).is_file():
+            raise
+        shutil.rmtree(tmp)
