@@ -28,11 +28,12 @@ def sample_tiles(tmp_path_factory):
 TAU = 16.0
 
 
-def _oblique(tiles) -> Camera:
+def _oblique(tiles, sx: float = -1.0, sy: float = -1.0) -> Camera:
+    """An oblique view from the (sx, sy) corner of the tileset (each ±1) towards its centre."""
     lo, hi = open_tileset(tiles).bounds
     c = (lo + hi) / 2
     ext = hi[0] - lo[0]
-    eye = (lo[0] - 0.6 * ext, lo[1] - 0.6 * ext, hi[2] + 0.48 * ext)
+    eye = (c[0] + sx * 1.1 * ext, c[1] + sy * 1.1 * ext, hi[2] + 0.48 * ext)
     return Camera(eye, (c[0], c[1], lo[2]), fovy_deg=50)
 
 
@@ -79,22 +80,28 @@ def _gaps(tiles, cam, info) -> int:
 
 def test_no_cracks_between_levels(sample_tiles, monkeypatch: pytest.MonkeyPatch) -> None:
     tiles, info = sample_tiles
-    cam = _oblique(tiles)
-    assert len(_levels(tiles, cam)) >= 2, "the view must mix levels for this test to mean anything"
-    assert _gaps(tiles, cam, info) == 0
-    # The control: the same frame without skirts has cracks, and the count above finds them.
+    cams = [_oblique(tiles, sx, sy) for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)]  # from the four corners
+    for cam in cams:
+        assert len(_levels(tiles, cam)) >= 2, "the view must mix levels for this test to mean anything"
+        assert _gaps(tiles, cam, info) == 0
+    # The control: cracks the count above must find. Whether a frame without skirts shows one depends on
+    # the view and on every coarse TIN (this sample's showed a few pixels in some builds, none in others),
+    # so cracks are made: without skirts, every tile shrunk by 6 % towards its centre (slits of 4–8 m between tiles).
     import citylod.render.tile_data as td
 
     real = td.prepare_content
 
-    def no_skirts(content, key, level, source=""):
+    def cracked(content, key, level, source=""):
         out = real(content, key, level, source)
         for m in out.meshes:
             m.skirt = m.skirt[:0]
+            xy = m.positions[:, :2]
+            m.positions[:, :2] = (xy - xy.mean(axis=0)) * 0.94 + xy.mean(axis=0)
         return out
 
-    monkeypatch.setattr(td, "prepare_content", no_skirts)
-    assert _gaps(tiles, cam, info) > 0
+    monkeypatch.setattr(td, "prepare_content", cracked)
+    counts = [_gaps(tiles, cam, info) for cam in cams]
+    assert all(n >= 10 for n in counts), counts
 
 
 def test_measured_error_respects_tau(sample_tiles) -> None:

@@ -24,16 +24,19 @@ def _border(vij: np.ndarray, shape: tuple[int, int]) -> set[tuple[int, int]]:
     return _set(vij[(r == 0) | (c == 0) | (r == H - 1) | (c == W - 1)])
 
 
-def _seeds(h: np.ndarray, valid: np.ndarray | None, e: float) -> np.ndarray:
+def _seeds(h: np.ndarray, valid: np.ndarray | None, e: float, lattice: int = 0) -> np.ndarray:
     """The seeds, computed here from their definition: interior samples at even row and column, four valid
     cells, whose 3×3 neighbourhood departs from the bilinear interpolation of its corners by more than
-    ``SEED_DEVIATION·e``."""
+    ``SEED_DEVIATION·e``, or (``lattice``) whose row and column are multiples of ``lattice``."""
     H, W = h.shape
     v = np.isfinite(h) if valid is None else valid & np.isfinite(h)
     out = []
     for r in range(2, H - 1, 2):
         for c in range(2, W - 1, 2):
             if not v[r - 1:r + 2, c - 1:c + 2].all():
+                continue
+            if lattice and r % lattice == 0 and c % lattice == 0:
+                out.append((r, c))
                 continue
             blk = h[r - 1:r + 2, c - 1:c + 2]
             t = np.array([0.0, 0.5, 1.0])
@@ -54,17 +57,17 @@ def _sample_city_window(size: int, r0: int, c0: int, n: int) -> tuple[np.ndarray
     return h, valid
 
 
-def _check_against_greedy(h: np.ndarray, valid: np.ndarray | None, e: float) -> tuple[int, int]:
+def _check_against_greedy(h: np.ndarray, valid: np.ndarray | None, e: float, lattice: int = 0) -> tuple[int, int]:
     """The three TINs meet the bound (plain greedy, greedy from the seeds, and that decimated); the
     decimated one keeps a subset of its greedy phase's vertices, among them every forced one and every
     border one. Returns (seeded greedy faces, decimated faces)."""
     vp, fp = tin.triangulate(h, valid, e, decimate=False)
     assert_tile_ok(h, valid, vp, fp, e)
-    v0, f0 = tin.triangulate(h, valid, e, decimate=False, seed=True)
-    v1, f1 = tin.triangulate(h, valid, e)
+    v0, f0 = tin.triangulate(h, valid, e, decimate=False, seed=True, lattice=lattice)
+    v1, f1 = tin.triangulate(h, valid, e, lattice=lattice)
     assert_tile_ok(h, valid, v0, f0, e)
     assert_tile_ok(h, valid, v1, f1, e)
-    assert _set(_seeds(h, valid, e)) <= _set(v0)
+    assert _set(_seeds(h, valid, e, lattice)) <= _set(v0)
     assert _set(v1) <= _set(v0)
     # forced samples touching no valid cell are in no face, hence in neither vertex list
     assert _set(np.argwhere(tin.forced_vertices(h, valid, e))) & _set(v0) <= _set(v1)
@@ -79,6 +82,19 @@ def test_city_cliffs_bound_and_fewer_faces(max_error: float, seed: int) -> None:
     h = city((65, 71), seed=seed, n_buildings=25)
     n0, n1 = _check_against_greedy(h, None, max_error)
     assert n1 < n0
+
+
+@pytest.mark.parametrize("max_error", [0.3, 8.0])
+def test_lattice_seeds_are_vertices_of_the_greedy_phase_and_removable(max_error: float) -> None:
+    # the coarse tiles' lattice (every 16th row and column) with no-data: seeds where four cells are valid
+    h, valid = _sample_city_window(513, 0, 0, 129)
+    assert not valid.all()
+    _check_against_greedy(h, valid, max_error, lattice=tin.SEED_LATTICE)
+    v1, _ = tin.triangulate(h, valid, 8.0, lattice=tin.SEED_LATTICE)
+    lattice = _set(_seeds(h, valid, 8.0, tin.SEED_LATTICE)) - _set(_seeds(h, valid, 8.0))
+    assert len(lattice) > 20 and len(lattice & _set(v1)) < len(lattice)  # some went in the removal pass
+    with pytest.raises(ValueError, match="even"):
+        tin.triangulate(h, valid, 8.0, lattice=15)
 
 
 @pytest.mark.parametrize("max_error", [0.0, 0.1, 1.0])

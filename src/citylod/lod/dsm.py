@@ -170,11 +170,12 @@ class DsmBuildReport:
 
 
 def _triangulate(heights: np.ndarray, valid: np.ndarray, max_error: float,
-                 must_include: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int]:
-    """The TIN kernel's vertices, faces and number of triangles it left above ``max_error`` (0 but for a bug)."""
-    from citylod.lod.tin import build
+                 must_include: np.ndarray | None, lattice: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
+    """The TIN kernel's vertices, faces and number of triangles it left above ``max_error`` (0 but for a bug).
+    ``lattice``: seeded on `citylod.lod.tin.SEED_LATTICE` too (coarse tiles whose target is out of reach)."""
+    from citylod.lod.tin import SEED_LATTICE, build
 
-    r = build(heights, valid, max_error, must_include=must_include)
+    r = build(heights, valid, max_error, must_include=must_include, lattice=SEED_LATTICE if lattice else 0)
     return r.vertices_ij, r.faces, r.stuck
 
 
@@ -383,10 +384,10 @@ def build_tile(job: DsmJob) -> TileResult:
 
     stuck = 0
 
-    def attempt(tol: float, must: np.ndarray | None, check: bool = True,
+    def attempt(tol: float, must: np.ndarray | None, check: bool = True, lattice: bool = False,
                 per_cell: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         nonlocal stuck
-        vij, faces, stuck = _triangulate(heights, valid, tol, must)
+        vij, faces, stuck = _triangulate(heights, valid, tol, must, lattice)
         vz = heights[vij[:, 0], vij[:, 1]]
         if len(faces) == 0 or not check:
             return math.nan, vij, faces, vz, np.zeros((cells, cells))
@@ -404,7 +405,7 @@ def build_tile(job: DsmJob) -> TileResult:
             # Its borders stay simplified at the target, as the target-driven path leaves them: a much
             # coarser border would open cracks that the finer neighbours' skirts (2× their own error)
             # do not cover.
-            quick = attempt(0.8 * full, _border_vertices(heights, valid, job.target), per_cell=False)
+            quick = attempt(0.8 * full, _border_vertices(heights, valid, job.target), per_cell=False, lattice=True)
             if len(quick[2]) and quick[0] <= full * _SHORTCUT_SLACK:
                 return _stage1_done(job, res, key, quick, 1, valid, stride, last_r, last_c, t0)
     best = attempt(job.target, None, check=stride > 1)
@@ -449,7 +450,7 @@ def build_tile(job: DsmJob) -> TileResult:
     if best[0] > 2.0 * job.target and stride > 1:
         # The target is out of reach on this grid; the tile's bound is best[0] wherever it is shown, so a
         # TIN that stays under that bound everywhere looks the same at the distances where it is drawn.
-        coarse = attempt(0.8 * best[0], None, per_cell=False)  # only its maximum is looked at
+        coarse = attempt(0.8 * best[0], None, per_cell=False, lattice=True)  # only its maximum is looked at
         if len(coarse[2]) and coarse[0] <= best[0] and len(coarse[2]) < len(best[2]):
             best = coarse
     return _stage1_done(job, res, key, best, passes, valid, stride, last_r, last_c, t0)

@@ -808,6 +808,7 @@ def build_tin(
     crossings: bool = True,
     decimate: bool = True,
     seed_limit: float = np.inf,
+    seed_lattice: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
     """Greedy-insertion Delaunay TIN of grid ``h`` (H, W), H, W >= 2, after the forced vertices and the
     seeds, then (``decimate``) the vertices the bound does not need removed.
@@ -836,6 +837,10 @@ def build_tin(
         seeds can be removed by the decimation. They only save work: the greedy phase would insert
         most of them (or a neighbour) anyway, one rescan of ever smaller triangles at a time. ``inf``:
         no seeds.
+    seed_lattice
+        Also seed every interior sample whose row and column are multiples of this (even, > 0; 0: none)
+        and whose four cells are valid: a TIN with few vertices (a coarse tile) otherwise rescans large
+        triangles at every insertion. Removable like the other seeds.
 
     Returns
     -------
@@ -889,10 +894,14 @@ def build_tin(
 
     # Errors are only meaningful once every valid-region boundary sample is in (see tin.py).
     nfixed = cnt[_NVERT]
-    if seed_limit < np.inf:  # the seeds (none without a limit: no test of every second sample either)
+    if seed_limit < np.inf or seed_lattice > 0:  # the seeds (without them, no test of every second sample)
         for y in range(2, H - 1, 2):
             for x in range(2, W - 1, 2):
-                if vid[y * W + x] >= 0 or not _rough(h, cellvalid, y, x, seed_limit):
+                if vid[y * W + x] >= 0:
+                    continue
+                if not (seed_lattice > 0 and y % seed_lattice == 0 and x % seed_lattice == 0
+                        and cellvalid[y - 1, x - 1] and cellvalid[y - 1, x] and cellvalid[y, x - 1]
+                        and cellvalid[y, x]) and not _rough(h, cellvalid, y, x, seed_limit):
                     continue
                 if 3 * (cnt[_NTRI] + 4) > tri.size:
                     cap *= 2
