@@ -28,4 +28,6 @@ def test_bench_dsm_small_raster(tmp_path: Path) -> None:
     assert pyd["triangles"] > 0 and pyd["true_error_m"] > 0  # façades between samples: above its bound
     assert np.isclose(r["warm_vs_pydelatin_time"], r["warm_seconds"] / pyd["seconds"])
     assert "pydelatin" in dsm_markdown([r])
+    assert r["kernels"] in ("compiled-ahead", "JIT")  # the report says which ran (make builds them ahead)
+    assert ("nothing to start" in dsm_markdown([r])) == (r["kernels"] == "compiled-ahead")
     assert not (tmp_path / "out" / "tiles_dsm_warm").exists()
