@@ -72,6 +72,9 @@ def test_other_argument_types_and_other_threads_run_the_jit_kernel(counted) -> N
         got = aot.kernel(tk.z_ordered, *args)
         assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
     assert counted["z_ordered"] == 1  # the C-contiguous bool array only (an int8 one would be read as bool)
+    assert not aot._matches((("f",),), (np.float32(1.0),)) and aot._matches((("f",),), (np.float64(1.0),))
+    assert not aot._matches((("i",),), (np.int32(1),)) and not aot._matches((("i",),), (True,))
+    assert aot._matches((("i",),), (np.int64(1),)) and aot._matches((("i",),), (7,))
     ro = mask.copy()
     ro.flags.writeable = False
     aot.kernel(tk.z_ordered, ro)

@@ -87,11 +87,11 @@ def _matches(spec: tuple[tuple[Any, ...], ...], args: tuple[Any, ...]) -> bool:
             if (type(a) is not np.ndarray or a.dtype != s[1] or a.ndim != s[2] or not a.flags.writeable
                     or not a.flags.aligned or (s[3] and not a.flags.c_contiguous)):
                 return False
-        elif s[0] == "f":
-            if not isinstance(a, (float, np.floating)):
+        elif s[0] == "f":  # what numba types as float64 (a float32 scalar would get a float32 kernel)
+            if not isinstance(a, float):
                 return False
-        elif s[0] == "i":
-            if not isinstance(a, (int, np.integer)) or isinstance(a, (bool, np.bool_)):
+        elif s[0] == "i":  # what numba types as int64 (an int32 scalar would get an int32 kernel)
+            if not (type(a) is int or type(a) is np.int64):
                 return False
         elif s[0] == "b":
             if not isinstance(a, (bool, np.bool_)):
