@@ -138,3 +138,20 @@ def test_a_folder_built_meanwhile_by_another_process_stays(tmp_path, monkeypatch
     (tmp / "manifest.json").write_text("mine")
     aot._install(tmp, folder, force=True)
     assert (folder / "manifest.json").read_text() == "mine" and not tmp.exists()
+
+
+def test_old_kernel_folders_are_pruned(tmp_path) -> None:
+    import os
+
+    for i in range(11):
+        d = tmp_path / f"{i:020x}"
+        d.mkdir()
+        (d / "manifest.json").write_text("{}")
+        os.utime(d / "manifest.json", (1000.0 + i, 1000.0 + i))
+    (tmp_path / "not-ours").mkdir()
+    (tmp_path / f"{0:020x}.tmpdead").mkdir()
+    os.utime(tmp_path / f"{0:020x}.tmpdead", (1000.0, 1000.0))
+    (tmp_path / f"{1:020x}.tmplive").mkdir()  # a build in progress
+    aot._prune(tmp_path, keep=8)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == sorted([f"{i:020x}" for i in range(3, 11)] + ["not-ours", f"{1:020x}.tmplive"])

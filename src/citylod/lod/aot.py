@@ -59,6 +59,8 @@ EXPORTS: dict[str, tuple[str, ...]] = {
 SOURCES = ("tin_kernels.py", "certify.py", "octree.py", "aot.py")
 _MODULE = "_citylod_dsm_kernels"
 _MANIFEST = "manifest.json"
+#: Folders (≈ 1 MB each) kept beside a new one: other checkouts or versions sharing the cache keep theirs.
+_KEEP = 8
 
 _lock = threading.Lock()
 _loaded = False
@@ -258,6 +260,7 @@ def build(*, force: bool = False, log: Callable[[str], object] = print) -> Path 
             raise RuntimeError(f"numba.pycc wrote {sorted(p.name for p in tmp.iterdir())}")
         (tmp / _MANIFEST).write_text(json.dumps({"file": built[0], "exports": exports}, indent=1))
         _install(tmp, folder, force)
+        _prune(folder.parent, keep=_KEEP)
     except Exception as exc:  # no C compiler, a numba without pycc support for a construct, ...
         shutil.rmtree(tmp, ignore_errors=True)
         log(f"compiling ahead of time failed ({type(exc).__name__}: {exc}); the JIT kernels will run")
@@ -277,3 +280,25 @@ def _install(tmp: Path, folder: Path, force: bool) -> None:
         if not (folder / _MANIFEST).is_file():
             raise
         shutil.rmtree(tmp)
+
+
+def _prune(parent: Path, keep: int) -> None:
+    """Remove all but the ``keep`` most recently built kernel folders under ``parent`` (a folder's manifest
+    is written last), and temporary folders of builds that died more than a day ago. Only folders named
+    as :func:`build` names them are touched; a process that loaded a removed module keeps running it."""
+    import time
+
+    built = []
+    for p in parent.iterdir():
+        if not p.is_dir():
+            continue
+        stem, _, rest = p.name.partition(".")
+        if len(stem) != 20 or any(ch not in "0123456789abcdef" for ch in stem):
+            continue
+        if rest:
+            if time.time() - p.stat().st_mtime > 86400:
+                shutil.rmtree(p, ignore_errors=True)
+        elif (p / _MANIFEST).is_file():
+            built.append(((p / _MANIFEST).stat().st_mtime, p))
+    for _, p in sorted(built, reverse=True)[keep:]:
+        shutil.rmtree(p, ignore_errors=True)
