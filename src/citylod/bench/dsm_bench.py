@@ -130,8 +130,8 @@ def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progre
     # The build runs in a child process so its peak memory is its own, and starts as a user's command does.
     # Later builds in the same process, with everything loaded (numba's runtime and its cached kernels where
     # the kernels are not compiled ahead; lazily imported modules), are timed as pydelatin is: its library
-    # loaded. pydelatin is timed in that process
-    # too, in turns with them (pydelatin, warm build, pydelatin, warm build), each side the best of its two:
+    # loaded. pydelatin is timed in that process too, in turns with them (pydelatin, warm build, pydelatin,
+    # warm build), each side the best of its two:
     # this machine's speed drifts by tens of per cent over seconds, and timing one side after the other
     # (the warm builds, then pydelatin in the parent) let a drift decide the ratio.
     warm_dir = out_dir / f"tiles_{raster.stem}_warm"

@@ -40,6 +40,7 @@ import shutil
 import sys
 import tempfile
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -59,6 +60,8 @@ EXPORTS: dict[str, tuple[str, ...]] = {
 SOURCES = ("tin_kernels.py", "certify.py", "octree.py", "aot.py")
 _MODULE = "_citylod_dsm_kernels"
 _MANIFEST = "manifest.json"
+#: Hex digits of the source/machine hash naming a kernel folder.
+_KEY_LEN = 20
 #: Folders (≈ 1 MB each) kept beside a new one: other checkouts or versions sharing the cache keep theirs.
 _KEEP = 8
 
@@ -142,7 +145,7 @@ def _key(sources: Path | None = None) -> str:
     for part in (numba.__version__, sys.version, platform.machine(), ll.get_host_cpu_name(),
                  ll.get_host_cpu_features().flatten(), json.dumps(EXPORTS, sort_keys=True)):
         h.update(str(part).encode() + b"\0")
-    return h.hexdigest()[:20]
+    return h.hexdigest()[:_KEY_LEN]
 
 
 def load() -> bool:
@@ -260,11 +263,11 @@ def build(*, force: bool = False, log: Callable[[str], object] = print) -> Path 
             raise RuntimeError(f"numba.pycc wrote {sorted(p.name for p in tmp.iterdir())}")
         (tmp / _MANIFEST).write_text(json.dumps({"file": built[0], "exports": exports}, indent=1))
         _install(tmp, folder, force)
-        _prune(folder.parent, keep=_KEEP)
     except Exception as exc:  # no C compiler, a numba without pycc support for a construct, ...
         shutil.rmtree(tmp, ignore_errors=True)
         log(f"compiling ahead of time failed ({type(exc).__name__}: {exc}); the JIT kernels will run")
         return None
+    _prune(folder.parent, keep=_KEEP)
     log(f"compiled-ahead kernels written to {folder}")
     return folder
 
@@ -286,14 +289,12 @@ def _prune(parent: Path, keep: int) -> None:
     """Remove all but the ``keep`` most recently built kernel folders under ``parent`` (a folder's manifest
     is written last), and temporary folders of builds that died more than a day ago. Only folders named
     as :func:`build` names them are touched; a process that loaded a removed module keeps running it."""
-    import time
-
     built = []
     for p in parent.iterdir():
         if not p.is_dir():
             continue
         stem, _, rest = p.name.partition(".")
-        if len(stem) != 20 or any(ch not in "0123456789abcdef" for ch in stem):
+        if len(stem) != _KEY_LEN or any(ch not in "0123456789abcdef" for ch in stem):
             continue
         if rest:
             if time.time() - p.stat().st_mtime > 86400:

@@ -225,6 +225,8 @@ def build(
     if max(H, W) > MAX_GRID_SIDE:
         raise ValueError(f"grid side {max(H, W)} exceeds {MAX_GRID_SIDE}; split it into tiles")
     e = _check_error(max_error)
+    if lattice < 0 or lattice % 2:
+        raise ValueError(f"lattice must be even and >= 0, got {lattice}")
     v = _valid_mask(h, valid)
     empty_faces = np.zeros((0, 3), dtype=np.int32)
     if not v.any():
@@ -247,8 +249,6 @@ def build(
         forced[mi[:, 0], mi[:, 1]] = True
     fx, fy = kernel(_k.z_ordered, forced)
     seeded = decimate if seed is None else seed
-    if lattice < 0 or lattice % 2:
-        raise ValueError(f"lattice must be even and >= 0, got {lattice}")
     vx, vy, tris, stuck, border_added = kernel(_k.build_tin, hz, np.ascontiguousarray(cv), fx, fy, e, True,
                                                bool(decimate), SEED_DEVIATION * e if seeded else math.inf,
                                                int(lattice) if seeded else 0)

@@ -783,11 +783,17 @@ def _flush(
     cnt[_NPEND] = 0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _cells_valid(cellvalid: np.ndarray, y: int, x: int) -> bool:
+    """Whether the four cells around interior sample (y, x) are valid."""
+    return cellvalid[y - 1, x - 1] and cellvalid[y - 1, x] and cellvalid[y, x - 1] and cellvalid[y, x]
+
+
 @njit(cache=True, nogil=True, **NO_NRT)
 def _rough(h: np.ndarray, cellvalid: np.ndarray, y: int, x: int, limit: float) -> bool:
     """True when interior sample (y, x) has its four cells valid and its 3×3 neighbourhood departs from the
     bilinear interpolation of the neighbourhood's corners by more than ``limit`` (a seed; see `build_tin`)."""
-    if not (cellvalid[y - 1, x - 1] and cellvalid[y - 1, x] and cellvalid[y, x - 1] and cellvalid[y, x]):
+    if not _cells_valid(cellvalid, y, x):
         return False
     za = h[y - 1, x - 1]
     zb = h[y - 1, x + 1]
@@ -899,9 +905,8 @@ def build_tin(
             for x in range(2, W - 1, 2):
                 if vid[y * W + x] >= 0:
                     continue
-                if not (seed_lattice > 0 and y % seed_lattice == 0 and x % seed_lattice == 0
-                        and cellvalid[y - 1, x - 1] and cellvalid[y - 1, x] and cellvalid[y, x - 1]
-                        and cellvalid[y, x]) and not _rough(h, cellvalid, y, x, seed_limit):
+                lattice = seed_lattice > 0 and y % seed_lattice == 0 and x % seed_lattice == 0
+                if not ((lattice and _cells_valid(cellvalid, y, x)) or _rough(h, cellvalid, y, x, seed_limit)):
                     continue
                 if 3 * (cnt[_NTRI] + 4) > tri.size:
                     cap *= 2
