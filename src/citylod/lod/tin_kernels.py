@@ -804,6 +804,71 @@ def _rough(h: np.ndarray, cellvalid: np.ndarray, y: int, x: int, limit: float) -
             or abs(h[y, x] - 0.25 * (za + zb + zc + zd)) > limit)
 
 
+@njit(cache=True, nogil=True, **NO_NRT)
+def _insert_all(tri: np.ndarray, half: np.ndarray, vx: np.ndarray, vy: np.ndarray, vid: np.ndarray, hpos: np.ndarray,
+                heap: np.ndarray, terr: np.ndarray, pend: np.ndarray, inpend: np.ndarray, cnt: np.ndarray,
+                stack: np.ndarray, W: int, xs: np.ndarray, ys: np.ndarray, k: int, t: int) -> tuple[int, int]:
+    """Insert samples (xs[k:], ys[k:]) in order until all are in or the arrays are full; return the next
+    index (``xs.size`` when done) and a triangle near the last one inserted."""
+    while k < xs.size:
+        if 3 * (cnt[_NTRI] + 4) > tri.size:
+            break
+        t = _insert(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, xs[k], ys[k], t)
+        k += 1
+    return k, t
+
+
+@njit(cache=True, nogil=True)
+def _seeds(h: np.ndarray, cellvalid: np.ndarray, vid: np.ndarray, seed_limit: float,
+           seed_lattice: int) -> tuple[np.ndarray, np.ndarray]:
+    """Columns and rows of the seeds (`build_tin`), in row-major order of the even samples."""
+    H, W = h.shape
+    n = 0
+    sx = np.empty(((H - 1) // 2) * ((W - 1) // 2) + 1, dtype=np.int64)
+    sy = np.empty_like(sx)
+    for y in range(2, H - 1, 2):
+        for x in range(2, W - 1, 2):
+            if vid[y * W + x] >= 0:
+                continue
+            lattice = seed_lattice > 0 and y % seed_lattice == 0 and x % seed_lattice == 0
+            if not ((lattice and _cells_valid(cellvalid, y, x)) or _rough(h, cellvalid, y, x, seed_limit)):
+                continue
+            sx[n] = x
+            sy[n] = y
+            n += 1
+    return sx[:n], sy[:n]
+
+
+@njit(cache=True, nogil=True, **NO_NRT)
+def _greedy(h: np.ndarray, cellvalid: np.ndarray, vid: np.ndarray, scratch: np.ndarray, tri: np.ndarray,
+            half: np.ndarray, vx: np.ndarray, vy: np.ndarray, hpos: np.ndarray, heap: np.ndarray, terr: np.ndarray,
+            tcand: np.ndarray, pend: np.ndarray, inpend: np.ndarray, cnt: np.ndarray, stack: np.ndarray,
+            max_error: float, crossings: bool) -> bool:
+    """`build_tin`'s greedy phase until no triangle is above ``max_error`` (True) or the arrays are full
+    (False: grow them and call again). Apart from `build_tin`, which allocates, so that the loop runs without
+    numba's reference counting (the reassigned arrays cost an incref and a decref each per insertion)."""
+    H, W = h.shape
+    while cnt[_NHEAP] > 0:
+        if 3 * (cnt[_NTRI] + 4) > tri.size:
+            return False
+        t = heap[0]
+        _heap_remove(heap, hpos, terr, cnt, t)
+        s = tcand[t]
+        y = s // W
+        x = s - y * W
+        if vid[s] < 0 and _is_border(s, H, W):
+            cnt[_NBORDER_ADDED] += 1
+        _insert(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, x, y, t)
+        # A candidate outside t (from an edge crossing) may leave t untouched: re-evaluate it too.
+        if not inpend[t]:
+            inpend[t] = True
+            pend[cnt[_NPEND]] = t
+            cnt[_NPEND] += 1
+        _flush(h, cellvalid, vid, scratch, tri, vx, vy, hpos, heap, terr, tcand, pend, inpend, cnt, max_error,
+               crossings)
+    return True
+
+
 @njit(cache=True, nogil=True)
 def build_tin(
     h: np.ndarray,
@@ -889,30 +954,28 @@ def build_tin(
     _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, 0, 3, 1, t0, -1, -1)
 
     t = 0
-    for k in range(forced_x.size):
-        if 3 * (cnt[_NTRI] + 4) > tri.size:
-            cap *= 2
-            vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
-                cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
-        t = _insert(
-            tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, forced_x[k], forced_y[k], t
-        )
+    k = 0
+    while True:
+        k, t = _insert_all(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, forced_x,
+                           forced_y, k, t)
+        if k == forced_x.size:
+            break
+        cap *= 2
+        vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
+            cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
 
     # Errors are only meaningful once every valid-region boundary sample is in (see tin.py).
     nfixed = cnt[_NVERT]
     if seed_limit < np.inf or seed_lattice > 0:  # the seeds (without them, no test of every second sample)
-        for y in range(2, H - 1, 2):
-            for x in range(2, W - 1, 2):
-                if vid[y * W + x] >= 0:
-                    continue
-                lattice = seed_lattice > 0 and y % seed_lattice == 0 and x % seed_lattice == 0
-                if not ((lattice and _cells_valid(cellvalid, y, x)) or _rough(h, cellvalid, y, x, seed_limit)):
-                    continue
-                if 3 * (cnt[_NTRI] + 4) > tri.size:
-                    cap *= 2
-                    vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
-                        cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
-                t = _insert(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, x, y, t)
+        sx, sy = _seeds(h, cellvalid, vid, seed_limit, seed_lattice)
+        k = 0
+        while True:
+            k, t = _insert_all(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, sx, sy, k, t)
+            if k == sx.size:
+                break
+            cap *= 2
+            vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
+                cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
     cnt[_ERRORS_ON] = 1
     for t in range(cnt[_NTRI]):
         pend[t] = t
@@ -938,42 +1001,11 @@ def build_tin(
     )
 
     # Garland & Heckbert 1995: insert the worst sample of the worst triangle until all are within bound.
-    while cnt[_NHEAP] > 0:
-        t = heap[0]
-        _heap_remove(heap, hpos, terr, cnt, t)
-        s = tcand[t]
-        if 3 * (cnt[_NTRI] + 4) > tri.size:
-            cap *= 2
-            vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
-                cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
-        y = s // W
-        x = s - y * W
-        if vid[s] < 0 and _is_border(s, H, W):
-            cnt[_NBORDER_ADDED] += 1
-        _insert(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, x, y, t)
-        # A candidate outside t (from an edge crossing) may leave t untouched: re-evaluate it too.
-        if not inpend[t]:
-            inpend[t] = True
-            pend[cnt[_NPEND]] = t
-            cnt[_NPEND] += 1
-        _flush(
-            h,
-            cellvalid,
-            vid,
-            scratch,
-            tri,
-            vx,
-            vy,
-            hpos,
-            heap,
-            terr,
-            tcand,
-            pend,
-            inpend,
-            cnt,
-            max_error,
-            crossings,
-        )
+    while not _greedy(h, cellvalid, vid, scratch, tri, half, vx, vy, hpos, heap, terr, tcand, pend, inpend, cnt,
+                      stack, max_error, crossings):
+        cap *= 2
+        vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
+            cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
 
     nv = cnt[_NVERT]
     nt = cnt[_NTRI]
