@@ -513,18 +513,21 @@ def finish_tile(job: DsmJob) -> TileResult:
     n_kept = len(faces)  # faces[:n_kept] are stage 1's; the rest are the fans that replaced the others
     replaced = faces[:0]
     old_center = None
+    # A leaf's error is its kernel's bound (see below), not a certificate: nothing of stage 1 is re-evaluated.
+    kernel_leaf = stride == 1 and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
     if job.border_extra:
         vij2, faces2, replaced = _insert_border_vertices(vij, faces, dict(job.border_extra), last_r, last_c)
         if len(replaced):
             fp = _Footprint(job.source, rpos, cpos)
             heights, _ = fp.grid()
-            old_center = _place(info, to_metric, rpos, cpos, vij, vz)[1]
+            if not kernel_leaf:
+                old_center = _place(info, to_metric, rpos, cpos, vij, vz)[1]
             vz = np.concatenate([vz, heights[vij2[len(vij):, 0], vij2[len(vij):, 1]]])
             n_kept = len(faces) - len(replaced)
             vij, faces = vij2, faces2
     local, center, q_xy, vr, vc, zq = _place(info, to_metric, rpos, cpos, vij, vz)
     limit = job.target  # above this, the fans made the tile miss what stage 1 met
-    if stride == 1 and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves:
+    if kernel_leaf:
         # A leaf's grid is the raster's: the kernel evaluated the exact vertical distance at every sample and
         # every grid-edge crossing of every face (what certify computes) and left none above its bound; float32
         # heights move a face by at most its vertices' rounding. Only the fans are new: they are certified.
@@ -642,8 +645,8 @@ def _unique_ij(ij: np.ndarray, width: int) -> np.ndarray:
 def _border_sets(vij: np.ndarray, last_r: int, last_c: int) -> dict[str, list[int]]:
     """Vertex positions along each tile side: "n" (row 0), "s" (last row), "w" (col 0), "e" (last col)."""
     r_, c_ = vij[:, 0], vij[:, 1]
-    return {"n": sorted(int(v) for v in c_[r_ == 0]), "s": sorted(int(v) for v in c_[r_ == last_r]),
-            "w": sorted(int(v) for v in r_[c_ == 0]), "e": sorted(int(v) for v in r_[c_ == last_c])}
+    return {"n": np.sort(c_[r_ == 0]).tolist(), "s": np.sort(c_[r_ == last_r]).tolist(),
+            "w": np.sort(r_[c_ == 0]).tolist(), "e": np.sort(r_[c_ == last_c]).tolist()}
 
 
 def _border_additions(stage1: dict[str, TileResult]) -> dict[str, dict[str, list[int]]]:
