@@ -31,7 +31,7 @@ it is missing or fails, :func:`build` reports why and the JIT kernels run as bef
 from __future__ import annotations
 
 import hashlib
-import importlib.machinery
+import importlib
 import importlib.util
 import json
 import os

@@ -67,7 +67,6 @@ from citylod.core.fileio import publish_dir
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod import aot
-from citylod.lod.aot import kernel
 from citylod.lod.certify import certify, grid_error_lower_bound, skirt_strip
 from citylod.lod.octree import bounds as xyz_bounds
 
@@ -693,7 +692,7 @@ def _insert_border_vertices(vij: np.ndarray, faces: np.ndarray, extra: dict[str,
 
     sides = [_side(sd, last_r, last_c) for sd in extra]
     want = [np.asarray(v, np.int64).reshape(-1) for v in extra.values()]
-    added, faces_out, hit = kernel(
+    added, faces_out, hit = aot.kernel(
         border_fans,
         np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
         np.ascontiguousarray(faces, np.int64), np.array([sd[0] for sd in sides], np.int64),
@@ -748,7 +747,7 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     hangs from (so attributes such as texture coordinates can be copied).
     """
     sd = [_side(side, last_r, last_c) for side in sides]
-    return kernel(skirt_strip, np.ascontiguousarray(local, np.float32), np.ascontiguousarray(faces, np.int64),
+    return aot.kernel(skirt_strip, np.ascontiguousarray(local, np.float32), np.ascontiguousarray(faces, np.int64),
                   np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
                   np.array([a for a, _, _ in sd], np.int64), np.array([line for _, line, _ in sd], np.int64),
                   float(depth))

@@ -953,29 +953,25 @@ def build_tin(
     t0 = _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, 3, 0, 2, -1, -1, -1)
     _add_triangle(tri, half, hpos, heap, terr, pend, inpend, cnt, -1, 0, 3, 1, t0, -1, -1)
 
+    # The forced vertices, then the seeds (without a seed limit or lattice none: no test of every second
+    # sample). Errors are only meaningful once every valid-region boundary sample is in (see tin.py).
     t = 0
-    k = 0
-    while True:
-        k, t = _insert_all(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, forced_x,
-                           forced_y, k, t)
-        if k == forced_x.size:
-            break
-        cap *= 2
-        vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
-            cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
-
-    # Errors are only meaningful once every valid-region boundary sample is in (see tin.py).
-    nfixed = cnt[_NVERT]
-    if seed_limit < np.inf or seed_lattice > 0:  # the seeds (without them, no test of every second sample)
-        sx, sy = _seeds(h, cellvalid, vid, seed_limit, seed_lattice)
+    nfixed = 0
+    xs, ys = forced_x, forced_y
+    for phase in range(2):
         k = 0
         while True:
-            k, t = _insert_all(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, sx, sy, k, t)
-            if k == sx.size:
+            k, t = _insert_all(tri, half, vx, vy, vid, hpos, heap, terr, pend, inpend, cnt, stack, W, xs, ys, k, t)
+            if k == xs.size:
                 break
             cap *= 2
             vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
                 cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
+        if phase == 0:
+            nfixed = cnt[_NVERT]
+            if not (seed_limit < np.inf or seed_lattice > 0):
+                break
+            xs, ys = _seeds(h, cellvalid, vid, seed_limit, seed_lattice)
     cnt[_ERRORS_ON] = 1
     for t in range(cnt[_NTRI]):
         pend[t] = t
