@@ -1231,15 +1231,17 @@ def _decimate(
     cand = np.empty((D * D * D // 6 + D, 3), dtype=np.int64)
     cerr = np.empty(D * D * D // 6 + D, dtype=np.float64)
     stk = np.empty(4 * D, dtype=np.int64)
+    rz = np.empty(D, dtype=np.float64)
     return _decimate_run(h, tri, half, vx, vy, nv, nfixed, max_error, vedge, ring, ring_e, outer, lside, tstat,
-                         dstat, feas, info, choice, cand, cerr, stk)
+                         dstat, feas, info, choice, cand, cerr, stk, rz)
 
 
 @njit(cache=True, nogil=True, **NO_NRT)
 def _decimate_run(h: np.ndarray, tri: np.ndarray, half: np.ndarray, vx: np.ndarray, vy: np.ndarray, nv: int,
                   nfixed: int, max_error: float, vedge: np.ndarray, ring: np.ndarray, ring_e: np.ndarray,
                   outer: np.ndarray, lside: np.ndarray, tstat: np.ndarray, dstat: np.ndarray, feas: np.ndarray,
-                  info: np.ndarray, choice: np.ndarray, cand: np.ndarray, cerr: np.ndarray, stk: np.ndarray) -> int:
+                  info: np.ndarray, choice: np.ndarray, cand: np.ndarray, cerr: np.ndarray, stk: np.ndarray,
+                  rz: np.ndarray) -> int:
     """`_decimate`'s loop over the vertices, on the work arrays it allocated: it allocates none, so it runs
     without numba's reference counting (the inlined hole helpers pass arrays around at every step)."""
     H, W = h.shape
@@ -1270,18 +1272,24 @@ def _decimate_run(h: np.ndarray, tri: np.ndarray, half: np.ndarray, vx: np.ndarr
         # candidate triangles holding v whose plane meets v's height within the bound; lside[i, k] is
         # orient(ring i, ring k, v), so triangle (i, k, j) holds v iff its three sides see v on the
         # left, and its area is their sum
+        # (the ring's heights gathered once: the loops below read each of them O(d^2) times)
         for i in range(d):
             pa = ring[i]
+            ax = vx[pa]
+            ay = vy[pa]
+            rz[i] = h[ay, ax]
             for k in range(i + 1, d):
                 pb = ring[k]
-                lside[i, k] = _orient(vx[pa], vy[pa], vx[pb], vy[pb], x, y)
+                lside[i, k] = _orient(ax, ay, vx[pb], vy[pb], x, y)
         zv = h[y, x]
         nc = 0
         for i in range(d):
+            zi = rz[i]
             for k in range(i + 1, d):
                 w2 = lside[i, k]
                 if w2 < 0:
                     continue
+                zk = rz[k]
                 for j in range(k + 1, d):
                     w0 = lside[k, j]
                     w1 = -lside[i, j]
@@ -1290,10 +1298,7 @@ def _decimate_run(h: np.ndarray, tri: np.ndarray, half: np.ndarray, vx: np.ndarr
                     ar = w0 + w1 + w2
                     if ar <= 0:
                         continue
-                    pa, pb, pc = ring[i], ring[k], ring[j]
-                    err = abs(
-                        (w0 * h[vy[pa], vx[pa]] + w1 * h[vy[pb], vx[pb]] + w2 * h[vy[pc], vx[pc]]) / ar - zv
-                    )
+                    err = abs((w0 * zi + w1 * zk + w2 * rz[j]) / ar - zv)
                     if err > max_error:
                         continue
                     # insertion sort by that error: the best fitting candidates first
