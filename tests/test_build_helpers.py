@@ -8,7 +8,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from citylod.lod.executor import Completions, run_tasks
+from citylod.lod import dsm
+from citylod.lod.executor import Completions, fork_is_safe, make_executor, run_tasks
 from citylod.lod.octree import shuffled_runs
 from citylod.lod.planes import PlaneResult, quad_mesh_arrays
 
@@ -37,6 +38,58 @@ def test_run_tasks_yields_every_result_and_reraises_a_failure() -> None:
         assert sorted(run_tasks(pool, _fail_on, [(k,) for k in range(3)], progress=False)) == [0, 1, 2]
         with pytest.raises(ValueError, match="task 3"):
             list(run_tasks(pool, _fail_on, [(k,) for k in range(8)], progress=False, max_in_flight=2))
+
+
+class _Job:
+    """The two fields of a DsmJob that batching looks at."""
+
+    def __init__(self, level: int, key: str) -> None:
+        self.level, self.key = level, key
+
+
+def _tile_key(job: _Job) -> tuple[str, int]:
+    import os
+
+    return job.key, os.getpid()
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_batched_tiles_run_once_each_crowded_levels_in_batches(workers: int) -> None:
+    # a level of 3 tiles, one of 2 and one of 70: every job's result comes back exactly once, whatever the
+    # executor; the 70 go four (consecutive ones) to a task, the others one to a task
+    jobs = ([_Job(0, "0/0/0")] + [_Job(1, f"1/0/{k}") for k in range(3)] + [_Job(2, f"2/0/{k}") for k in range(70)]
+            + [_Job(3, f"3/0/{k}") for k in range(2)])
+    fork = workers > 0 and fork_is_safe()  # else threads (a spawned worker could not import this module)
+    with make_executor(workers=workers, fork=fork, threads=workers > 0 and not fork) as ex:
+        out = list(dsm._run_batched(ex, _tile_key, jobs, False, "test"))
+    assert sorted(k for k, _ in out) == sorted(j.key for j in jobs)
+    assert dsm._BATCH == 4 and dsm._BATCH_FROM == 64
+    # consecutive tiles of the crowded level run in one task: in order, on one process
+    crowded = [(k, pid) for k, pid in out if k.startswith("2/")]
+    for b in range(0, 70, dsm._BATCH):
+        chunk = [f"2/0/{k}" for k in range(b, min(b + dsm._BATCH, 70))]
+        got = [x for x in crowded if x[0] in chunk]
+        assert [k for k, _ in got] == chunk and len({pid for _, pid in got}) == 1
+
+
+def test_batches_are_the_crowded_levels_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    import citylod.lod.executor as executor
+
+    seen: list[list[str]] = []
+    real = executor.run_tasks
+
+    def recording(ex, fn, tasks, **kw):  # type: ignore[no-untyped-def]
+        tasks = list(tasks)
+        seen.extend([j.key for j in t[1]] for t in tasks)
+        return real(ex, fn, tasks, **kw)
+
+    monkeypatch.setattr(executor, "run_tasks", recording)
+    jobs = [_Job(0, "0/0/0")] + [_Job(1, f"1/0/{k}") for k in range(3)] + [_Job(2, f"2/0/{k}") for k in range(66)]
+    with make_executor(workers=0) as ex:
+        list(dsm._run_batched(ex, _tile_key, jobs, False, "test"))
+    assert seen[:4] == [["0/0/0"], ["1/0/0"], ["1/0/1"], ["1/0/2"]]
+    assert [len(b) for b in seen[4:]] == [4] * 16 + [2]
+    assert [k for b in seen[4:] for k in b] == [f"2/0/{k}" for k in range(66)]
 
 
 @pytest.mark.parametrize("n_runs", [1, 2, 7, 1000])
