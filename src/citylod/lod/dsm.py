@@ -962,8 +962,8 @@ _PRELOADED = False
 
 # The tiles of a level with many go to the executor four to a task: a process-pool task costs the builder
 # ≈ 0.5 ms of CPU (its queue and result threads), on the cores the workers need. The 2049² city (682 tasks →
-# 298): the builder's CPU per build 0.34–0.46 s → 0.23–0.31 s in twelve alternating builds; the 4097²
-# natural terrain 1.2 → 0.8 s. Levels with few tiles (the long ones at the top) stay one to a task, so
+# 202): the builder's CPU per build 0.34–0.46 s → 0.22–0.31 s; the 4097² natural terrain (2730 → 822)
+# 1.1–1.3 s → 0.55–0.63 s, in alternating builds. Levels with few tiles (the long ones at the top) stay one to a task, so
 # that they start first and spread over the workers.
 _BATCH = 4
 _BATCH_FROM = 64  # tiles in a level, from which it is batched
