@@ -97,3 +97,19 @@ def test_report_figure_counts_what_the_data_is_made_of(tmp_path: Path) -> None:
     for name, rows in (("cloud", cloud), ("surface", surface)):
         png = _plot(tmp_path / f"{name}.png", rows)
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_coinciding_points_of_the_figure_get_one_label() -> None:
+    """τ values whose points fall on the same spot of the figure are labelled together, not over each other."""
+    import dataclasses
+
+    from citylod.bench.report import TauRow, _coinciding
+
+    rows = [TauRow(**{**{f.name: 0 for f in dataclasses.fields(TauRow)}, "label": f"tau={t}", "tau_px": t})
+            for t in (0.5, 1.0, 2.0, 4.0, 8.0)]
+    xs = [0.01, 0.01, 0.01, 0.01, 3.2]
+    ys = [61_000.0, 61_000.0, 61_020.0, 61_000.0, 61_000.0]  # 61,020 is within a thousandth of a decade
+    groups = _coinciding(rows, xs, ys)
+    assert groups == {(0.01, 61_000.0): [0.5, 1.0, 2.0, 4.0], (3.2, 61_000.0): [8.0]}
+    assert _coinciding(rows, [0.01, 0.02, 0.04, 0.08, 0.16], ys) == {
+        (x, y): [t] for x, y, t in zip([0.01, 0.02, 0.04, 0.08, 0.16], ys, (0.5, 1.0, 2.0, 4.0, 8.0), strict=True)}

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import csv
 import io
+import math
 import os
 import time
 from collections.abc import Sequence
@@ -232,6 +233,18 @@ def _size_panel(full: TauRow) -> tuple[str, str]:
     return "triangles_median", "triangles drawn, median"
 
 
+def _coinciding(rows: list[TauRow], xs: list[float], ys: list[float]) -> dict[tuple[float, float], list[float]]:
+    """The τ of each plotted point, points that coincide (to a thousandth of a decade on both log axes)
+    labelled once: overlapping labels ("τ=2" over "τ=0.5") read as garbage."""
+    groups: dict[tuple[float, float], list[float]] = {}
+    seen: dict[tuple[int, int], tuple[float, float]] = {}
+    for r, x, y in zip(rows, xs, ys, strict=True):
+        cell = (round(math.log10(max(x, 1e-300)) * 1000), round(math.log10(max(abs(y), 1e-300)) * 1000))
+        at = seen.setdefault(cell, (x, y))
+        groups.setdefault(at, []).append(r.tau_px)
+    return {k: sorted(v) for k, v in groups.items()}
+
+
 def _plot(path: Path, rows: list[TauRow]) -> Path:
     import matplotlib
 
@@ -250,8 +263,9 @@ def _plot(path: Path, rows: list[TauRow]) -> Path:
         err_ray = [max(r.err_p99_px, 0.01) for r in shown]
         ax.plot(err, ys, "o-", label="LOD (error: nearest point, p99)")
         ax.plot(err_ray, ys, "s--", alpha=0.6, label="LOD (error: along the ray, p99)")
-        for r, x, y in zip(shown, err, ys, strict=True):
-            ax.annotate(f"τ={r.tau_px:g}", (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        for (x, y), taus in _coinciding(shown, err, ys).items():
+            ax.annotate("τ=" + ", ".join(f"{t:g}" for t in taus), (x, y), textcoords="offset points",
+                        xytext=(4, 4), fontsize=8)
         ax.axhline(getattr(full, key), color="k", ls=":", label="full resolution")
         ax.set_xlabel("measured screen-space error, worst frame p99 (px)")
         ax.set_ylabel(label)
