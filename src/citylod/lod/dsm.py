@@ -749,9 +749,9 @@ def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: i
     """
     sd = [_side(side, last_r, last_c) for side in sides]
     return aot.kernel(skirt_strip, np.ascontiguousarray(local, np.float32), np.ascontiguousarray(faces, np.int64),
-                  np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
-                  np.array([a for a, _, _ in sd], np.int64), np.array([line for _, line, _ in sd], np.int64),
-                  float(depth))
+                      np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
+                      np.array([a for a, _, _ in sd], np.int64), np.array([line for _, line, _ in sd], np.int64),
+                      float(depth))
 
 
 def _as_doc(res: TileResult) -> dict[str, Any]:
@@ -957,14 +957,11 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     )
 
 
-_PRELOADED = False
-
-
 # The tiles of a level with many go to the executor four to a task: a process-pool task costs the builder
 # ≈ 0.5 ms of CPU (its queue and result threads), on the cores the workers need. The 2049² city (682 tasks →
 # 202): the builder's CPU per build 0.34–0.46 s → 0.22–0.31 s; the 4097² natural terrain (2730 → 822)
-# 1.1–1.3 s → 0.55–0.63 s, in alternating builds. Levels with few tiles (the long ones at the top) stay one to a task, so
-# that they start first and spread over the workers.
+# 1.1–1.3 s → 0.55–0.63 s, in alternating builds. Levels with few tiles (the long ones at the top) stay one
+# to a task, so that they start first and spread over the workers.
 _BATCH = 4
 _BATCH_FROM = 64  # tiles in a level, from which it is batched
 
@@ -997,6 +994,9 @@ def _run_batched(ex: Any, fn: Callable[[DsmJob], TileResult], jobs: list[DsmJob]
         batches.append((fn, run))
     for rs in run_tasks(ex, _tile_batch, batches, progress=progress, desc=desc):
         yield from rs
+
+
+_PRELOADED = False
 
 
 def _preload_kernels() -> None:
