@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
-# The DSM build's kernels compiled ahead of time (citylod.lod.aot): a no-op when they are up to date, a
+# The DSM build's kernels compiled ahead of time (citylod.lod.kernels.aot): a no-op when they are up to date, a
 # minute when a kernel changed; builds run on the JIT kernels when this cannot compile them.
 kernels: $(STAMP)
 	@$(VENV)/bin/citylod build-kernels

@@ -607,7 +607,7 @@ class Document:
         self._emit("lod")
 
     def _apply_budget(self, layer: Any) -> None:
-        from citylod.lod.selection import Budget
+        from citylod.lod.runtime.selection import Budget
 
         layer.budget = Budget(max_points=int(self.lod.point_budget)) if self.lod.point_budget > 0 else None
 

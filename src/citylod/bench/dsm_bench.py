@@ -2,7 +2,7 @@
 pymartini meshing the same raster at the same bound in the same run.
 
 The true error of every mesh (ours, pydelatin's, pymartini's) is measured with the exact certifier
-(:mod:`citylod.lod.certify`): vertical L∞ against the full-resolution grid at samples and edge crossings.
+(:mod:`citylod.lod.kernels.certify`): vertical L∞ against the full-resolution grid at samples and edge crossings.
 pydelatin bounds the error at samples only, pymartini on its own RTIN hierarchy; both are measured the same
 way here.
 """
@@ -32,7 +32,7 @@ class MesherRow:
 
 def _true_error(z: np.ndarray, vr: np.ndarray, vc: np.ndarray, faces: np.ndarray,
                 valid: np.ndarray | None = None) -> float:
-    from citylod.lod.certify import certify
+    from citylod.lod.kernels.certify import certify
 
     valid = np.ones_like(z, bool) if valid is None else valid
 
@@ -135,7 +135,7 @@ def bench_dsm(raster: Path, out_dir: Path, *, workers: int | None = None, progre
     # this machine's speed drifts by tens of per cent over seconds, and timing one side after the other
     # (the warm builds, then pydelatin in the parent) let a drift decide the ratio.
     warm_dir = out_dir / f"tiles_{raster.stem}_warm"
-    code = ("import json,shutil; from pathlib import Path; from citylod.lod.dsm import build_dsm; "
+    code = ("import json,shutil; from pathlib import Path; from citylod.lod.build.dsm import build_dsm; "
             "from citylod.bench.dsm_bench import _filled, pydelatin_input, time_pydelatin; "
             f"r=build_dsm({str(raster)!r}, {str(tiles_dir)!r}, workers={workers}, progress={progress}); "
             f"z32=pydelatin_input(_filled(Path({str(raster)!r}))[0]); w=[]; p=[]\n"

@@ -32,7 +32,7 @@ def _dsm_from_city(size: int, path: Path) -> Path:
     import rasterio
     from rasterio.transform import from_origin
 
-    from citylod.io.sample_city import make_city
+    from citylod.sample.city import make_city
 
     city = make_city(size, seed=11)
     x, y = city.pixel_centers()
@@ -77,7 +77,7 @@ def _build_in_child(raster: Path, tiles: Path, progress: bool) -> dict[str, Any]
     process holds rasters and render state by then)."""
     from citylod.bench.dsm_bench import json_from_child
 
-    return json_from_child("import dataclasses, json; from citylod.lod.dsm import build_dsm; "
+    return json_from_child("import dataclasses, json; from citylod.lod.build.dsm import build_dsm; "
                            f"r = build_dsm({str(raster)!r}, {str(tiles)!r}, progress={progress}); "
                            "print('@@' + json.dumps(dataclasses.asdict(r)))")
 
@@ -86,8 +86,8 @@ def run_suite(out_dir: str | os.PathLike[str], *, quick: bool = False, progress:
     from citylod.bench.dsm_bench import bench_dsm, dsm_markdown
     from citylod.bench.report import run_bench
     from citylod.core.camera import load_cameras
-    from citylod.io.sample import make_sample
-    from citylod.lod.dsm import build_dsm
+    from citylod.lod.build.dsm import build_dsm
+    from citylod.sample.files import make_sample
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -232,7 +232,7 @@ def _points_measure(files: list[str], out: str, repeats: int) -> dict[str, Any]:
     builds also load the kernels, which the later turns do not repeat.
     """
     from citylod.io.las import decode_seconds
-    from citylod.lod.points import build_points
+    from citylod.lod.build.points import build_points
 
     floor = math.inf
     res: dict[str, Any] = {}

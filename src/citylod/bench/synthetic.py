@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from citylod.io.image import encode_png
 from citylod.io.tiles3d import MeshData, PointData, TileContent, TileSpec, write_content, write_tileset
-from citylod.render.tile_data import encode_png
 
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 

@@ -1,4 +1,4 @@
-"""Compiled encoding of a point tile's vertex attributes for glb (what :func:`citylod.io.tiles3d.glb_buffer`
+"""Compiled encoding of a point tile's vertex attributes for glb (what :func:`citylod.io.tiles3d.content.glb_buffer`
 calls for point content).
 
 Why compiled: a point build encodes its tiles on two threads of one process. Encoded with numpy (the axis

@@ -206,7 +206,7 @@ def render_images(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[C
 # ------------------------------------------------------------------------------------------ writing
 def save_png(path: str | os.PathLike[str], rgb: npt.NDArray[np.uint8]) -> Path:
     """Write (H, W, 3|4) uint8 as PNG atomically (temporary name, then rename)."""
-    from citylod.render.tile_data import encode_png
+    from citylod.io.image import encode_png
 
     p = Path(path)
     data = encode_png(np.asarray(rgb, np.uint8))

@@ -1,6 +1,6 @@
 """Decoding a tile into arrays ready for VTK, on a loader's worker thread.
 
-:func:`prepare_tile` is the ``load_fn`` of :class:`citylod.lod.loader.TileLoader` for rendering: it reads
+:func:`prepare_tile` is the ``load_fn`` of :class:`citylod.lod.runtime.loader.TileLoader` for rendering: it reads
 and decodes the tile content (:meth:`citylod.io.tiles3d.Tile.load_content`), splits surface from skirt
 triangles, turns glTF texture coordinates into VTK's (origin bottom-left) and decodes the texture image
 into a numpy array. The render thread then only wraps these arrays (no copy) in VTK objects. The texture
@@ -131,7 +131,7 @@ def prepare_content(content: Any, key: str, level: int, source: str = "") -> Pre
 
 
 def prepare_tile(node: Any) -> tuple[PreparedTile, int]:
-    """``load_fn`` for :class:`~citylod.lod.loader.TileLoader`: read and decode one tile.
+    """``load_fn`` for :class:`~citylod.lod.runtime.loader.TileLoader`: read and decode one tile.
 
     ``node`` is a render proxy (see :mod:`citylod.render.tileset_actor`) or a
     :class:`~citylod.io.tiles3d.Tile`; a proxy's ``tile`` attribute is the tile.
@@ -145,18 +145,3 @@ def prepare_tile(node: Any) -> tuple[PreparedTile, int]:
     content = tile.load_content()
     prepared = prepare_content(content, node.key, tile.level, str(tile.content_path or tile.key))
     return prepared, prepared.nbytes
-
-
-def encode_png(rgb: npt.NDArray[np.uint8]) -> bytes:
-    """Encode (H, W, C) uint8, row 0 at the top, as PNG bytes (for writing textures and test data)."""
-    h, w, c = rgb.shape
-    img = _vtk.vtkImageData()
-    img.SetDimensions(w, h, 1)
-    arr = _vtk.numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, c), deep=True,
-                            array_type=_vtk.VTK_UNSIGNED_CHAR)
-    img.GetPointData().SetScalars(arr)
-    writer = _vtk.vtkPNGWriter()
-    writer.WriteToMemoryOn()
-    writer.SetInputData(img)
-    writer.Write()
-    return bytes(_vtk.vtk_to_numpy(writer.GetResult()).tobytes())

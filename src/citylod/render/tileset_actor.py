@@ -1,9 +1,9 @@
 """LOD actors: show the tiles that view-dependent selection picks, for one or more 3D Tiles tilesets.
 
 A :class:`Scene` holds one or more :class:`TilesetLayer` objects that share a scene origin, one
-:class:`~citylod.lod.cache.TileCache` and one :class:`~citylod.lod.loader.TileLoader`. Before a frame
+:class:`~citylod.lod.runtime.cache.TileCache` and one :class:`~citylod.lod.runtime.loader.TileLoader`. Before a frame
 (:meth:`Scene.update`, or automatically from the renderer's ``StartEvent`` after :meth:`Scene.attach`)
-it runs :func:`citylod.lod.selection.select` for every layer, requests what is missing, and shows the
+it runs :func:`citylod.lod.runtime.selection.select` for every layer, requests what is missing, and shows the
 selected resident tiles by toggling the visibility of pooled actors. Off-screen renders call
 :meth:`Scene.resolve`, which loads until the selection is complete.
 
@@ -44,9 +44,9 @@ from citylod.core.camera import Camera, View
 from citylod.core.errors import CitylodError
 from citylod.core.geometry import F64, Box, translation
 from citylod.io.tiles3d import Tile, Tileset, open_tileset
-from citylod.lod.cache import TauController, TileCache
-from citylod.lod.loader import TileLoader
-from citylod.lod.selection import Budget, Selection, select
+from citylod.lod.runtime.cache import TauController, TileCache
+from citylod.lod.runtime.loader import TileLoader, resolve_layers
+from citylod.lod.runtime.selection import Budget, Selection, select
 from citylod.render import _vtk
 from citylod.render.colors import COLOR_MODES, classification_rgb, intensity_rgb, level_color, ramp_rgb
 from citylod.render.tile_data import PreparedMesh, PreparedTile, prepare_tile
@@ -228,7 +228,7 @@ class _PointProps:
         self.actor.GetProperty().LightingOff()
         self.data: Any = None
         # Smooth refinement draws a prefix of the tile's points: builders store them in shuffled Morton
-        # batches, so any prefix is a uniform subsample (citylod.lod.octree.shuffled_runs).
+        # batches, so any prefix is a uniform subsample (citylod.lod.kernels.octree.shuffled_runs).
         self.total = 0
         self.drawn = 0
         self.fade_start_s: float | None = None
@@ -298,7 +298,7 @@ class TilesetLayer:
     """One opened tileset in a :class:`Scene`: its selection, shown tiles and style.
 
     Created by :meth:`Scene.add`. Attributes that scripts change: ``visible``, ``tau_px`` (None → the
-    scene's), ``budget`` (a :class:`~citylod.lod.selection.Budget`; point layers start with
+    scene's), ``budget`` (a :class:`~citylod.lod.runtime.selection.Budget`; point layers start with
     :data:`DEFAULT_POINT_BUDGET` points), ``color_by`` (None → the scene's), ``point_size_px``,
     ``smooth_refinement`` (point nodes that appear fade in over ``Scene.fade_s``; on for point layers).
     """
@@ -581,7 +581,7 @@ class Scene:
     color_by
         One of :data:`citylod.render.colors.COLOR_MODES`.
     adaptive_tau
-        Raise τ under memory pressure (:class:`~citylod.lod.cache.TauController`) in :meth:`update`.
+        Raise τ under memory pressure (:class:`~citylod.lod.runtime.cache.TauController`) in :meth:`update`.
     """
 
     def __init__(self, renderer: Any = None, *, origin: npt.ArrayLike | None = None,
@@ -805,23 +805,16 @@ class Scene:
     def resolve(self, view: View, *, max_rounds: int = 64, timeout_s: float | None = 120.0) -> FrameStats:
         """Load until the selection for ``view`` is complete, then show it (for off-screen renders).
 
-        The loop of :func:`citylod.lod.selection.resolve` over every layer at once, so the tiles of one
+        :func:`citylod.lod.runtime.loader.resolve_layers` over every layer at once, so the tiles of one
         layer stay pinned in the shared cache while another's load.
         """
         if not self.layers:
             return FrameStats()
-        sels: list[Selection] = []
-        for _ in range(max(1, max_rounds)):
-            self.loader.poll()
-            sels = self.select_all(view)
-            queued = self._pin_and_request(sels)
-            if not any(s.request for s in sels):
-                break
-            if not self.loader.wait_idle(timeout_s):
-                raise CitylodError(f"tile loads did not finish within {timeout_s} s")
-            newly = self.loader.poll()
-            if queued == 0 and not newly:
-                break  # what is missing failed or does not fit the cache
+        try:
+            sels = resolve_layers(lambda _frame: self.select_all(view), self.loader,
+                                  request=self._pin_and_request, max_iterations=max_rounds, timeout_s=timeout_s)
+        except TimeoutError as exc:
+            raise CitylodError(str(exc)) from None
         self._release_evicted()
         for layer, sel in zip(self.layers, sels, strict=True):
             layer.selection = sel
@@ -916,6 +909,6 @@ class Scene:
 
 
 def _empty_stats() -> Any:
-    from citylod.lod.selection import SelectionStats
+    from citylod.lod.runtime.selection import SelectionStats
 
     return SelectionStats()

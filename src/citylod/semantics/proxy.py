@@ -31,7 +31,7 @@ import numpy.typing as npt
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from citylod.io.citygml import CityObject
+from citylod.io.city.model import CityObject
 
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]

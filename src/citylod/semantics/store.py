@@ -32,7 +32,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from citylod.core.errors import InputError
-from citylod.io.citygml import CityModel, read_city_model, to_metric
+from citylod.io.city import CityModel, read_city_model, to_metric
 from citylod.io.crs import horizontal_crs
 from citylod.io.gpkg import (
     GPKG_APPLICATION_ID,

@@ -1,0 +1,54 @@
+"""citylod: city-scale 3D geodata through level-of-detail hierarchies with a guaranteed error.
+
+The ``citylod`` command.
+
+One module per subcommand (``add_parser`` and ``run``), registered in :data:`COMMANDS`, the one table of
+commands. Each subcommand imports what it needs when it runs, so ``citylod --help`` is fast and a machine
+without a display can run every command but ``view``. A :class:`~citylod.core.errors.CitylodError` becomes
+one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from citylod.core.errors import CitylodError
+
+#: Subcommand name -> module of this package that defines ``add_parser(sub)`` and ``run(args, progress)``.
+COMMANDS: dict[str, str] = {
+    "sample": "sample",
+    "build": "build",
+    "info": "info",
+    "render": "render",
+    "bench": "bench",
+    "bench-suite": "bench",
+    "link": "link",
+    "view": "view",
+    "demo": "demo",
+    "build-kernels": "kernels",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="citylod", description=__doc__.splitlines()[0] if __doc__ else None)
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module in dict.fromkeys(COMMANDS.values()):
+        importlib.import_module(f"citylod.cli.{module}").add_parser(sub)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    progress = not args.quiet
+    try:
+        return int(importlib.import_module(f"citylod.cli.{COMMANDS[args.command]}").run(args, progress))
+    except CitylodError as exc:
+        print(f"citylod: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("citylod: interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,59 @@
+"""``citylod build dsm|points|city``: the offline builders."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    b = sub.add_parser("build", help="build an LOD hierarchy or a semantic store")
+    bsub = b.add_subparsers(dest="kind", required=True, metavar="KIND")
+    d = bsub.add_parser("dsm", help="DSM raster to a 3D Tiles quadtree with guaranteed error")
+    d.add_argument("raster", type=Path)
+    d.add_argument("-o", "--output", type=Path, required=True)
+    d.add_argument("--ortho", type=Path, help="orthophoto to texture the tiles with")
+    d.add_argument("--max-error", type=float, help="leaf error bound in metres (default: half the sample spacing)")
+    d.add_argument("--tile-size", type=int, default=129, help="samples per tile side, 2^k+1 (default 129)")
+    d.add_argument("--workers", type=int,
+                   help="local worker processes, spawned (default: one per CPU, forked from this process on Linux)")
+    d.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786")
+    d.add_argument("--certify-leaves", action="store_true",
+                   help="certify the leaves against the raster too (default: the TIN kernel's exact bound)")
+    pt = bsub.add_parser("points", help="LAS/LAZ files to a 3D Tiles octree")
+    pt.add_argument("files", type=Path, nargs="+")
+    pt.add_argument("-o", "--output", type=Path, required=True)
+    pt.add_argument("--crs", help="CRS when the LAS header has none, e.g. EPSG:28992")
+    pt.add_argument("--no-hybrid", action="store_true", help="points only, no plane quads")
+    pt.add_argument("--workers", type=int)
+    pt.add_argument("--scheduler")
+    c = bsub.add_parser("city", help="CityGML / CityJSON to a GeoPackage semantic store")
+    c.add_argument("citymodel", type=Path)
+    c.add_argument("-o", "--output", type=Path, required=True)
+    c.add_argument("--lod", type=int, choices=(1, 2), default=2)
+    c.add_argument("--inflate", type=float, help="proxy inflation in metres")
+    c.add_argument("--crs", help="metric CRS to project geographic input to, e.g. EPSG:32632")
+
+
+def run(args: argparse.Namespace, progress: bool) -> int:
+    if args.kind == "dsm":
+        from citylod.lod.build.dsm import build_dsm
+
+        report = build_dsm(
+            args.raster, args.output, ortho=args.ortho, max_error=args.max_error, tile_size=args.tile_size,
+            workers=args.workers, scheduler=args.scheduler, progress=progress, certify_leaves=args.certify_leaves,
+        )
+    elif args.kind == "points":
+        from citylod.lod.build.points import build_points
+
+        report = build_points(
+            args.files, args.output, crs=args.crs, hybrid=not args.no_hybrid, workers=args.workers,
+            scheduler=args.scheduler, progress=progress,
+        )
+    else:
+        from citylod.semantics.store import build_city
+
+        report = build_city(args.citymodel, args.output, lod=args.lod, inflate=args.inflate, crs=args.crs,
+                            progress=progress)
+    print(report.summary())
+    return 0

@@ -1,0 +1,111 @@
+"""``citylod info``: a short description of a tileset, raster, point cloud or city store."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections import Counter
+from pathlib import Path
+
+from citylod.core.errors import InputError
+
+
+def describe(source: str | os.PathLike[str]) -> str:
+    """A human-readable summary of ``source``; InputError when it is not something citylod reads."""
+    p = Path(source)
+    if not p.exists():
+        raise InputError("not found", p)
+    if p.is_dir() or p.name.endswith(".json"):
+        return _describe_tileset(p)
+    suffix = p.suffix.lower()
+    if suffix in (".las", ".laz"):
+        return _describe_las(p)
+    if suffix == ".gpkg":
+        return _describe_store(p)
+    if suffix in (".gml", ".xml") or p.name.endswith(".city.json"):
+        return f"{p}: city model (build a store with `citylod build city {p} -o CITY.gpkg`)"
+    return _describe_raster(p)
+
+
+def _describe_tileset(p: Path) -> str:
+    from citylod.io.tiles3d import open_tileset
+
+    ts = open_tileset(p)
+    levels: Counter[int] = Counter()
+    errors: dict[int, float] = {}
+    tri = pts = nbytes = tiles = 0
+    for t in ts.walk():
+        tiles += 1
+        levels[t.level] += 1
+        errors[t.level] = max(errors.get(t.level, 0.0), t.geometric_error)
+        tri += t.triangle_count
+        pts += t.point_count
+        nbytes += t.content_bytes
+    lo, hi = ts.bounds
+    lines = [
+        f"{ts.path}: 3D Tiles {ts.doc.get('asset', {}).get('version', '?')}, kind {ts.kind}",
+        f"  crs      {ts.crs.name}" + (f" (EPSG:{ts.crs.to_epsg()})" if ts.crs.to_epsg() else ""),
+        f"  bounds   x {lo[0]:.2f} … {hi[0]:.2f}, y {lo[1]:.2f} … {hi[1]:.2f}, z {lo[2]:.2f} … {hi[2]:.2f}",
+        f"  tiles    {tiles} on {len(levels)} levels, {nbytes / 1e6:.1f} MB content",
+    ]
+    if tri:
+        lines.append(f"  triangles {tri:,}")
+    if pts:
+        lines.append(f"  points   {pts:,}")
+    lines.append("  level  tiles  geometricError (max, m)")
+    for lv in sorted(levels):
+        lines.append(f"  {lv:5d} {levels[lv]:6d}  {errors[lv]:.4g}")
+    return "\n".join(lines)
+
+
+def _describe_raster(p: Path) -> str:
+    from citylod.io.raster import read_info
+
+    info = read_info(p)
+    return (f"{p}: raster {info.width}×{info.height} {info.dtype}, crs {info.crs.name}, "
+            f"spacing {info.spacing_m:.3f} m{' (geographic, degrees)' if info.geographic else ''}, "
+            f"nodata {info.nodata}")
+
+
+def _describe_las(p: Path) -> str:
+    import laspy
+
+    try:
+        with laspy.open(p) as f:
+            h = f.header
+            crs = h.parse_crs()
+            return (f"{p}: LAS {h.version} point format {h.point_format.id}, {h.point_count:,} points, "
+                    f"crs {crs.name if crs else 'none'}, x {h.mins[0]:.2f} … {h.maxs[0]:.2f}, "
+                    f"y {h.mins[1]:.2f} … {h.maxs[1]:.2f}, z {h.mins[2]:.2f} … {h.maxs[2]:.2f}")
+    except Exception as exc:  # laspy raises several types for bad headers
+        raise InputError(f"not a readable LAS/LAZ file ({exc})", p) from exc
+
+
+def _describe_store(p: Path) -> str:
+    import pyproj
+
+    from citylod.semantics.store import CityStore
+
+    with CityStore.open(p) as store:
+        x0, y0, z0, x1, y1, z1 = store.bounds
+        n = len(store)
+        buildings = len(store.query("type IN ('Building', 'BuildingPart')"))
+        lon, lat = pyproj.Transformer.from_crs(store.crs, "EPSG:4326", always_xy=True).transform(
+            (x0 + x1) / 2, (y0 + y1) / 2)
+        epsg = store.crs.to_epsg()
+        return "\n".join([
+            f"{p}: city store (GeoPackage), {n} objects, {buildings} buildings",
+            f"  crs      {store.crs.name}" + (f" (EPSG:{epsg})" if epsg else ""),
+            f"  bounds   x {x0:.2f} … {x1:.2f}, y {y0:.2f} … {y1:.2f}, z {z0:.2f} … {z1:.2f}",
+            f"  centre   {lat:.5f}° N, {lon:.5f}° E",
+        ])
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    i = sub.add_parser("info", help="describe a tileset, raster, point cloud or city store")
+    i.add_argument("source", type=Path)
+
+
+def run(args: argparse.Namespace, progress: bool) -> int:
+    print(describe(args.source))
+    return 0

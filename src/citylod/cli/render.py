@@ -1,0 +1,28 @@
+"""``citylod render SOURCES -o IMAGE --camera CAMERA``: off-screen renders."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from citylod.cli._args import size
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    r = sub.add_parser("render", help="off-screen render of tilesets and city stores")
+    r.add_argument("sources", type=Path, nargs="+")
+    r.add_argument("-o", "--output", type=Path, required=True, help="PNG; with a camera path, a frame pattern")
+    r.add_argument("--camera", type=Path, required=True, help="camera JSON (one camera or a path)")
+    r.add_argument("--tau", type=float, default=1.0, help="screen-space error threshold in pixels")
+    r.add_argument("--size", type=size, default=(1280, 720))
+    r.add_argument("--depth", type=Path, help="write the depth (distance from the eye) as float32 .npy")
+    r.add_argument("--city", type=Path, help="city store (.gpkg) for --highlight / --hide")
+    r.add_argument("--highlight", help="SQL WHERE clause of objects to highlight")
+    r.add_argument("--hide", help="SQL WHERE clause of objects to hide")
+    r.add_argument("--color-by", default="auto", help="auto, rgb, classification, elevation, intensity, level")
+
+
+def run(args: argparse.Namespace, progress: bool) -> int:
+    from citylod.render.offscreen import render_command
+
+    return render_command(args, progress=progress)

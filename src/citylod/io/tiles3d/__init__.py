@@ -1,0 +1,31 @@
+"""OGC 3D Tiles: tile content (:mod:`.content`) and the tileset document (:mod:`.tileset`).
+
+What a tile *is* lives here; what *makes* tiles lives in :mod:`citylod.lod.build`.
+"""
+
+from citylod.io.tiles3d.content import (
+    MeshData,
+    PointData,
+    TileContent,
+    decode_content,
+    decode_glb,
+    encode_glb,
+    glb_buffer,
+)
+from citylod.io.tiles3d.tileset import (
+    Tile,
+    TileMesh,
+    Tileset,
+    TileSpec,
+    content_path,
+    open_tileset,
+    safe_resolve,
+    write_content,
+    write_tileset,
+)
+
+__all__ = [
+    "MeshData", "PointData", "Tile", "TileContent", "TileMesh", "TileSpec", "Tileset", "content_path",
+    "decode_content", "decode_glb", "encode_glb", "glb_buffer", "open_tileset", "safe_resolve", "write_content",
+    "write_tileset",
+]

@@ -1,0 +1,411 @@
+"""OGC 3D Tiles 1.x ``tileset.json``: written atomically, read safely.
+
+What citylod writes (decision 1 of docs/DESIGN.md): 3D Tiles 1.1, glb content, ``geometricError`` equal to the
+tile's guaranteed object-space error in metres, float32 positions relative to the tile centre with the centre
+in the tile ``transform`` (float64). The root transform places the data on the globe (ECEF) so any client
+shows it; the source CRS and the local origin are recorded in ``extras.citylod`` so citylod works in the
+source CRS.
+
+What citylod reads: any 3D Tiles 1.x tileset — glb, b3dm and pnts content, box / region / sphere bounding
+volumes, tile transforms, external tilesets. URIs that leave the tileset's folder (``../``, absolute paths,
+URLs) are refused with :class:`~citylod.core.errors.UnsafePathError`.
+
+No VTK and no Qt here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import urllib.parse
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pyproj
+
+from citylod._version import __version__
+from citylod.core.errors import InputError, UnsafePathError
+from citylod.core.fileio import atomic_write_bytes, atomic_write_text
+from citylod.core.frames import geodetic_to_ecef
+from citylod.core.geometry import F64, Box, translation
+from citylod.io.crs import ecef_from_local, parse_crs
+from citylod.io.tiles3d.content import TileContent, decode_content, glb_buffer
+
+
+# --------------------------------------------------------------------------------------- atomic writing
+def content_path(out_dir: str | os.PathLike[str], key: str) -> Path:
+    """Where :func:`write_content` puts the content of tile ``key``."""
+    return Path(out_dir) / "tiles" / f"{key}.glb"
+
+
+def write_content(out_dir: str | os.PathLike[str], key: str, content: TileContent, *, atomic: bool = True) -> str:
+    """Write a tile's glb; returns its URI relative to ``out_dir``.
+
+    ``atomic`` writes under a temporary name and renames (a resumed build trusts every file it finds);
+    a builder that never resumes from its partial folder may pass False (the folder itself is published
+    atomically when complete).
+    """
+    if ".." in key.split("/") or key.startswith("/"):
+        raise ValueError(f"tile key {key!r} must not leave the tileset folder")
+    uri = f"tiles/{key}.glb"
+    data = glb_buffer(content).data  # a memoryview: written without another copy
+    if atomic:
+        atomic_write_bytes(content_path(out_dir, key), data)
+        return uri
+    # Plain os calls: pathlib's objects cost more than the write of a small tile, under the GIL.
+    path = os.path.join(out_dir, uri)
+    try:
+        f = open(path, "wb")
+    except FileNotFoundError:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        f = open(path, "wb")
+    with f:
+        f.write(data)
+    return uri
+
+
+@dataclass
+class TileSpec:
+    """A tile as a builder describes it (see docs/CONTRACTS.md). Coordinates in the source CRS."""
+
+    key: str
+    level: int
+    center: F64
+    lo: F64
+    hi: F64
+    geometric_error: float
+    content: str | None = None
+    children: list[TileSpec] = field(default_factory=list)
+    refine: str = "REPLACE"
+    extras: dict[str, Any] | None = None
+
+
+def write_tileset(out_dir: str | os.PathLike[str], root: TileSpec, crs: Any,
+                  extras: dict[str, Any] | None = None, origin: npt.ArrayLike | None = None) -> Path:
+    """Write ``tileset.json`` (3D Tiles 1.1) for the tree under ``root``, atomically.
+
+    The root transform is the ECEF placement of the local frame at ``origin`` (default: the root centre);
+    every other tile's transform is the translation from its parent's centre to its own.
+    """
+    out = Path(out_dir)
+    crs = parse_crs(crs)
+    org = np.asarray(root.center if origin is None else origin, dtype=np.float64)
+    ecef = ecef_from_local(crs, org)
+
+    def tile_json(spec: TileSpec, parent_center: list[float] | None) -> dict[str, Any]:
+        # Plain floats, not 4×4 numpy matrices and Box objects (Box.aabb_3dtiles): the same numbers (IEEE double arithmetic
+        # either way) at a tenth of the cost, which was 15 ms of a 117-tile point build.
+        center = [float(v) for v in spec.center]
+        lo = [float(a) - c for a, c in zip(spec.lo, center, strict=True)]
+        hi = [float(b) - c for b, c in zip(spec.hi, center, strict=True)]
+        # A zero-thickness box (flat tile) is legal but degenerate for some clients: pad by a millimetre.
+        hi = [max(b, a + 1e-3) for a, b in zip(lo, hi, strict=True)]
+        t: dict[str, Any] = {
+            "boundingVolume": {"box": Box.aabb_3dtiles(lo, hi)},
+            "geometricError": float(spec.geometric_error),
+            "refine": spec.refine,
+        }
+        if parent_center is None:
+            m = ecef @ translation(np.subtract(center, org))
+            if not np.array_equal(m, np.eye(4)):
+                t["transform"] = [float(v) for v in m.T.reshape(16)]
+        else:
+            d = [c - p for c, p in zip(center, parent_center, strict=True)]
+            if any(d):
+                t["transform"] = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, *d, 1.0]
+        if spec.content:
+            t["content"] = {"uri": spec.content}
+        if spec.extras:
+            t["extras"] = spec.extras
+        if spec.children:
+            t["children"] = [tile_json(c, center) for c in spec.children]
+        return t
+
+    cl_extras = {"crs": crs.to_wkt(), "origin": [float(v) for v in org], "generator": f"citylod {__version__}"}
+    epsg = crs.to_epsg()
+    if epsg:
+        cl_extras["epsg"] = epsg
+    cl_extras.update((extras or {}).get("citylod", {}))
+    doc = {
+        "asset": {"version": "1.1", "generator": f"citylod {__version__}"},
+        "geometricError": float(max(root.geometric_error * 2.0, float(np.linalg.norm(np.subtract(root.hi, root.lo))))),
+        "root": tile_json(root, None),
+        "extras": {**{k: v for k, v in (extras or {}).items() if k != "citylod"}, "citylod": cl_extras},
+    }
+    path = out / "tileset.json"
+    # Compact: json's C encoder runs only without ``indent`` (indenting is pure Python, several times
+    # slower on trees of thousands of tiles). `python -m json.tool` pretty-prints it.
+    atomic_write_text(path, json.dumps(doc, separators=(",", ":")) + "\n")
+    return path
+
+
+# ----------------------------------------------------------------------------------------------- reading
+def safe_resolve(base_dir: Path, uri: str, root_dir: Path, source: str) -> Path:
+    """Resolve a content URI against ``base_dir``, refusing anything that leaves ``root_dir``."""
+    parsed = urllib.parse.urlsplit(uri)
+    if parsed.scheme or parsed.netloc:
+        raise UnsafePathError(f"content URI {uri!r} is a URL; only files inside the tileset folder are read", source)
+    rel = urllib.parse.unquote(parsed.path)
+    if not rel or rel.startswith(("/", "\\")) or (len(rel) > 1 and rel[1] == ":"):
+        raise UnsafePathError(f"content URI {uri!r} is an absolute path", source)
+    target = (base_dir / rel).resolve()
+    root = root_dir.resolve()
+    if not target.is_relative_to(root):
+        raise UnsafePathError(f"content URI {uri!r} points outside the tileset folder {root}", source)
+    return target
+
+
+@dataclass
+class TileMesh:
+    """A tile's content in the tileset's CRS: ``vertices`` (N, 3) float64, ``faces`` (M, 3) int64,
+    ``skirt`` (M,) bool, ``points`` (K, 3) float64 or None, and the raw ``content``."""
+
+    vertices: F64
+    faces: npt.NDArray[np.int64]
+    skirt: npt.NDArray[np.bool_]
+    points: F64 | None
+    content: TileContent
+
+
+class Tile:
+    """One tile of an opened tileset. See docs/CONTRACTS.md."""
+
+    __slots__ = ("_size", "box", "children", "content_path", "content_uri", "geometric_error", "key",
+                 "level", "matrix", "parent", "point_count", "refine", "tileset", "triangle_count")
+
+    def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
+                 geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None) -> None:
+        self.tileset = tileset
+        self.key = key
+        self.level = level
+        self.parent = parent
+        self.children: list[Tile] = []
+        self.matrix = matrix
+        self.box = box
+        self.geometric_error = geometric_error
+        self.refine = refine
+        self.content_uri = content_uri
+        self.content_path = content_path
+        self._size: int | None = None
+        # Cost hints for budgets before a tile is loaded (written by citylod builders in tile extras).
+        self.triangle_count = 0
+        self.point_count = 0
+
+    def __repr__(self) -> str:
+        return f"Tile({self.key!r}, level={self.level}, error={self.geometric_error:.3g})"
+
+    @property
+    def bounds(self) -> tuple[F64, F64]:
+        return self.box.bounds()
+
+    @property
+    def content_bytes(self) -> int:
+        if self.content_path is None:
+            return 0
+        if self._size is None:
+            try:
+                self._size = self.content_path.stat().st_size
+            except OSError:
+                self._size = 0
+        return self._size
+
+    def load_content(self) -> TileContent:
+        """The content with float32 positions relative to the tile's origin (map them with ``matrix``)."""
+        if self.content_path is None:
+            return TileContent()
+        try:
+            data = self.content_path.read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read tile content ({exc.strerror})", self.content_path) from exc
+        return decode_content(data, str(self.content_path), y_up=self.tileset.y_up)
+
+    def load(self) -> TileMesh:
+        """The content in the tileset's CRS, float64."""
+        content = self.load_content()
+        verts, faces, skirt = [], [], []
+        offset = 0
+        for m in content.meshes:
+            verts.append(m.positions)
+            faces.append(m.faces.astype(np.int64) + offset)
+            skirt.append(np.zeros(len(m.faces), bool) if m.skirt is None else m.skirt)
+            offset += len(m.positions)
+        v = np.concatenate(verts) if verts else np.zeros((0, 3), np.float32)
+        mat = self.matrix
+        vertices = v.astype(np.float64) @ mat[:3, :3].T + mat[:3, 3]
+        pts = None
+        if content.points is not None:
+            pts = content.points.positions.astype(np.float64) @ mat[:3, :3].T + mat[:3, 3]
+        return TileMesh(
+            vertices=vertices,
+            faces=np.concatenate(faces) if faces else np.zeros((0, 3), np.int64),
+            skirt=np.concatenate(skirt) if skirt else np.zeros(0, bool),
+            points=pts, content=content,
+        )
+
+
+class Tileset:
+    """An opened 3D Tiles tileset (see :func:`open_tileset`)."""
+
+    def __init__(self, path: Path, doc: dict[str, Any]) -> None:
+        self.path = path
+        self.folder = path.parent
+        self.doc = doc
+        self.extras: dict[str, Any] = doc.get("extras", {}) or {}
+        cl = self.extras.get("citylod", {}) if isinstance(self.extras, dict) else {}
+        self.y_up = doc.get("asset", {}).get("gltfUpAxis", "Y").upper() != "Z"
+        self.citylod: dict[str, Any] = cl if isinstance(cl, dict) else {}
+        root_json = doc["root"]
+        root_m = _tile_transform(root_json, str(path))
+        if self.citylod.get("crs"):
+            self.crs = parse_crs(self.citylod["crs"], str(path))
+            self.origin = np.asarray(self.citylod.get("origin", [0, 0, 0]), np.float64)
+            # crs_from_ecef: undo the root's placement on the globe, then add the local origin.
+            self._crs_from_world = translation(self.origin) @ np.linalg.inv(root_m)
+        else:
+            self.crs = pyproj.CRS.from_epsg(4978)
+            self.origin = np.zeros(3)
+            self._crs_from_world = np.eye(4)
+        self.kind = str(self.citylod.get("kind", "unknown"))
+        self.root = self._build(root_json, root_m, None, "0", 0, self.folder, str(path), depth=0)
+
+    def _build(self, tj: dict[str, Any], world: F64, parent: Tile | None, key: str, level: int,
+               base: Path, source: str, depth: int) -> Tile:
+        # Explicit stack over the JSON tree (tilesets can be deep); external tilesets are spliced in.
+        root_tile: Tile | None = None
+        stack: list[tuple[dict[str, Any], F64, Tile | None, str, int, Path, str, int]] = [
+            (tj, world, parent, key, level, base, source, depth)]
+        while stack:
+            tj, world, parent, key, level, base, source, depth = stack.pop()
+            if not isinstance(tj, dict) or "boundingVolume" not in tj or "geometricError" not in tj:
+                raise InputError(f"tile {key} lacks boundingVolume or geometricError", source)
+            matrix = self._crs_from_world @ world
+            # A region is in ECEF whatever the tile's transform; boxes and spheres live in the tile's frame.
+            in_ecef = "region" in tj["boundingVolume"]
+            box = _bounding_box(tj["boundingVolume"], source, key).transformed(
+                self._crs_from_world if in_ecef else matrix)
+            refine = str(tj.get("refine", parent.refine if parent else "REPLACE")).upper()
+            uri = None
+            cpath = None
+            content = tj.get("content") or (tj.get("contents") or [None])[0]
+            if isinstance(content, dict):
+                uri = content.get("uri", content.get("url"))
+            children_json = list(tj.get("children", []))
+            if uri and uri.lower().split("?")[0].endswith(".json"):
+                ext_path = safe_resolve(base, uri, self.folder, source)
+                if depth > 32:
+                    raise InputError("external tilesets nest deeper than 32 levels", source)
+                ext = _read_json(ext_path)
+                children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
+                                                    "_external_source": str(ext_path)})
+                uri = None
+            elif uri:
+                cpath = safe_resolve(base, uri, self.folder, source)
+            if "implicitTiling" in tj:
+                raise InputError(f"tile {key} uses implicit tiling, which citylod does not read yet", source)
+            tile = Tile(self, key, level, parent, matrix, box, float(tj["geometricError"]), refine, uri, cpath)
+            hints = tj.get("extras", {})
+            if isinstance(hints, dict):
+                tile.triangle_count = int(hints.get("triangles", 0) or 0)
+                tile.point_count = int(hints.get("points", 0) or 0)
+            if parent is None:
+                root_tile = tile
+            else:
+                parent.children.append(tile)
+            for i, cj in enumerate(reversed(children_json)):
+                ci = len(children_json) - 1 - i
+                child_world = world @ _tile_transform(cj, source)
+                cbase = Path(cj.pop("_external_base")) if "_external_base" in cj else base
+                csource = cj.pop("_external_source", source)
+                stack.append((cj, child_world, tile, f"{key}/{ci}", level + 1, cbase, csource, depth + 1))
+        assert root_tile is not None
+        # children were pushed reversed and popped in order; restore document order
+        for t in self.walk_from(root_tile):
+            t.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
+        return root_tile
+
+    @staticmethod
+    def walk_from(root: Tile) -> Iterator[Tile]:
+        queue = [root]
+        i = 0
+        while i < len(queue):
+            t = queue[i]
+            i += 1
+            yield t
+            queue.extend(t.children)
+
+    def walk(self) -> Iterator[Tile]:
+        """Every tile, root first (breadth first)."""
+        return self.walk_from(self.root)
+
+    @property
+    def bounds(self) -> tuple[F64, F64]:
+        return self.root.bounds
+
+    def __repr__(self) -> str:
+        return f"Tileset({str(self.path)!r}, kind={self.kind!r}, crs={self.crs.name!r})"
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise InputError("tileset not found", path) from exc
+    except OSError as exc:
+        raise InputError(f"cannot read tileset ({exc.strerror})", path) from exc
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"tileset is not valid JSON ({exc})", path) from exc
+    if not isinstance(doc, dict) or "root" not in doc:
+        raise InputError("not a 3D Tiles tileset (no 'root')", path)
+    version = str(doc.get("asset", {}).get("version", ""))
+    if not version.startswith("1."):
+        raise InputError(f"3D Tiles version {version!r} is not supported (1.x only)", path)
+    return doc
+
+
+def _tile_transform(tj: dict[str, Any], source: str) -> F64:
+    if "transform" not in tj:
+        return np.eye(4)
+    try:
+        m = np.asarray(tj["transform"], dtype=np.float64).reshape(4, 4).T
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"tile transform is not 16 numbers ({exc})", source) from exc
+    if not np.all(np.isfinite(m)):
+        raise InputError("tile transform has non-finite numbers", source)
+    return m
+
+
+def _bounding_box(bv: dict[str, Any], source: str, key: str) -> Box:
+    try:
+        if "box" in bv:
+            return Box.from_3dtiles(bv["box"])
+        if "sphere" in bv:
+            x, y, z, r = (float(v) for v in bv["sphere"])
+            return Box(np.array([x, y, z]), np.eye(3) * r)
+        if "region" in bv:
+            w, s, e, n, h0, h1 = (float(v) for v in bv["region"])
+            # Region in radians on WGS84: enclose a grid of surface points at both heights (ECEF).
+            lons = np.linspace(w, e, 5)
+            lats = np.linspace(s, n, 5)
+            pts = np.array([geodetic_to_ecef(math.degrees(lo), math.degrees(la), h)
+                            for lo in lons for la in lats for h in (h0, h1)])
+            return Box.from_bounds(pts.min(axis=0), pts.max(axis=0))
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"tile {key} has an invalid bounding volume ({exc})", source) from exc
+    raise InputError(f"tile {key} has no box, region or sphere bounding volume", source)
+
+
+def open_tileset(path: str | os.PathLike[str]) -> Tileset:
+    """Open a 3D Tiles 1.x tileset: a ``tileset.json`` or the folder holding one."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "tileset.json"
+    doc = _read_json(p)
+    try:
+        return Tileset(p.resolve(), doc)
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"tileset structure is invalid ({exc})", p) from exc

@@ -1,0 +1,116 @@
+"""Rendering what `build dsm` wrote: no cracks between levels, LOD close to full resolution."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from citylod.core.camera import Camera
+from citylod.io.tiles3d import open_tileset
+from citylod.lod.build.dsm import build_dsm
+from citylod.render.offscreen import render_images
+from citylod.render.sse import measure_error
+from citylod.sample.files import make_sample
+
+pytestmark = pytest.mark.render
+
+
+@pytest.fixture(scope="module")
+def sample_tiles(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dsmrender")
+    info = make_sample(out / "sample", size=257, seed=3)
+    build_dsm(info.files["dsm"], out / "tiles", tile_size=65, workers=0, progress=False)
+    return out / "tiles", info
+
+
+# Façades make the coarse levels' vertical errors large (12-20 m here), so levels mix at this τ and
+# distance; the tests assert that they do mix, or they would prove nothing.
+TAU = 16.0
+
+
+def _oblique(tiles, sx: float = -1.0, sy: float = -1.0) -> Camera:
+    """An oblique view from the (sx, sy) corner of the tileset (each ±1) towards its centre."""
+    lo, hi = open_tileset(tiles).bounds
+    c = (lo + hi) / 2
+    ext = hi[0] - lo[0]
+    eye = (c[0] + sx * 1.1 * ext, c[1] + sy * 1.1 * ext, hi[2] + 0.48 * ext)
+    return Camera(eye, (c[0], c[1], lo[2]), fovy_deg=50)
+
+
+def _levels(tiles, cam) -> set[int]:
+    from citylod.core.camera import View
+    from citylod.lod.runtime.selection import select
+
+    ts = open_tileset(tiles)
+    sel = select(ts.root, View(cam, 480, 320), tau_px=TAU, resident={t.key for t in ts.walk()})
+    return {t.level for t in sel.render}
+
+
+def _gaps(tiles, cam, info) -> int:
+    """Background pixels of the τ = 16 frame that are terrain in the full-resolution frame and lie below
+    LOD terrain in their image column: holes in the surface (cracks), as opposed to the skyline, where a
+    coarse tile may legitimately drop a tree or a chimney that its certified error covers."""
+    import rasterio
+    from scipy.ndimage import binary_erosion, distance_transform_edt
+
+    from citylod.render.depth import points_from_distance
+
+    ((_, d_lod),) = render_images([tiles], [cam], size=(480, 320), tau_px=TAU, depth=True)
+    ((_, d_full),) = render_images([tiles], [cam], size=(480, 320), tau_px=0.0, depth=True)
+    full = np.isfinite(d_full)
+    lod = np.isfinite(d_lod)
+    # Near no-data, coarse tiles leave out a cell whose corner is no-data (a hole grows by up to one
+    # coarse cell), so those pixels are not counted.
+    with rasterio.open(info.files["dsm"]) as ds:
+        nodata = ds.read_masks(1) == 0
+        inv = ~ds.transform
+    levels = max(t.level for t in open_tileset(tiles).walk())
+    near_hole = distance_transform_edt(~nodata) <= 2**levels + 1
+    pts = points_from_distance(d_full, cam, relative=False)
+    ok = full.copy()
+    cols, rows = inv * (np.nan_to_num(pts[..., 0][full]), np.nan_to_num(pts[..., 1][full]))
+    r = np.clip(rows.astype(int), 0, nodata.shape[0] - 1)
+    c = np.clip(cols.astype(int), 0, nodata.shape[1] - 1)
+    ok[full] = ~near_hole[r, c]
+    below_lod = np.zeros_like(lod)
+    below_lod[1:] = np.maximum.accumulate(lod, axis=0)[:-1]  # some LOD terrain above, in the same column
+    gap = ok & ~lod & binary_erosion(full, iterations=1) & below_lod
+    return int(gap.sum())
+
+
+def test_no_cracks_between_levels(sample_tiles, monkeypatch: pytest.MonkeyPatch) -> None:
+    tiles, info = sample_tiles
+    cams = [_oblique(tiles, sx, sy) for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)]  # from the four corners
+    for cam in cams:
+        assert len(_levels(tiles, cam)) >= 2, "the view must mix levels for this test to mean anything"
+        assert _gaps(tiles, cam, info) == 0
+    # The control: cracks the count above must find. Whether a frame without skirts shows one depends on
+    # the view and on every coarse TIN (this sample's showed a few pixels in some builds, none in others),
+    # so cracks are made: without skirts, every tile shrunk by 6 % towards its centre (slits of 4–8 m between tiles).
+    import citylod.render.tile_data as td
+
+    real = td.prepare_content
+
+    def cracked(content, key, level, source=""):
+        out = real(content, key, level, source)
+        for m in out.meshes:
+            m.skirt = m.skirt[:0]
+            xy = m.positions[:, :2]
+            m.positions[:, :2] = (xy - xy.mean(axis=0)) * 0.94 + xy.mean(axis=0)
+        return out
+
+    monkeypatch.setattr(td, "prepare_content", cracked)
+    counts = [_gaps(tiles, cam, info) for cam in cams]
+    assert all(n >= 10 for n in counts), counts
+
+
+def test_measured_error_respects_tau(sample_tiles) -> None:
+    tiles, _ = sample_tiles
+    cam = _oblique(tiles)
+    assert len(_levels(tiles, cam)) >= 2
+    ((_, d_lod),) = render_images([tiles], [cam], size=(480, 320), tau_px=TAU, depth=True)
+    ((_, d_full),) = render_images([tiles], [cam], size=(480, 320), tau_px=0.0, depth=True)
+    stats = measure_error(d_lod, d_full, cam)
+    assert stats.valid > 0.1 * d_lod.size
+    assert stats.near_p99_px > 0  # coarse tiles really differ from the leaves
+    assert stats.near_p99_px <= TAU  # the geometric errors bound what the screen shows
