@@ -408,6 +408,9 @@ class LodSettings:
     memory_mb: int = 1024
     frozen: bool = False
     color_by_level: bool = False
+    #: While the camera moves τ is multiplied by this and point budgets divided by it (Potree and Cesium
+    #: coarsen during motion the same way); the view refines to ``tau_px`` when the camera stops.
+    motion_factor: float = 4.0
 
 
 class Document:
@@ -435,6 +438,7 @@ class Document:
         self.async_semantics = False
         self._semantic_future: Any = None
         self._listeners: list[Listener] = []
+        self.moving = False
 
     # -- events -----------------------------------------------------------------------------------
     def on_change(self, listener: Listener) -> Callable[[], None]:
@@ -456,7 +460,7 @@ class Document:
         kind = source_kind(p)
         if kind == "tileset":
             layer = self.scene.add(p)
-            layer.tau_px = self.lod.tau_px
+            layer.tau_px = self.effective_tau()
             self._apply_budget(layer)
             entry = LayerEntry(layer.name if p.is_dir() else p.parent.name, "tileset", p, layer)
             if p.is_dir():
@@ -600,16 +604,37 @@ class Document:
     def set_tau(self, tau_px: float) -> None:
         """Screen-space error threshold of every layer, pixels."""
         self.lod.tau_px = float(min(max(tau_px, TAU_MIN_PX), TAU_MAX_PX))
-        self.scene.tau_px = self.lod.tau_px
+        self._apply_lod()
+        self._emit("lod")
+
+    def effective_tau(self) -> float:
+        """τ the layers use now: :attr:`LodSettings.tau_px`, times the motion factor while moving."""
+        return self.lod.tau_px * (self.lod.motion_factor if self.moving else 1.0)
+
+    def _apply_lod(self) -> None:
+        tau = self.effective_tau()
+        self.scene.tau_px = tau
         for e in self.entries:
             if e.layer is not None:
-                e.layer.tau_px = self.lod.tau_px
-        self._emit("lod")
+                e.layer.tau_px = tau
+                self._apply_budget(e.layer)
+
+    def set_moving(self, on: bool) -> bool:
+        """The camera started (on) or stopped moving: coarser τ and point budget while it moves, full
+        quality when it stops. Returns True when the state changed (the view then re-renders)."""
+        if bool(on) == self.moving:
+            return False
+        self.moving = bool(on)
+        self._apply_lod()
+        return True
 
     def _apply_budget(self, layer: Any) -> None:
         from citylod.lod.runtime.selection import Budget
 
-        layer.budget = Budget(max_points=int(self.lod.point_budget)) if self.lod.point_budget > 0 else None
+        points = self.lod.point_budget
+        if points > 0 and self.moving:
+            points = max(int(points / self.lod.motion_factor), 1)
+        layer.budget = Budget(max_points=int(points)) if points > 0 else None
 
     def set_point_budget(self, points: int) -> None:
         """Most points drawn per frame per layer (0 = unlimited)."""

@@ -1,14 +1,19 @@
 """The 3D view: a VTK render window in a Qt widget, drawing a :class:`~citylod.app.models.Document`'s scene.
 
-* Navigation: VTK's trackball camera (left drag orbits, middle pans, wheel/right drag zooms); the fly keys
-  and R/F are actions of the main window that call :meth:`SceneView.fly` etc. VTK's own key bindings
-  (``e``/``q`` quit, ``w`` wireframe …) are switched off.
-* Streaming: the scene is attached to the renderer (``Scene.attach``: selection runs before each render)
-  and a 30 ms ``QTimer`` moves finished tile loads into the cache and re-renders only when tiles arrived,
-  the camera moved or a model changed. Tile decoding stays on the loader's threads.
+* Input: an event filter on the VTK widget takes every mouse event before VTK sees it and hands it to a
+  :class:`~citylod.app.navigation.Navigator` (turntable orbit with a level horizon, or fly mode; left drag
+  orbits, middle or shift+left drag pans, right drag and the wheel zoom). VTK's interactor styles grab the
+  mouse on press, so a release observer never ran and clicks were lost; here press and release are Qt's.
+  The fly keys and R/F are actions of the main window that call :meth:`SceneView.fly` etc.; VTK's own key
+  bindings (``e``/``q`` quit, ``w`` wireframe …) are switched off.
+* Frames: input only changes the camera; a 30 ms ``QTimer`` renders at most once per tick, so a burst of
+  mouse or wheel events costs one frame (wheel notches are summed, :meth:`Navigator.flush`). While the
+  camera moves the document draws with a coarser τ and point budget (:meth:`Document.set_moving`); when
+  it stops the next tick refines. Tile decoding stays on the loader's threads.
 * Picking: a click (press and release within a few pixels) picks with a ``vtkCellPicker``, looking past
   skirt triangles (:func:`~citylod.render.tileset_actor.is_skirt_cell`); the world point goes to
-  :meth:`Document.pick` or to the running measurement.
+  :meth:`Document.pick`, to the running measurement or to the profile line. The cursor's surface point
+  (depth buffer, ``vtkWorldPointPicker``) is sent as ``cursor`` for the status bar.
 * Overlays: the measurement polyline and its text, and translucent proxies of selected/highlighted objects
   (only when the renderer-side semantic shading, ``citylod.render.semantic``, is not installed).
 * :meth:`SceneView.framebuffer` reads the rendered image back, so a grab of the whole window can show the
@@ -28,14 +33,15 @@ import vtkmodules.qt
 
 vtkmodules.qt.PyQtImpl = "PySide6"
 
-from PySide6.QtCore import QPoint, QTimer, Signal  # noqa: E402
+from PySide6.QtCore import QEvent, QObject, QPoint, Qt, QTimer, Signal  # noqa: E402
 from PySide6.QtGui import QCursor, QImage  # noqa: E402
 from PySide6.QtWidgets import QVBoxLayout, QWidget  # noqa: E402
 from vtkmodules.qt.QVTKRenderWindowInteractor import QVTKRenderWindowInteractor  # noqa: E402
 from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: E402
-from vtkmodules.vtkRenderingCore import vtkCellPicker, vtkTextActor  # noqa: E402
+from vtkmodules.vtkRenderingCore import vtkCellPicker, vtkTextActor, vtkWorldPointPicker  # noqa: E402
 
 from citylod.app.models import Document, Measurement, fly, focus_on, measure  # noqa: E402
+from citylod.app.navigation import Navigator  # noqa: E402
 from citylod.app.qt_profile import profiled, timed  # noqa: E402
 from citylod.core.camera import Camera  # noqa: E402
 from citylod.render import _vtk  # noqa: E402
@@ -44,7 +50,8 @@ from citylod.semantics.state import StateChange  # noqa: E402
 
 __all__ = ["SceneView"]
 
-_CLICK_PX = 4
+_BUTTONS = {Qt.MouseButton.LeftButton: "left", Qt.MouseButton.MiddleButton: "middle",
+            Qt.MouseButton.RightButton: "right"}
 _SELECT_RGBA = (0.0, 0.85, 1.0, 0.45)
 _MAX_OVERLAY_OBJECTS = 2000
 
@@ -72,6 +79,8 @@ class SceneView(QWidget):
     picked = Signal(object)
     measured = Signal(object)
     frame = Signal(float)
+    cursor = Signal(object)
+    clicked = Signal(object)
 
     def __init__(self, document: Document, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -93,8 +102,12 @@ class SceneView(QWidget):
             style.AddObserver(event, lambda *_: None)
         self.interactor.SetInteractorStyle(style)
         self._style = style
-        self.interactor.AddObserver("LeftButtonPressEvent", self._on_press, 10.0)
-        self.interactor.AddObserver("LeftButtonReleaseEvent", self._on_release, 10.0)
+        self.navigator = Navigator(self.camera, self.set_camera)
+        self.vtk.installEventFilter(self)
+        self.vtk.setMouseTracking(True)
+        self._cursor_xy: tuple[int, int] | None = None
+        self._cursor_due = False
+        self.world_picker = vtkWorldPointPicker()
         self.scene.attach()
         # After Scene.update (priority 0): pooled actors may have changed layer, so opacity is re-applied.
         self.renderer.AddObserver("StartEvent", self._after_update, -1.0)
@@ -103,7 +116,6 @@ class SceneView(QWidget):
         self._t0 = 0.0
         self.frame_ms = 0.0
         self.renders = 0
-        self._press: tuple[int, int] | None = None
         self._dirty = True
         self._camera_mtime = 0
         self.picker = vtkCellPicker()
@@ -157,6 +169,9 @@ class SceneView(QWidget):
     def _tick(self) -> None:
         if not self.isVisible():
             return
+        self.navigator.flush()
+        if self.document.set_moving(self.navigator.moving):
+            self._dirty = True  # started moving: coarser; stopped: refine to full quality
         newly = self.scene.loader.poll() if self.scene.layers else []
         if self.document.poll_semantics():
             self._dirty = True
@@ -166,6 +181,9 @@ class SceneView(QWidget):
             self._camera_mtime = mtime
             self.render_now()
             self._camera_mtime = self.renderer.GetActiveCamera().GetMTime()
+        if self._cursor_due and self._cursor_xy is not None:
+            self._cursor_due = False
+            self.cursor.emit(self.surface_point(*self._cursor_xy))
 
     def pending(self) -> int:
         """Tile requests queued or being decoded."""
@@ -256,19 +274,58 @@ class SceneView(QWidget):
                 return None
         return np.asarray(picker.GetPickPosition(), np.float64) + self.scene.origin
 
-    def _on_press(self, obj: Any, _event: str) -> None:
-        self._press = obj.GetEventPosition()
+    # -- mouse ------------------------------------------------------------------------------------
+    def eventFilter(self, obj: QObject, event: QEvent) -> bool:
+        """Every mouse event of the VTK widget: navigation, clicks, cursor; VTK never sees them."""
+        if obj is not self.vtk:
+            return False
+        kind = event.type()
+        if kind == QEvent.Type.MouseButtonPress or kind == QEvent.Type.MouseButtonDblClick:
+            button = _BUTTONS.get(event.button())  # type: ignore[attr-defined]
+            if button is not None:
+                pos = event.position()  # type: ignore[attr-defined]
+                shift = bool(event.modifiers() & Qt.KeyboardModifier.ShiftModifier)  # type: ignore[attr-defined]
+                self.navigator.press(button, int(pos.x()), int(pos.y()), shift=shift)
+            return True
+        if kind == QEvent.Type.MouseMove:
+            pos = event.position()  # type: ignore[attr-defined]
+            x, y = int(pos.x()), int(pos.y())
+            self.navigator.move(x, y, self.vtk.height())
+            self._cursor_xy = (x, y)
+            self._cursor_due = True
+            return True
+        if kind == QEvent.Type.MouseButtonRelease:
+            button = _BUTTONS.get(event.button())  # type: ignore[attr-defined]
+            pos = event.position()  # type: ignore[attr-defined]
+            x, y = int(pos.x()), int(pos.y())
+            if button is not None and self.navigator.release(button, x, y) and button == "left":
+                self._click(x, y)
+            return True
+        if kind == QEvent.Type.Wheel:
+            notches = event.angleDelta().y() / 120.0  # type: ignore[attr-defined]
+            pos = event.position()  # type: ignore[attr-defined]
+            toward = self.surface_point(int(pos.x()), int(pos.y())) if self.navigator.mode == "turntable" else None
+            self.navigator.wheel(notches, toward)
+            return True
+        return False
 
     @profiled("SceneView.click")
-    def _on_release(self, obj: Any, _event: str) -> None:
-        if self._press is None:
-            return
-        x, y = obj.GetEventPosition()
-        px, py = self._press
-        self._press = None
-        if abs(x - px) > _CLICK_PX or abs(y - py) > _CLICK_PX:
-            return
-        self.click_display(x, y)
+    def _click(self, x: int, y: int) -> None:
+        self.clicked.emit((x, y))
+        self.click_display(*self._display_xy(x, y))
+
+    def surface_point(self, x: int, y: int) -> npt.NDArray[np.float64] | None:
+        """The data-CRS point (3,) under widget position (x, y) read from the last frame's depth buffer
+        (cheap: one pixel), or None over the background."""
+        if self.scene.origin is None or self.renders == 0:
+            return None
+        dx, dy = self._display_xy(x, y)
+        if not (0 <= dx < self.window.GetSize()[0] and 0 <= dy < self.window.GetSize()[1]):
+            return None
+        if self.renderer.GetZ(dx, dy) >= 1.0:
+            return None
+        self.world_picker.Pick(dx, dy, 0, self.renderer)
+        return np.asarray(self.world_picker.GetPickPosition(), np.float64) + self.scene.origin
 
     def click_display(self, x: int, y: int) -> None:
         """A click at VTK display position (x, y): a measurement point or a pick."""

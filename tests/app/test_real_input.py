@@ -1,0 +1,194 @@
+"""The desktop application driven the way a user drives it: X input events from ``xdotool`` (through the X
+server into Qt's event loop, into the real VTK widget), never direct handler calls.
+
+Run under ``xvfb-run -a -s "-screen 0 1600x1200x24"``; skipped without a display or without xdotool
+(``scripts/sysdeps.sh`` installs it).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("PySide6")
+pytest.importorskip("pytestqt")
+
+from tests.app.test_qt import _store, sample  # noqa: F401  (the session fixture)
+
+pytestmark = pytest.mark.skipif(not os.environ.get("DISPLAY") or shutil.which("xdotool") is None,
+                                reason="needs an X display (xvfb-run) and xdotool")
+
+
+# ------------------------------------------------------------------------------------------- input
+class X:
+    """Mouse and keyboard through the X server (XTEST) at positions of a Qt widget."""
+
+    def __init__(self, qtbot) -> None:
+        self.qtbot = qtbot
+
+    def _run(self, *args: str) -> None:
+        proc = subprocess.Popen(["xdotool", *args])
+        # Qt must keep processing events while xdotool sends them (drags wait between steps).
+        self.qtbot.waitUntil(lambda: proc.poll() is not None, timeout=30000)
+        assert proc.returncode == 0
+        self.qtbot.wait(50)
+
+    @staticmethod
+    def _global(widget, x: int, y: int) -> tuple[int, int]:
+        from PySide6.QtCore import QPoint
+
+        g = widget.mapToGlobal(QPoint(int(x), int(y)))
+        return g.x(), g.y()
+
+    def click(self, widget, x: int, y: int, button: int = 1) -> None:
+        gx, gy = self._global(widget, x, y)
+        self._run("mousemove", "--sync", str(gx), str(gy), "click", str(button))
+
+    def drag(self, widget, path: list[tuple[int, int]], button: int = 1, step_s: float = 0.03) -> None:
+        args = ["mousemove", "--sync", *map(str, self._global(widget, *path[0])), "mousedown", str(button)]
+        for x, y in path[1:]:
+            args += ["sleep", f"{step_s}", "mousemove", *map(str, self._global(widget, x, y))]
+        args += ["sleep", f"{step_s}", "mouseup", str(button)]
+        self._run(*args)
+
+    def key(self, widget, keys: str) -> None:
+        widget.window().activateWindow()
+        widget.setFocus()
+        self.qtbot.wait(50)
+        self._run("key", "--clearmodifiers", keys)
+
+
+@pytest.fixture()
+def xin(qtbot) -> X:
+    return X(qtbot)
+
+
+@pytest.fixture()
+def window(qtbot, tmp_path: Path):
+    from PySide6.QtCore import QSettings
+
+    from citylod.app.qt_main_window import MainWindow
+
+    settings = QSettings(str(tmp_path / "citylod.ini"), QSettings.Format.IniFormat)
+    win = MainWindow(settings_=settings, interactive=False)
+    qtbot.addWidget(win)
+    win.move(0, 0)
+    win.resize(1200, 800)
+    win.show()
+    qtbot.waitExposed(win)
+    win.activateWindow()
+    yield win
+    win.close()
+
+
+def _wait_resolved(qtbot, win, timeout_ms: int = 60000) -> None:
+    def done() -> None:
+        assert not win.document.semantics_pending
+        assert not win.view.navigator.moving and not win.document.moving
+        assert win.view.is_resolved()
+
+    qtbot.waitUntil(done, timeout=timeout_ms)
+    win.view.render_now()
+
+
+# ---------------------------------------------------------------------------- independent geometry
+def _dsm(path: Path):
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        return ds.read(1).astype(np.float64), ds.transform
+
+
+def _dsm_z(dsm, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear height of the raster at (x, y), pixel centres as samples (rasterio's convention)."""
+    z, t = dsm
+    col, row = ~t * (np.asarray(x), np.asarray(y))
+    col, row = np.asarray(col) - 0.5, np.asarray(row) - 0.5
+    c0 = np.clip(np.floor(col).astype(int), 0, z.shape[1] - 2)
+    r0 = np.clip(np.floor(row).astype(int), 0, z.shape[0] - 2)
+    fc, fr = np.clip(col - c0, 0, 1), np.clip(row - r0, 0, 1)
+    top = z[r0, c0] * (1 - fc) + z[r0, c0 + 1] * fc
+    bot = z[r0 + 1, c0] * (1 - fc) + z[r0 + 1, c0 + 1] * fc
+    return top * (1 - fr) + bot * fr
+
+
+def _ray_hit(camera, width: int, height: int, x: int, y: int, dsm) -> np.ndarray:
+    """Where the pixel ray through widget (x, y) first meets the raster surface: the camera model and
+    the raster only, nothing of the renderer or the picker."""
+    right, up, fwd = camera.basis()
+    t = math.tan(math.radians(camera.fovy_deg) / 2.0)
+    u = (2.0 * (x + 0.5) / width - 1.0) * t * width / height
+    v = (1.0 - 2.0 * (y + 0.5) / height) * t
+    d = fwd + u * right + v * up
+    d /= np.linalg.norm(d)
+    eye = np.asarray(camera.position, np.float64)
+    s = np.arange(0.0, 5000.0, 0.05)
+    pts = eye + s[:, None] * d
+    above = pts[:, 2] - _dsm_z(dsm, pts[:, 0], pts[:, 1])
+    i = int(np.argmax(above <= 0))
+    assert above[i] <= 0, "the ray misses the raster"
+    # Linear refinement of the crossing between the last sample above and the first below.
+    a0, a1 = above[i - 1], above[i]
+    return pts[i - 1] + (pts[i] - pts[i - 1]) * (a0 / (a0 - a1))
+
+
+# -------------------------------------------------------------------------------------------- tests
+def test_click_building_fills_inspector_and_tree(qtbot, window, xin, sample) -> None:  # noqa: F811
+    store_path = _store(sample)
+    window.open_path(sample["tiles"])
+    window.open_path(store_path)
+    doc = window.document
+    tallest = doc.tallest_building()
+    import shapely
+
+    from citylod.app.models import focus_on
+
+    px = doc.store.proxies
+    i = px.index_of(tallest)
+    inside = shapely.point_on_surface(px.footprints[i])
+    assert window.view.frame_objects([tallest])
+    window.view.set_camera(focus_on(window.view.camera(), (inside.x, inside.y, px.zmax[i] - px.inflate)))
+    _wait_resolved(qtbot, window)
+    vw, vh = window.view.vtk.width(), window.view.vtk.height()
+    assert doc.state.selection == set()
+    xin.click(window.view.vtk, vw // 2, vh // 2)
+    qtbot.waitUntil(lambda: doc.state.selection == {tallest}, timeout=5000)
+    assert window.tree.selected_ids() == [tallest]
+    assert window.inspector.object_id == tallest
+    assert tallest in window.inspector.as_text()
+    # A click on empty sky clears the selection; a drag (orbit) does not pick.
+    xin.drag(window.view.vtk, [(vw // 2, vh // 2), (vw // 2 + 60, vh // 2), (vw // 2 + 120, vh // 2)])
+    assert doc.state.selection == {tallest}
+
+
+def test_measure_distance_with_clicks(qtbot, window, xin, sample) -> None:  # noqa: F811
+    from citylod.core.camera import load_cameras
+
+    window.open_path(sample["tiles"])
+    window.view.set_camera(load_cameras(sample["camera"])[0])
+    _wait_resolved(qtbot, window)
+    xin.key(window.view.vtk, "m")  # Tools → Measure distance
+    qtbot.waitUntil(lambda: window.view.measure_kind == "distance", timeout=3000)
+    vw, vh = window.view.vtk.width(), window.view.vtk.height()
+    clicks = [(vw // 2, int(vh * 0.75)), (vw // 3, int(vh * 0.85))]
+    cam = window.view.camera()
+    for x, y in clicks:
+        xin.click(window.view.vtk, x, y)
+    qtbot.waitUntil(lambda: window.view.measurement is not None and len(window.view.measurement.points) == 2,
+                    timeout=5000)
+    m = window.view.measurement
+    dsm = _dsm(sample["dsm"])
+    # Each picked point is where the pixel's ray meets the raster (the tile error is ≤ 1 px on screen).
+    hits = np.array([_ray_hit(cam, vw, vh, x, y, dsm) for x, y in clicks])
+    picked = np.array(m.points)
+    for p, h in zip(picked, hits, strict=True):
+        assert np.linalg.norm(p - h) < 0.01 * np.linalg.norm(h - np.asarray(cam.position)) + 0.5
+    expected = float(np.linalg.norm(hits[1] - hits[0]))
+    assert m.value == pytest.approx(expected, rel=0.01)
+    assert window.measure.text.startswith("distance")
