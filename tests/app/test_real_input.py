@@ -192,3 +192,49 @@ def test_measure_distance_with_clicks(qtbot, window, xin, sample) -> None:  # no
     expected = float(np.linalg.norm(hits[1] - hits[0]))
     assert m.value == pytest.approx(expected, rel=0.01)
     assert window.measure.text.startswith("distance")
+
+
+def test_profile_heights_agree_with_raster(qtbot, window, xin, sample) -> None:  # noqa: F811
+    import rasterio
+
+    from citylod.core.camera import load_cameras
+
+    window.open_path(sample["tiles"])
+    window.view.set_camera(load_cameras(sample["camera"])[0])
+    _wait_resolved(qtbot, window)
+    xin.key(window.view.vtk, "p")  # Tools → Height profile
+    qtbot.waitUntil(lambda: window.view.measure_kind == "profile", timeout=3000)
+    vw, vh = window.view.vtk.width(), window.view.vtk.height()
+    for x, y in ((vw // 4, int(vh * 0.8)), (3 * vw // 4, int(vh * 0.6))):
+        xin.click(window.view.vtk, x, y)
+    qtbot.waitUntil(lambda: window.document.last_profile is not None, timeout=5000)
+    prof = window.document.last_profile
+    d, z = window.profile.plotted()
+    assert len(z) == len(prof.xyz) and np.isfinite(z).mean() > 0.5
+    a, b = np.array(window.view.measurement.points)[:, :2]
+    assert d[-1] == pytest.approx(np.linalg.norm(b - a), rel=1e-6)
+    # The raster along the same line, sampled by rasterio at each plotted position.
+    xy = a + (d / d[-1])[:, None] * (b - a)
+    with rasterio.open(sample["dsm"]) as ds:
+        nearest = np.array([v[0] for v in ds.sample(xy)], np.float64)
+        res = max(abs(ds.res[0]), abs(ds.res[1]))
+        # Between raster samples any interpolation lies within the surrounding samples' range, so the
+        # drawn surface must lie within that range widened by the tiles' certified error.
+        neigh = []
+        for ox in (-res, 0.0, res):
+            for oy in (-res, 0.0, res):
+                neigh.append([v[0] for v in ds.sample(xy + [ox, oy])])
+        nodata = ds.nodata
+    neigh = np.array(neigh, np.float64)
+    # The sample city has no-data holes: the surface has a gap there (NaN in the plot); compare where the
+    # raster is valid around the sample, and there every sample must have a height.
+    valid = np.all(neigh != nodata, axis=0)
+    assert valid.mean() > 0.5
+    assert np.isfinite(z[valid]).all()
+    ok = valid
+    tol = prof.bound_m + 1e-3
+    assert np.all(z[ok] >= neigh.min(axis=0)[ok] - tol)
+    assert np.all(z[ok] <= neigh.max(axis=0)[ok] + tol)
+    # And on most samples (all but cliffs) the plotted height is the raster's to within that error.
+    close = np.abs(z[ok] - nearest[ok]) <= tol + 0.25
+    assert close.mean() > 0.8, f"median |Δz| {np.median(np.abs(z[ok] - nearest[ok])):.3f} m"

@@ -54,6 +54,8 @@ SHORTCUTS: tuple[tuple[str, str], ...] = (
     ("M", "Measure distance (click points; Esc ends)"),
     ("H", "Measure height difference"),
     ("G", "Measure area"),
+    ("P", "Height profile (click two points)"),
+    ("T", "Turntable / fly navigation"),
     ("Esc", "End the measurement / clear the pick"),
     ("Ctrl+B", "Add a camera bookmark"),
     ("Ctrl+Shift+S", "Save the camera as JSON for `citylod render`"),
@@ -439,6 +441,7 @@ class Document:
         self._semantic_future: Any = None
         self._listeners: list[Listener] = []
         self.moving = False
+        self.last_profile: Any = None
 
     # -- events -----------------------------------------------------------------------------------
     def on_change(self, listener: Listener) -> Callable[[], None]:
@@ -737,6 +740,16 @@ class Document:
         self.results = list(run_query(self.store, name, **params))
         self._emit("results")
         return self.results
+
+    # -- profile ------------------------------------------------------------------------------------
+    def profile(self, a: npt.ArrayLike, b: npt.ArrayLike, samples: int = 256) -> Any:
+        """Height profile of the drawn surface along the line ``a``–``b`` (a
+        :class:`~citylod.render.profile.Profile`, also kept as :attr:`last_profile`); emits ``profile``."""
+        from citylod.render.profile import surface_profile
+
+        self.last_profile = surface_profile(self.scene, a, b, samples)
+        self._emit("profile")
+        return self.last_profile
 
     def highlight(self, ids: Iterable[str] | None = None, color: str = "#ffcc00") -> None:
         self.state.highlight(self.results if ids is None else ids, color)

@@ -41,6 +41,7 @@ from citylod.app.qt_panels import (
     ObjectTreePanel,
     QueryPanel,
 )
+from citylod.app.qt_plot import ProfilePanel
 from citylod.app.qt_profile import profiled
 from citylod.app.qt_tasks import ProcessTask
 from citylod.app.qt_view import SceneView
@@ -85,19 +86,22 @@ class MainWindow(QMainWindow):
         self.lod = LodPanel(self.document)
         self.measure = MeasurePanel(self.start_measure, self.view.clear_measure)
         self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, self.settings)
+        self.profile = ProfilePanel(self.document)
         self.docks: dict[str, QDockWidget] = {}
         left, right = Qt.DockWidgetArea.LeftDockWidgetArea, Qt.DockWidgetArea.RightDockWidgetArea
         for name, title, widget, area in (
                 ("layers", "Layers", self.layers, left), ("lod", "Level of detail", self.lod, left),
                 ("objects", "City objects", self.tree, left), ("attributes", "Attributes", self.inspector, right),
                 ("query", "Query", self.query, right), ("measure", "Measure", self.measure, right),
-                ("bookmarks", "Bookmarks", self.bookmarks, right)):
+                ("bookmarks", "Bookmarks", self.bookmarks, right),
+                ("profile", "Height profile", self.profile, right)):
             dock = QDockWidget(title, self)
             dock.setObjectName(f"dock_{name}")
             dock.setWidget(widget)
             self.addDockWidget(area, dock)
             self.docks[name] = dock
         self.tabifyDockWidget(self.docks["measure"], self.docks["bookmarks"])
+        self.tabifyDockWidget(self.docks["measure"], self.docks["profile"])
         self.docks["measure"].raise_()
         self.status = QLabel("no data")
         self.statusBar().addPermanentWidget(self.status, 1)
@@ -165,6 +169,7 @@ class MainWindow(QMainWindow):
         self._action("measure_distance", "Measure &distance", lambda: self.start_measure("distance"), "M", t)
         self._action("measure_height", "Measure &height difference", lambda: self.start_measure("height"), "H", t)
         self._action("measure_area", "Measure &area", lambda: self.start_measure("area"), "G", t)
+        self._action("profile", "Height &profile", lambda: self.start_measure("profile"), "P", t)
         self._action("escape", "End measurement", self._escape, "Esc", t)
         t.addSeparator()
         self._action("clear_state", "Clear highlight / hide / isolate", self.document.clear_state, None, t)
@@ -221,7 +226,7 @@ class MainWindow(QMainWindow):
         self.view.start_measure(kind)
         self.measure.set_active(kind)
         if kind is not None:
-            self.docks["measure"].raise_()
+            self.docks["profile" if kind == "profile" else "measure"].raise_()
             self.statusBar().showMessage(f"measure {kind}: click points in the view, Esc ends", 6000)
 
     # -- opening ------------------------------------------------------------------------------------

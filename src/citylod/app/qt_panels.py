@@ -401,7 +401,8 @@ class MeasurePanel(QWidget):
         lay.setContentsMargins(4, 4, 4, 4)
         row = QHBoxLayout()
         self.buttons: dict[str, QPushButton] = {}
-        for kind, label in (("distance", "Distance"), ("height", "Height"), ("area", "Area")):
+        for kind, label in (("distance", "Distance"), ("height", "Height"), ("area", "Area"),
+                            ("profile", "Profile")):
             b = QPushButton(label)
             b.setCheckable(True)
             b.clicked.connect(lambda on, k=kind: start(k if on else None))

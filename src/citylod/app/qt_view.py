@@ -362,11 +362,17 @@ class SceneView(QWidget):
         self.measured.emit(None)
 
     def add_measure_point(self, point: npt.ArrayLike) -> Measurement:
+        """Add a clicked point to the running measurement. ``profile`` takes two points (a third starts a
+        new line) and asks the document for the height profile along them."""
         kind = self.measure_kind or (self.measurement.kind if self.measurement else "distance")
-        if kind == "height" and len(self.measure_points) >= 2:
+        if kind in ("height", "profile") and len(self.measure_points) >= 2:
             self.measure_points = []
         self.measure_points.append(np.asarray(point, np.float64))
-        self.measurement = measure(kind, np.array(self.measure_points), geographic=self.document.geographic)
+        self.measurement = measure("distance" if kind == "profile" else kind, np.array(self.measure_points),
+                                   geographic=self.document.geographic)
+        if kind == "profile" and len(self.measure_points) == 2:
+            with timed("SceneView.profile"):
+                self.document.profile(*self.measure_points)
         self._update_measure_overlay()
         self.measured.emit(self.measurement)
         return self.measurement
