@@ -2,8 +2,9 @@
 
 :func:`run_app` opens the sources, places the camera, optionally highlights the tallest building, and
 either runs the event loop or, with ``screenshot`` / ``exit_after``, waits until every selected tile is
-loaded and drawn, grabs the window and quits. ``CITYLOD_GUI_PROFILE=1`` logs GUI-thread handlers over
-100 ms and prints the longest per handler at exit.
+loaded and drawn, grabs the window and quits. ``profile_gui`` (``citylod view --profile-gui``, or
+``CITYLOD_GUI_PROFILE=1``) times every GUI-thread handler and event delivery, logs those over 100 ms and
+prints the longest per handler at exit.
 """
 
 from __future__ import annotations
@@ -20,12 +21,17 @@ _RESOLVE_TIMEOUT_S = 120.0
 _STABLE_TICKS = 3
 
 
-def _app() -> object:
+def _app(profile: bool = False) -> object:
     from PySide6.QtWidgets import QApplication
 
     app = QApplication.instance()
     if app is None:
-        app = QApplication(sys.argv[:1])
+        if profile:
+            from citylod.app.qt_profile import ProfiledApplication
+
+            app = ProfiledApplication(sys.argv[:1])
+        else:
+            app = QApplication(sys.argv[:1])
         app.setOrganizationName("citylod")
         app.setApplicationName("citylod")
     return app
@@ -33,7 +39,7 @@ def _app() -> object:
 
 def run_app(sources: Sequence[str | os.PathLike[str]] = (), *, screenshot: str | os.PathLike[str] | None = None,
             exit_after: bool = False, camera: str | os.PathLike[str] | None = None,
-            highlight_first: bool = False) -> int:
+            highlight_first: bool = False, profile_gui: bool = False) -> int:
     """Open the main window on ``sources`` and run it; returns the exit code.
 
     Parameters
@@ -48,19 +54,24 @@ def run_app(sources: Sequence[str | os.PathLike[str]] = (), *, screenshot: str |
         A camera JSON (the first camera of a path is used); default: an overview of the data.
     highlight_first
         Highlight and select the tallest building of the city store.
+    profile_gui
+        Time every GUI-thread handler and event; log those over 100 ms, print the longest at exit.
     """
-    if "--profile-gui" in sys.argv:
+    if profile_gui:
         os.environ["CITYLOD_GUI_PROFILE"] = "1"
-    app = _app()
+    from citylod.app import qt_profile
+
+    app = _app(qt_profile.enabled())
     from PySide6.QtCore import QTimer
 
-    from citylod.app import qt_profile
     from citylod.app.qt_main_window import MainWindow
     from citylod.core.camera import load_cameras
     from citylod.core.errors import CitylodError
 
     batch = screenshot is not None or exit_after
-    win = MainWindow(interactive=not batch)
+    # A batch run (screenshot) uses the default layout, not the one the user saved: the same command
+    # gives the same picture on every machine.
+    win = MainWindow(interactive=not batch, restore_layout=not batch)
     win.show()
     app.processEvents()  # type: ignore[attr-defined]
     win.open_paths([Path(s) for s in sources])

@@ -66,7 +66,7 @@ class MainWindow(QMainWindow):
     failed = Signal(str)
 
     def __init__(self, document: Document | None = None, *, settings_: QSettings | None = None,
-                 interactive: bool = True) -> None:
+                 interactive: bool = True, restore_layout: bool = True) -> None:
         super().__init__()
         self.setWindowTitle("citylod")
         self.setAcceptDrops(True)
@@ -112,10 +112,11 @@ class MainWindow(QMainWindow):
         self.actions: dict[str, QAction] = {}
         self._build_menus()
         self.resize(1400, 900)
-        geo = self.settings.value("window/geometry")
+        self.restore_layout = restore_layout
+        geo = self.settings.value("window/geometry") if restore_layout else None
         if isinstance(geo, QByteArray) and not geo.isEmpty():
             self.restoreGeometry(geo)
-        state = self.settings.value("window/state")
+        state = self.settings.value("window/state") if restore_layout else None
         if isinstance(state, QByteArray) and not state.isEmpty():
             self.restoreState(state)
         self._status_timer = QTimer(self)
@@ -426,9 +427,10 @@ class MainWindow(QMainWindow):
 
     # -- closing --------------------------------------------------------------------------------------
     def closeEvent(self, event: Any) -> None:
-        self.settings.setValue("window/geometry", self.saveGeometry())
-        self.settings.setValue("window/state", self.saveState())
-        self.settings.sync()
+        if self.restore_layout:  # a batch window's default layout must not replace the user's
+            self.settings.setValue("window/geometry", self.saveGeometry())
+            self.settings.setValue("window/state", self.saveState())
+            self.settings.sync()
         for t in list(self.tasks):
             t.cancel()
         self._status_timer.stop()
