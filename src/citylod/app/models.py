@@ -413,6 +413,9 @@ class LodSettings:
     #: While the camera moves τ is multiplied by this and point budgets divided by it (Potree and Cesium
     #: coarsen during motion the same way); the view refines to ``tau_px`` when the camera stops.
     motion_factor: float = 4.0
+    #: ... and at most this many points per layer while moving: a software or small GPU spends its frame
+    #: filling point sprites, so a moving frame needs a bound that does not grow with the budget.
+    motion_point_budget: int = 250_000
 
 
 class Document:
@@ -635,8 +638,9 @@ class Document:
         from citylod.lod.runtime.selection import Budget
 
         points = self.lod.point_budget
-        if points > 0 and self.moving:
-            points = max(int(points / self.lod.motion_factor), 1)
+        if self.moving:
+            cap = self.lod.motion_point_budget
+            points = min(int(points / self.lod.motion_factor), cap) if points > 0 else cap
         layer.budget = Budget(max_points=int(points)) if points > 0 else None
 
     def set_point_budget(self, points: int) -> None:

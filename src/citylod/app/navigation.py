@@ -135,7 +135,7 @@ class Navigator:
         self._pan = False
         self._wheel_steps = 0.0
         self._wheel_toward: npt.NDArray[np.float64] | None = None
-        self._last_motion = -math.inf
+        self.last_motion_s = -math.inf  # clock() of the last camera change
 
     def set_mode(self, mode: str) -> None:
         if mode not in NAV_MODES:
@@ -144,13 +144,13 @@ class Navigator:
 
     # -- motion clock ----------------------------------------------------------------------------
     def _moved(self) -> None:
-        self._last_motion = self.clock()
+        self.last_motion_s = self.clock()
 
     @property
     def moving(self) -> bool:
         """A drag is under way, a wheel step is pending, or the camera moved less than ``settle_s`` ago."""
         return (self._dragging or self._wheel_steps != 0.0
-                or self.clock() - self._last_motion < self.settle_s)
+                or self.clock() - self.last_motion_s < self.settle_s)
 
     # -- mouse ------------------------------------------------------------------------------------
     def press(self, button: str, x: int, y: int, *, shift: bool = False) -> None:
