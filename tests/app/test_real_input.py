@@ -329,3 +329,52 @@ def test_orbit_coarsens_while_moving_and_refines_after(qtbot, window, xin, sampl
           + f"; baselines: the same drag at full quality {np.median(full_ms):.1f} ms median "
           f"(motion frame = {np.median(ms) / np.median(full_ms):.2f}× that), the empty {vw}×{vh} view "
           f"{np.median(empty):.1f} ms")
+
+
+def test_city_store_alone_is_drawn_and_pickable(qtbot, window, xin, sample) -> None:  # noqa: F811
+    """A city model opened without a tileset shows its objects (lit proxies), the layer checkbox hides
+    them, and a click picks the object under the cursor."""
+    store_path = _store(sample)
+    assert window.open_path(store_path)
+    view, doc = window.view, window.document
+    qtbot.waitUntil(lambda: view.store_actor is not None, timeout=30000)
+    view.render_now()
+    from tests.app.test_qt import _rgb
+
+    def drawn_fraction() -> float:
+        rgb = _rgb(view.framebuffer()).astype(int)
+        background = np.array([0.72, 0.80, 0.90]) * 255
+        return float((np.abs(rgb - background).sum(axis=2) > 40).mean())
+
+    shown = drawn_fraction()
+    assert shown > 0.02, "the city objects must be visible"
+    # Lit: roofs and the walls facing and facing away from the sun differ (≥ 3 shades besides the sky).
+    image = view.framebuffer()
+    if os.environ.get("CITYLOD_TEST_IMAGES"):
+        image.save(str(Path(os.environ["CITYLOD_TEST_IMAGES"]) / "store_alone.png"))
+    rgb = _rgb(image).astype(int).reshape(-1, 3)
+    assert len(np.unique(rgb // 8, axis=0)) >= 4
+    # The layer's checkbox (a real click on it) hides the objects.
+    check = window.layers.rows[0][0]
+    assert check.isEnabled()
+    xin.click(check, 8, check.height() // 2)
+    qtbot.waitUntil(lambda: not doc.entries[0].visible, timeout=3000)
+    assert drawn_fraction() < 0.001
+    xin.click(check, 8, check.height() // 2)
+    qtbot.waitUntil(lambda: doc.entries[0].visible, timeout=3000)
+    # Click the tallest building from above.
+    tallest = doc.tallest_building()
+    import shapely
+
+    from citylod.app.models import focus_on
+
+    px = doc.store.proxies
+    i = px.index_of(tallest)
+    inside = shapely.point_on_surface(px.footprints[i])
+    assert view.frame_objects([tallest])
+    view.set_camera(focus_on(view.camera(), (inside.x, inside.y, px.zmax[i] - px.inflate)))
+    qtbot.waitUntil(lambda: not view.navigator.moving and not doc.moving, timeout=3000)
+    view.render_now()
+    xin.click(view.vtk, view.vtk.width() // 2, view.vtk.height() // 2)
+    qtbot.waitUntil(lambda: doc.state.selection == {tallest}, timeout=5000)
+    assert window.inspector.object_id == tallest

@@ -536,6 +536,9 @@ class Document:
 
         try:
             self.semantic = SemanticOverlay(self.scene, self.store, self.state, contour_map=fut.result())
+            entry = next((e for e in self.entries if e.kind == "store"), None)
+            if entry is not None and not entry.visible:  # unchecked before the overlay was ready
+                self.semantic.set_enabled(False)
         except Exception as exc:  # a renderer-side failure must not stop the viewer: fall back
             warnings.warn(f"semantic shading unavailable: {type(exc).__name__}: {exc}", stacklevel=2)
             self.semantic = None
@@ -744,6 +747,26 @@ class Document:
         self.results = list(run_query(self.store, name, **params))
         self._emit("results")
         return self.results
+
+    def proxy_meshes(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """Every object's proxy mesh stacked into one: vertices (V, 3), faces (F, 3), the store index of
+        each face's object (F,). Drawn when a city store is open without a tileset to shade. Reads one
+        row per object (the store keeps one mesh per object); safe on a worker thread."""
+        from citylod.render.store_actor import stack_meshes
+
+        if self.store is None:
+            return stack_meshes([])
+        meshes = []
+        for i, oid in enumerate(self.store.ids):
+            v, f = self.store.mesh(oid)
+            if len(f):
+                meshes.append((i, v, f))
+        return stack_meshes(meshes)
+
+    @property
+    def store_alone(self) -> bool:
+        """A city store is open and no tileset: its proxies are what the view draws."""
+        return self.store is not None and not self.scene.layers
 
     # -- profile ------------------------------------------------------------------------------------
     def profile(self, a: npt.ArrayLike, b: npt.ArrayLike, samples: int = 256) -> Any:

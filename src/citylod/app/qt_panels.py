@@ -109,7 +109,8 @@ class LayerPanel(QWidget):
             if e.layer is None:  # the city store: semantics, not drawn geometry
                 slider.setEnabled(False)
                 combo.setEnabled(False)
-                check.setEnabled(self.document.semantic is not None)
+                check.setToolTip(f"{e.path}: show or hide the city objects (their shading on tiles, or "
+                                 "their proxies when no tileset is open)")
             grid.addRow(check)
             grid.addRow("opacity", slider)
             grid.addRow("colour", combo)

@@ -136,6 +136,9 @@ class SceneView(QWidget):
         self.renderer.AddViewProp(self._measure_text)
         # Semantic overlay (fallback while citylod.render.semantic is absent)
         self._overlay_actors: list[Any] = []
+        # A city store open on its own is drawn as its lit proxies (read on a worker thread).
+        self.store_actor: Any = None
+        self._store_future: Any = None
         document.state.on_change(self._on_state)
         document.on_change(self._on_document)
         self.timer = QTimer(self)
@@ -172,6 +175,8 @@ class SceneView(QWidget):
         self.navigator.flush()
         if self.document.set_moving(self.navigator.moving):
             self._dirty = True  # started moving: coarser; stopped: refine to full quality
+        if self._store_future is not None and self._store_future.done():
+            self._attach_store_actor()
         newly = self.scene.loader.poll() if self.scene.layers else []
         if self.document.poll_semantics():
             self._dirty = True
@@ -342,7 +347,14 @@ class SceneView(QWidget):
             if point is not None:
                 self.add_measure_point(point)
             return
-        oid = self.document.pick(point)
+        if point is not None and self.store_actor is not None and self.picker.GetActor() is self.store_actor.actor:
+            # A proxy was hit: the object is the cell's owner (a point on a proxy's surface is not
+            # reliably "inside" it for the containment test).
+            idx = self.store_actor.object_of_cell(self.picker.GetCellId())
+            oid = None if idx is None else self.document.store.ids[idx]
+            self.document.select([] if oid is None else [oid])
+        else:
+            oid = self.document.pick(point)
         self.picked.emit(oid)
 
     # -- measuring --------------------------------------------------------------------------------
@@ -421,9 +433,40 @@ class SceneView(QWidget):
 
     # -- semantic overlay -------------------------------------------------------------------------
     def _on_document(self, kind: str) -> None:
+        if kind in ("layers", "style"):
+            self._sync_store_actor()
+        self.request_render()
+
+    def _sync_store_actor(self) -> None:
+        doc = self.document
+        if doc.store_alone and self.store_actor is None and self._store_future is None:
+            import concurrent.futures
+
+            pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="citylod-proxies")
+            self._store_future = pool.submit(doc.proxy_meshes)
+            pool.shutdown(wait=False)
+        if self.store_actor is not None:
+            entry = next((e for e in doc.entries if e.kind == "store"), None)
+            self.store_actor.set_visible(doc.store_alone and (entry is None or entry.visible))
+
+    @profiled("SceneView.attach_store")
+    def _attach_store_actor(self) -> None:
+        from citylod.render.store_actor import StoreActor
+
+        fut, self._store_future = self._store_future, None
+        doc = self.document
+        if doc.store is None or doc.scene.origin is None:
+            return
+        verts, faces, owner = fut.result()
+        self.store_actor = StoreActor(self.renderer, verts, faces, owner, doc.scene.origin)
+        self.store_actor.restyle(*doc.state.as_arrays(doc.store.ids))
+        self._sync_store_actor()
+        self.refresh_overlay()
         self.request_render()
 
     def _on_state(self, change: StateChange) -> None:
+        if self.store_actor is not None and self.document.store is not None:
+            self.store_actor.restyle(*self.document.state.as_arrays(self.document.store.ids))
         if self.document.semantic is None:
             self.refresh_overlay()
         self.request_render()
@@ -437,6 +480,8 @@ class SceneView(QWidget):
         doc = self.document
         if doc.store is None or doc.scene.origin is None:
             return
+        if self.store_actor is not None and doc.store_alone:
+            return  # the store actor colours the objects itself
         state = doc.state
         groups: dict[tuple[float, float, float, float], list[str]] = {}
         for oid, rgba in state.colors.items():
