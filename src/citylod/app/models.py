@@ -36,9 +36,28 @@ from citylod.core.camera import Camera
 from citylod.core.errors import CitylodError, InputError
 
 __all__ = [
-    "COLOR_MODES", "SHORTCUTS", "Bookmarks", "BuildPlan", "Document", "LayerEntry", "Measurement",
-    "QueryHistory", "build_plan", "fly", "focus_on", "format_status", "frame_box", "measure",
-    "overview_camera", "parse_progress", "source_kind", "tau_from_slider", "tau_to_slider",
+    "ASPRS_CLASSES",
+    "COLOR_MODES",
+    "SHORTCUTS",
+    "Bookmarks",
+    "BuildPlan",
+    "Document",
+    "LayerEntry",
+    "Measurement",
+    "QueryHistory",
+    "build_plan",
+    "crs_label",
+    "fly",
+    "focus_on",
+    "format_cursor",
+    "format_status",
+    "frame_box",
+    "measure",
+    "overview_camera",
+    "parse_progress",
+    "source_kind",
+    "tau_from_slider",
+    "tau_to_slider",
 ]
 
 COLOR_MODES = ("auto", "rgb", "classification", "elevation", "intensity", "level")
@@ -377,13 +396,49 @@ def parse_progress(text: str) -> tuple[str, int] | None:
 def format_status(stats: Any, frame_ms: float, pending: int, loading: bool = True) -> str:
     """The status bar line of a :class:`~citylod.render.tileset_actor.FrameStats`."""
     mb = stats.bytes_resident / 1e6
-    text = (f"frame {frame_ms:5.1f} ms | {stats.triangles:,} triangles | {stats.points:,} points | "
-            f"{stats.tiles} tiles | {mb:.1f} MB resident | τ {stats.tau_px:.2f} px")
+    # Short: it shares the status bar with the cursor position and the temporary messages.
+    text = (f"{frame_ms:.0f} ms · {stats.triangles:,} tri · {stats.points:,} pts · {stats.tiles} tiles · "
+            f"{mb:.0f} MB · τ {stats.tau_px:.2f} px")
     if pending:
-        text += f" | {pending} requests pending"
+        text += f" · {pending} loading"
     elif loading:
-        text += " | complete"
+        text += " · complete"
     return text
+
+
+#: ASPRS LAS 1.4 class names (the legend); codes without a name are shown as "class N".
+ASPRS_CLASSES = {0: "never classified", 1: "unclassified", 2: "ground", 3: "low vegetation",
+                 4: "medium vegetation", 5: "high vegetation", 6: "building", 7: "low point (noise)",
+                 8: "reserved", 9: "water", 10: "rail", 11: "road surface", 12: "reserved",
+                 13: "wire guard", 14: "wire conductor", 15: "transmission tower", 16: "wire connector",
+                 17: "bridge deck", 18: "high noise", 26: "bridge deck (AHN)"}
+
+
+def crs_label(crs: Any) -> str:
+    """Short name of a CRS for the status bar: ``EPSG:28992`` when it has a code, else its name."""
+    if crs is None:
+        return "no CRS"
+    if isinstance(crs, str):
+        return crs or "no CRS"
+    try:
+        epsg = crs.to_epsg()
+    except Exception:  # pyproj raises several types for odd CRSs; the name is good enough then
+        epsg = None
+    return f"EPSG:{epsg}" if epsg else str(getattr(crs, "name", crs))
+
+
+def format_cursor(point: npt.ArrayLike | None, crs: Any, geographic: bool = False) -> str:
+    """The status bar's cursor text: coordinates of the surface point under the mouse and the CRS.
+
+    >>> format_cursor((85000.123, 447500.5, 1.25), None)
+    'x 85000.12  y 447500.50  z 1.25 m  (no CRS)'
+    """
+    if point is None:
+        return f"cursor off the data  ({crs_label(crs)})"
+    x, y, z = (float(v) for v in np.asarray(point, np.float64)[:3])
+    if geographic:
+        return f"lon {x:.7f}°  lat {y:.7f}°  h {z:.2f} m  ({crs_label(crs)})"
+    return f"x {x:.2f}  y {y:.2f}  z {z:.2f} m  ({crs_label(crs)})"
 
 
 # --------------------------------------------------------------------------------------------- document
@@ -445,6 +500,10 @@ class Document:
         self._listeners: list[Listener] = []
         self.moving = False
         self.last_profile: Any = None
+        self.edl = False
+        self.clip_box: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None
+        self.class_filter: frozenset[int] | None = None
+        self._class_counts: dict[str, dict[int, int]] = {}
 
     # -- events -----------------------------------------------------------------------------------
     def on_change(self, listener: Listener) -> Callable[[], None]:
@@ -547,6 +606,13 @@ class Document:
         return True
 
     @property
+    def crs(self) -> Any:
+        """The data's CRS (the tilesets', else the city store's), or None."""
+        if self.scene.crs is not None:
+            return self.scene.crs
+        return None if self.store is None else self.store.crs
+
+    @property
     def geographic(self) -> bool:
         """The data's CRS is geographic (degrees): measurements are geodesic."""
         crs = self.scene.crs if self.scene.crs is not None else (self.store.crs if self.store else None)
@@ -608,6 +674,61 @@ class Document:
                     prop = actor.GetProperty()
                     if prop.GetOpacity() != e.opacity:
                         prop.SetOpacity(e.opacity)
+
+    # -- points ---------------------------------------------------------------------------------------
+    def set_point_size(self, index: int, size_px: float, round_points: bool | None = None) -> None:
+        """Point size in pixels (1–20) and shape (round or square) of a point layer."""
+        e = self.entries[index]
+        if e.layer is None:
+            return
+        e.layer.point_size_px = float(min(max(size_px, 1.0), 20.0))
+        if round_points is not None:
+            e.layer.point_round = bool(round_points)
+        e.layer.restyle()
+        self._emit("style")
+
+    def point_classes(self) -> dict[int, int]:
+        """ASPRS classes of the points of the resident tiles: {class: points}, over every layer."""
+        out: dict[int, int] = {}
+        for e in self.entries:
+            if e.layer is None:
+                continue
+            for key, slot in list(e.layer._slots.items()):
+                counts = self._class_counts.get(key)
+                if counts is None:
+                    pts = None if slot.prepared is None else slot.prepared.points
+                    if pts is None or pts.classification is None:
+                        counts = {}
+                    else:
+                        u, c = np.unique(pts.classification, return_counts=True)
+                        counts = {int(a): int(b) for a, b in zip(u, c, strict=True)}
+                    self._class_counts[key] = counts
+                for k, v in counts.items():
+                    out[k] = out.get(k, 0) + v
+        return dict(sorted(out.items()))
+
+    def set_class_filter(self, classes: Iterable[int] | None) -> None:
+        """Draw only points of these ASPRS classes in every layer (None: all classes)."""
+        self.class_filter = None if classes is None else frozenset(int(c) for c in classes)
+        for e in self.entries:
+            if e.layer is not None:
+                e.layer.class_filter = self.class_filter
+                e.layer.restyle()
+        self._emit("style")
+
+    def set_edl(self, on: bool) -> None:
+        """Eye-Dome Lighting (depth-edge shading that makes point clouds read as surfaces) on or off."""
+        self.edl = bool(on)
+        self._emit("display")
+
+    def set_clip_box(self, box: tuple[npt.ArrayLike, npt.ArrayLike] | None) -> None:
+        """Draw only what lies inside the axis-aligned box (lo (3,), hi (3,)) in the data's CRS; None: all."""
+        if box is None:
+            self.clip_box = None
+        else:
+            lo, hi = np.asarray(box[0], np.float64), np.asarray(box[1], np.float64)
+            self.clip_box = (np.minimum(lo, hi), np.maximum(lo, hi))
+        self._emit("display")
 
     # -- LOD ----------------------------------------------------------------------------------------
     def set_tau(self, tau_px: float) -> None:

@@ -60,7 +60,7 @@ def orbit(camera: Camera, d_azimuth_deg: float, d_elevation_deg: float) -> Camer
     Examples
     --------
     >>> cam = orbit(Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0)), 90.0, 0.0)
-    >>> [round(v, 6) + 0.0 for v in cam.position], cam.view_up
+    >>> [float(round(v, 6)) + 0.0 for v in cam.position], cam.view_up
     ([10.0, 0.0, 0.0], (0.0, 0.0, 1.0))
     """
     f = np.asarray(camera.focal_point, np.float64)

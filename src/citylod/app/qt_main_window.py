@@ -31,7 +31,7 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
 )
 
-from citylod.app.models import SHORTCUTS, Document, build_plan, format_status, source_kind
+from citylod.app.models import SHORTCUTS, Document, build_plan, format_cursor, format_status, source_kind
 from citylod.app.qt_panels import (
     AttributePanel,
     BookmarkPanel,
@@ -44,6 +44,7 @@ from citylod.app.qt_panels import (
 from citylod.app.qt_plot import ProfilePanel
 from citylod.app.qt_profile import profiled
 from citylod.app.qt_tasks import ProcessTask
+from citylod.app.qt_tools import ClipPanel, PointPanel
 from citylod.app.qt_view import SceneView
 from citylod.core.errors import CitylodError
 
@@ -87,6 +88,8 @@ class MainWindow(QMainWindow):
         self.measure = MeasurePanel(self.start_measure, self.view.clear_measure)
         self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, self.settings)
         self.profile = ProfilePanel(self.document)
+        self.points = PointPanel(self.document)
+        self.clip = ClipPanel(self.document, self._focus)
         self.docks: dict[str, QDockWidget] = {}
         left, right = Qt.DockWidgetArea.LeftDockWidgetArea, Qt.DockWidgetArea.RightDockWidgetArea
         for name, title, widget, area in (
@@ -94,7 +97,8 @@ class MainWindow(QMainWindow):
                 ("objects", "City objects", self.tree, left), ("attributes", "Attributes", self.inspector, right),
                 ("query", "Query", self.query, right), ("measure", "Measure", self.measure, right),
                 ("bookmarks", "Bookmarks", self.bookmarks, right),
-                ("profile", "Height profile", self.profile, right)):
+                ("profile", "Height profile", self.profile, right),
+                ("points", "Points and classes", self.points, left), ("clip", "Clipping box", self.clip, left)):
             dock = QDockWidget(title, self)
             dock.setObjectName(f"dock_{name}")
             dock.setWidget(widget)
@@ -102,9 +106,17 @@ class MainWindow(QMainWindow):
             self.docks[name] = dock
         self.tabifyDockWidget(self.docks["measure"], self.docks["bookmarks"])
         self.tabifyDockWidget(self.docks["measure"], self.docks["profile"])
+        self.tabifyDockWidget(self.docks["lod"], self.docks["points"])
+        self.tabifyDockWidget(self.docks["lod"], self.docks["clip"])
         self.docks["measure"].raise_()
+        self.docks["lod"].raise_()
+        # Permanent widgets on the right, without stretch: the left part stays free for showMessage()
+        # (a stretched statistics label used to cover every status message).
+        self.cursor_label = QLabel("")
         self.status = QLabel("no data")
-        self.statusBar().addPermanentWidget(self.status, 1)
+        self.statusBar().addPermanentWidget(self.cursor_label)
+        self.statusBar().addPermanentWidget(self.status)
+        self.view.cursor.connect(self._on_cursor)
         self.view.frame.connect(self._on_frame)
         self.view.picked.connect(self._on_picked)
         self.view.measured.connect(self.measure.show_measurement)
@@ -154,6 +166,7 @@ class MainWindow(QMainWindow):
         self._action("quit", "&Quit", self.close, "Ctrl+Q", f)
         v = mb.addMenu("&View")
         self._action("reset", "&Reset view", self.view.reset_view, "R", v)
+        self._action("navigation", "&Turntable / fly navigation", self.toggle_navigation, "T", v)
         self._action("focus", "&Focus on point under cursor", self.view.focus_under_cursor, "F", v)
         nav = v.addMenu("Fly")
         for key, direction in (("W", "forward"), ("S", "backward"), ("A", "left"), ("D", "right"),
@@ -177,6 +190,23 @@ class MainWindow(QMainWindow):
         h = mb.addMenu("&Help")
         self._action("shortcuts", "&Shortcuts", self.show_shortcuts, "F1", h)
         self._action("about", "&About citylod", self._about, None, h)
+
+    def _focus(self) -> tuple[Any, float] | None:
+        cam = self.view.camera()
+        if cam is None:
+            return None
+        import numpy as np
+
+        return np.asarray(cam.focal_point), float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
+
+    def toggle_navigation(self) -> str:
+        """Switch between turntable and fly navigation; returns the new mode."""
+        mode = "fly" if self.view.navigator.mode == "turntable" else "turntable"
+        self.view.navigator.set_mode(mode)
+        self.statusBar().showMessage(f"navigation: {mode}"
+                                     + (" (left drag looks around, wheel moves forward, WASD/QE fly)"
+                                        if mode == "fly" else " (left drag orbits, middle pans, wheel zooms)"), 6000)
+        return mode
 
     def _escape(self) -> None:
         self.view.escape()
@@ -217,6 +247,10 @@ class MainWindow(QMainWindow):
             return
         self.status.setText(format_status(self.document.scene.last_stats, getattr(self, "_last_frame_ms", 0.0),
                                           self.view.pending()))
+
+    def _on_cursor(self, point: Any) -> None:
+        if self.document.entries:
+            self.cursor_label.setText(format_cursor(point, self.document.crs, self.document.geographic))
 
     # -- picking and measuring ----------------------------------------------------------------------
     def _on_picked(self, object_id: str | None) -> None:

@@ -139,6 +139,11 @@ class SceneView(QWidget):
         # A city store open on its own is drawn as its lit proxies (read on a worker thread).
         self.store_actor: Any = None
         self._store_future: Any = None
+        # Scale bar, north arrow, clipping box (render/hud.py).
+        from citylod.render.hud import ClipBox, Hud
+
+        self.hud = Hud(self.renderer)
+        self.clip = ClipBox(self.renderer, self.scene.add_actor_hook)
         document.state.on_change(self._on_state)
         document.on_change(self._on_document)
         self.timer = QTimer(self)
@@ -158,6 +163,11 @@ class SceneView(QWidget):
 
     def _after_update(self, *_: Any) -> None:
         self.document.apply_opacity()
+        cam = self.camera()
+        if cam is not None:
+            w, h = self.renderer.GetSize()
+            dist = float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
+            self.hud.update(cam, 2.0 * dist * np.tan(np.radians(cam.fovy_deg) / 2.0) / max(h, 1), (w, h))
 
     def request_render(self) -> None:
         """Render at the next timer tick (coalesces several model changes into one frame)."""
@@ -435,6 +445,12 @@ class SceneView(QWidget):
     def _on_document(self, kind: str) -> None:
         if kind in ("layers", "style"):
             self._sync_store_actor()
+        if kind == "display":
+            from citylod.render.hud import set_edl
+
+            set_edl(self.renderer, self.document.edl)
+            if self.scene.origin is not None:
+                self.clip.set_box(self.document.clip_box, self.scene.origin)
         self.request_render()
 
     def _sync_store_actor(self) -> None:
@@ -459,6 +475,7 @@ class SceneView(QWidget):
             return
         verts, faces, owner = fut.result()
         self.store_actor = StoreActor(self.renderer, verts, faces, owner, doc.scene.origin)
+        self.clip.attach(self.store_actor.actor)
         self.store_actor.restyle(*doc.state.as_arrays(doc.store.ids))
         self._sync_store_actor()
         self.refresh_overlay()

@@ -33,20 +33,30 @@ from vtkmodules.vtkCommonCore import (
     vtkPoints,
     vtkUnsignedCharArray,
 )
-from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkImageData, vtkMultiBlockDataSet, vtkPolyData
+from vtkmodules.vtkCommonDataModel import (
+    vtkCellArray,
+    vtkImageData,
+    vtkMultiBlockDataSet,
+    vtkPlane,
+    vtkPlaneCollection,
+    vtkPolyData,
+)
 from vtkmodules.vtkCommonMath import vtkMatrix4x4
 from vtkmodules.vtkIOCore import vtkMemoryResourceStream
 from vtkmodules.vtkIOImage import vtkImageReader2, vtkJPEGReader, vtkPNGReader, vtkPNGWriter
 from vtkmodules.vtkRenderingCore import (
     vtkActor,
+    vtkActor2D,
     vtkCamera,
     vtkCompositeDataDisplayAttributes,
     vtkCompositePolyDataMapper,
     vtkLight,
     vtkPolyDataMapper,
+    vtkPolyDataMapper2D,
     vtkProperty,
     vtkRenderer,
     vtkRenderWindow,
+    vtkTextActor,
     vtkTexture,
     vtkWindowToImageFilter,
 )
@@ -70,6 +80,7 @@ __all__ = [
     "numpy_to_vtkIdTypeArray",
     "offscreen_window",
     "vtkActor",
+    "vtkActor2D",
     "vtkCamera",
     "vtkCellArray",
     "vtkCommand",
@@ -87,13 +98,17 @@ __all__ = [
     "vtkOpenGLRenderer",
     "vtkPNGReader",
     "vtkPNGWriter",
+    "vtkPlane",
+    "vtkPlaneCollection",
     "vtkPoints",
     "vtkPolyData",
     "vtkPolyDataMapper",
+    "vtkPolyDataMapper2D",
     "vtkProperty",
     "vtkRenderStepsPass",
     "vtkRenderWindow",
     "vtkRenderer",
+    "vtkTextActor",
     "vtkTexture",
     "vtkTextureObject",
     "vtkUnsignedCharArray",

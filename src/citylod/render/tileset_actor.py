@@ -232,13 +232,24 @@ class _PointProps:
         self.total = 0
         self.drawn = 0
         self.fade_start_s: float | None = None
+        self.keep: npt.NDArray[np.bool_] | None = None
 
     def draw_first(self, k: int) -> None:
-        """Draw the first ``k`` points of the tile (clamped to 1..total)."""
+        """Draw the first ``k`` points of the tile (clamped to 1..total), those of them ``keep`` allows."""
         k = max(1, min(int(k), self.total))
         if k != self.drawn and self.data is not None:
-            self.data.SetVerts(_cells(np.arange(k, dtype=np.int64), 1))
+            idx = np.arange(k, dtype=np.int64) if self.keep is None else np.flatnonzero(self.keep[:k])
+            self.data.SetVerts(_cells(idx.astype(np.int64), 1))
             self.drawn = k
+
+    def set_keep(self, keep: npt.NDArray[np.bool_] | None) -> None:
+        """Draw only the points where ``keep`` (total,) is true (a class filter); None draws all."""
+        if keep is None and self.keep is None:
+            return
+        self.keep = keep
+        k = self.drawn if self.drawn > 0 else self.total
+        self.drawn = -1
+        self.draw_first(k)
 
 
 class _Slot:
@@ -318,6 +329,9 @@ class TilesetLayer:
         self.smooth_refinement = is_points
         self.color_by: str | None = None
         self.point_size_px = 2.0
+        self.point_round = False  # round (sphere-shaded) points instead of squares
+        #: ASPRS classes to draw (None: all); points of other classes are left out of the drawn cells.
+        self.class_filter: frozenset[int] | None = None
         self.selection: Selection | None = None
         self._slots: dict[str, _Slot] = {}
         self._shown: set[str] = set()
@@ -414,6 +428,11 @@ class TilesetLayer:
         rgb = self._point_rgb(pts, mode, level, tile)
         prop = props.actor.GetProperty()
         prop.SetPointSize(self.point_size_px)
+        prop.SetRenderPointsAsSpheres(self.point_round)
+        keep = None
+        if self.class_filter is not None and pts.classification is not None:
+            keep = np.isin(pts.classification, np.fromiter(self.class_filter, np.int64))
+        props.set_keep(keep)
         if rgb is None:
             props.mapper.ScalarVisibilityOff()
             prop.SetColor(*level_color(level))
