@@ -378,3 +378,71 @@ def test_city_store_alone_is_drawn_and_pickable(qtbot, window, xin, sample) -> N
     xin.click(view.vtk, view.vtk.width() // 2, view.vtk.height() // 2)
     qtbot.waitUntil(lambda: doc.state.selection == {tallest}, timeout=5000)
     assert window.inspector.object_id == tallest
+
+
+def _write_las_without_crs(path: Path, n: int = 3000) -> None:
+    import laspy
+
+    rng = np.random.default_rng(3)
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    header.offsets = np.array([85000.0, 447500.0, 0.0])
+    las = laspy.LasData(header)
+    las.x = 85000.0 + rng.random(n) * 40.0
+    las.y = 447500.0 + rng.random(n) * 40.0
+    las.z = rng.random(n) * 5.0
+    las.classification = rng.choice(np.array([2, 6], np.uint8), n)
+    las.write(str(path))
+
+
+def test_laz_without_crs_prompts_and_builds(qtbot, window, xin, tmp_path) -> None:
+    """Opening a LAS without a CRS asks for one (typed on the keyboard), builds and opens the octree; a
+    build that fails leaves no progress dialog behind."""
+    from PySide6.QtCore import QTimer
+    from PySide6.QtWidgets import QApplication, QInputDialog, QProgressDialog
+
+    las = tmp_path / "nocrs.las"
+    _write_las_without_crs(las)
+    window.interactive = True
+
+    def dialog():
+        return next((w for w in QApplication.topLevelWidgets()
+                     if isinstance(w, QInputDialog) and w.isVisible()), None)
+
+    typed = []
+
+    def answer() -> None:
+        # Runs inside the dialog's own event loop (open_path blocks in it): real keys into the dialog.
+        dlg = dialog()
+        if dlg is None:
+            QTimer.singleShot(200, answer)
+            return
+        dlg.activateWindow()
+        dlg.raise_()
+        for args in (["key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "20", "EPSG:28992"],
+                     ["key", "Return"]):
+            subprocess.run(["xdotool", *args], check=True, timeout=30)
+        typed.append(True)
+
+    def give_up() -> None:  # never hang the suite on a dialog that did not get the keys
+        dlg = dialog()
+        if dlg is not None:
+            dlg.reject()
+
+    QTimer.singleShot(500, answer)
+    QTimer.singleShot(20000, give_up)
+    assert window.open_path(las), window.errors
+    assert typed and dialog() is None
+    qtbot.waitUntil(lambda: any(e.kind == "tileset" for e in window.document.entries), timeout=120000)
+    entry = next(e for e in window.document.entries if e.kind == "tileset")
+    assert window.document.crs.to_epsg() == 28992
+    assert entry.layer.kind == "points"
+    # A build that fails at once (not a LAS file) reports the error and no progress dialog stays.
+    window.interactive = False
+    bad = tmp_path / "broken.laz"
+    bad.write_bytes(b"not a point cloud" * 10)
+    errors = len(window.errors)
+    assert window.open_path(bad)
+    qtbot.waitUntil(lambda: len(window.errors) > errors, timeout=60000)
+    qtbot.wait(800)  # longer than the dialog's minimum duration (300 ms)
+    assert not [w for w in QApplication.topLevelWidgets() if isinstance(w, QProgressDialog) and w.isVisible()]

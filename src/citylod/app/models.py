@@ -354,16 +354,25 @@ class BuildPlan:
 
 
 def build_plan(path: str | os.PathLike[str], out_dir: str | os.PathLike[str] | None = None,
-               python: str = sys.executable) -> BuildPlan:
+               python: str = sys.executable, *, crs: str | None = None) -> BuildPlan:
     """The build that makes ``path`` (raster, LAS/LAZ, CityGML/CityJSON) viewable.
 
-    The output goes beside the input (``<stem>_tiles``, ``<stem>_points``, ``<stem>.gpkg``) or into
-    ``out_dir``. The command runs ``python -m citylod.cli build ...`` so that cancelling kills one process
-    and leaves nothing half written (builds write to a temporary name and rename).
+    The output goes beside the input (``<stem>_tiles``, ``<stem>_points``, ``<stem>.gpkg``), or into
+    ``out_dir``, or, when the input's folder is read-only (shared data), into the user's cache
+    (``$XDG_CACHE_HOME/citylod/builds``). The command runs ``python -m citylod.cli build ...`` so that
+    cancelling kills one process and leaves nothing half written (builds write to a temporary name and
+    rename). ``crs`` is passed as ``--crs`` (a LAS/LAZ without one in its header, a city model to project).
     """
     p = Path(path)
     kind = source_kind(p)
-    base = Path(out_dir) if out_dir is not None else p.parent
+    if out_dir is not None:
+        base = Path(out_dir)
+    elif os.access(p.parent, os.W_OK):
+        base = p.parent
+    else:
+        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        base = cache / "citylod" / "builds"
+        base.mkdir(parents=True, exist_ok=True)
     if kind == "raster":
         out = base / f"{p.stem}_tiles"
         args = ["dsm", str(p), "-o", str(out)]
@@ -375,7 +384,30 @@ def build_plan(path: str | os.PathLike[str], out_dir: str | os.PathLike[str] | N
         args = ["city", str(p), "-o", str(out)]
     else:
         raise InputError("not a raster, LAS/LAZ or CityGML/CityJSON file", p)
+    if crs and kind in ("points", "citymodel"):
+        args += ["--crs", crs]
     return BuildPlan(p, kind, out, (python, "-m", "citylod.cli", "build", *args))
+
+
+def missing_crs(path: str | os.PathLike[str]) -> bool:
+    """A LAS/LAZ whose header declares no CRS (the build then needs one from the user). Reads the header
+    only; False for other kinds and for files that cannot be read (the build reports those)."""
+    if source_kind(path) != "points":
+        return False
+    from citylod.io.las import read_info
+
+    try:
+        return read_info(path).crs is None
+    except CitylodError:
+        return False
+
+
+def check_crs(text: str) -> str:
+    """``text`` if it names a CRS pyproj knows (``EPSG:28992``, a WKT, a PROJ string); InputError if not."""
+    from citylod.io.crs import parse_crs
+
+    parse_crs(text.strip(), "the CRS entered")
+    return text.strip()
 
 
 _TQDM = re.compile(r"(?:([^\r\n:|]{1,40}):\s*)?(\d{1,3})%\|")

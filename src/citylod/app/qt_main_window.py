@@ -31,7 +31,16 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
 )
 
-from citylod.app.models import SHORTCUTS, Document, build_plan, format_cursor, format_status, source_kind
+from citylod.app.models import (
+    SHORTCUTS,
+    Document,
+    build_plan,
+    check_crs,
+    format_cursor,
+    format_status,
+    missing_crs,
+    source_kind,
+)
 from citylod.app.qt_panels import (
     AttributePanel,
     BookmarkPanel,
@@ -300,9 +309,29 @@ class MainWindow(QMainWindow):
         self.opened.emit(str(p))
         return True
 
-    def build_and_open(self, path: Path) -> bool:
+    def ask_crs(self, path: Path) -> str | None:
+        """Ask for the CRS of a file that declares none; None when the user cancels."""
+        from PySide6.QtWidgets import QInputDialog
+
+        text, ok = QInputDialog.getText(
+            self, "CRS needed", f"{path.name} does not say which coordinate reference system it uses.\n"
+            "Enter it (e.g. EPSG:28992 for the Netherlands, EPSG:25832 for UTM 32N):", text="EPSG:")
+        return text if ok else None
+
+    def build_and_open(self, path: Path, crs: str | None = None) -> bool:
+        """Build a raw input in a subprocess and open the result; a LAS/LAZ without a CRS asks for one."""
+        if crs is None and missing_crs(path):
+            answer = self.ask_crs(path) if self.interactive else None
+            if answer is None:
+                self._error(f"{path}: the header has no CRS; open it again and enter one (e.g. EPSG:28992)")
+                return False
+            try:
+                crs = check_crs(answer)
+            except CitylodError as exc:
+                self._error(str(exc))
+                return False
         try:
-            plan = build_plan(path)
+            plan = build_plan(path, crs=crs)
         except CitylodError as exc:
             self._error(str(exc))
             return False

@@ -55,6 +55,7 @@ class ProcessTask(QObject):
             self.dialog.setAutoReset(False)
             self.dialog.canceled.connect(self.cancel)
         self.stdout = ""
+        self.stage = ""
 
     def start(self) -> None:
         self.process.start(self.argv[0], self.argv[1:])
@@ -72,16 +73,29 @@ class ProcessTask(QObject):
         prog = parse_progress(text)
         if prog is not None and self.dialog is not None:
             desc, pct = prog
-            self.dialog.setLabelText(f"{self.label}\n{desc}" if desc else self.label)
-            self.dialog.setValue(pct)
+            self.stage = desc
+            if pct >= 100:
+                # A build runs several stages, each with its own bar; a finished stage is not a finished
+                # build, so the bar goes busy until the next stage reports instead of reading 100 %.
+                self.dialog.setRange(0, 0)
+                self.dialog.setLabelText(f"{self.label}\n{desc} done; next stage…" if desc else self.label)
+            else:
+                self.dialog.setRange(0, 100)
+                self.dialog.setValue(pct)
+                self.dialog.setLabelText(f"{self.label}\n{desc}: {pct} %" if desc else self.label)
 
     def _on_stdout(self) -> None:
         self.stdout += bytes(self.process.readAllStandardOutput().data()).decode("utf-8", "replace")
 
     def _close_dialog(self) -> None:
+        # reset() also stops the dialog's show-after-minimumDuration timer: closing alone left a dialog
+        # that a fast failure closed before it appeared to pop up afterwards, with its Cancel disconnected.
         if self.dialog is not None:
-            self.dialog.blockSignals(True)
-            self.dialog.close()
+            dialog, self.dialog = self.dialog, None
+            dialog.blockSignals(True)
+            dialog.reset()
+            dialog.hide()
+            dialog.deleteLater()
 
     def _on_finished(self, code: int, _status: object) -> None:
         self._close_dialog()
