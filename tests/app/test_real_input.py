@@ -446,3 +446,100 @@ def test_laz_without_crs_prompts_and_builds(qtbot, window, xin, tmp_path) -> Non
     qtbot.waitUntil(lambda: len(window.errors) > errors, timeout=60000)
     qtbot.wait(800)  # longer than the dialog's minimum duration (300 ms)
     assert not [w for w in QApplication.topLevelWidgets() if isinstance(w, QProgressDialog) and w.isVisible()]
+
+
+# ------------------------------------------------------------------------------- README pictures
+def _picture_dir(tmp_path: Path) -> Path:
+    """Where the pictures go: ``CITYLOD_README_IMAGES`` (docs/images when refreshing the README) or tmp."""
+    out = Path(os.environ.get("CITYLOD_README_IMAGES") or tmp_path)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def test_picture_picked_building_with_measurement(qtbot, window, xin, sample, tmp_path) -> None:  # noqa: F811
+    """README picture: a building picked with a click (inspector and tree filled), a distance measured
+    with two clicks. ``CITYLOD_ORBIT_CITY`` selects a bigger built city."""
+    window.resize(1600, 1000)
+    sources, _camera = _orbit_sources(sample)
+    if not any(s.suffix == ".gpkg" for s in sources):
+        sources.append(_store(sample))
+    for s in sources:
+        assert window.open_path(s)
+    doc, view = window.document, window.view
+    tallest = doc.tallest_building()
+    from citylod.app.navigation import orbit
+
+    assert view.frame_objects([tallest])
+    cam = view.camera()
+    view.set_camera(orbit(cam, 25.0, 0.0))
+    _wait_resolved(qtbot, window, 180000)
+    vw, vh = view.vtk.width(), view.vtk.height()
+    xin.click(view.vtk, vw // 2, vh // 2)
+    qtbot.waitUntil(lambda: doc.state.selection == {tallest}, timeout=5000)
+    xin.key(view.vtk, "m")
+    qtbot.waitUntil(lambda: view.measure_kind == "distance", timeout=3000)
+    for x, y in ((int(vw * 0.3), int(vh * 0.8)), (int(vw * 0.7), int(vh * 0.75))):
+        xin.click(view.vtk, x, y)
+    qtbot.waitUntil(lambda: view.measurement is not None and len(view.measurement.points) == 2, timeout=5000)
+    assert window.inspector.object_id == tallest
+    _wait_resolved(qtbot, window, 60000)
+    out = window.save_screenshot(_picture_dir(tmp_path) / "app_pick_measure.png")
+    assert out.is_file()
+
+
+@pytest.mark.realdata
+def test_picture_delft_classes_and_clip_box(qtbot, window, xin, tmp_path_factory, tmp_path) -> None:
+    """README picture on real data: Delft AHN3 points coloured by class, the class legend with one class
+    unchecked by a click (those points disappear), and a clipping box set with a click."""
+    from tests.paths import DELFT
+
+    files = [DELFT / "ahn3_cropped_1.laz", DELFT / "ahn3_cropped_2.laz"]
+    if not all(f.is_file() for f in files):
+        pytest.skip(f"Delft data not found under {DELFT}")
+    from citylod.lod.build.points import build_points
+
+    out = tmp_path_factory.mktemp("delft") / "points"
+    build_points(files, out, crs="EPSG:28992", progress=False, workers=1)
+    window.resize(1600, 1000)
+    assert window.open_path(out)
+    doc, view = window.document, window.view
+    window.layers.rows[0][2].setCurrentText("classification")
+    from citylod.app.navigation import dolly, orbit
+
+    view.set_camera(dolly(orbit(view.camera(), 0.0, 5.0), 0.6))
+    _wait_resolved(qtbot, window, 180000)
+    window.docks["points"].raise_()
+    qtbot.wait(100)
+    xin.click(panel_edl := window.points.edl, 8, panel_edl.height() // 2)
+    qtbot.waitUntil(lambda: window.document.edl, timeout=3000)
+    panel = window.points
+    qtbot.waitUntil(lambda: {1, 2, 6} <= set(panel._classes), timeout=5000)
+    drawn_before = doc.scene.last_stats.points
+    # Uncheck "unclassified" with a click on its box in the legend.
+    item = panel._classes[1]
+    rect = panel.legend.visualItemRect(item)
+    xin.click(panel.legend.viewport(), rect.left() + 10, rect.center().y())
+    qtbot.waitUntil(lambda: doc.class_filter is not None and 1 not in doc.class_filter, timeout=5000)
+    # The clipping box: "Around the view" in the Clipping box dock.
+    window.docks["clip"].raise_()
+    from PySide6.QtWidgets import QPushButton
+
+    button = next(b for b in window.clip.findChildren(QPushButton) if b.text() == "Around the view")
+    qtbot.wait(100)
+    xin.click(button, button.width() // 2, button.height() // 2)
+    qtbot.waitUntil(lambda: doc.clip_box is not None, timeout=5000)
+    view.set_camera(orbit(view.camera(), 0.0, -5.0))
+    _wait_resolved(qtbot, window, 120000)
+    lo, hi = doc.clip_box
+    assert np.all(hi - lo > 1.0)
+    # Unclassified points are no longer drawn: no drawn vertex of any point tile has class 1.
+    layer = doc.scene.layers[0]
+    for key in layer.shown_keys:
+        slot = layer._slots[key]
+        if slot.points is not None and slot.points.keep is not None:
+            cls = slot.prepared.points.classification
+            assert not np.any(slot.points.keep & (cls == 1))
+    window.docks["points"].raise_()
+    qtbot.wait(100)
+    shot = window.save_screenshot(_picture_dir(tmp_path) / "app_delft_classes_clip.png")
+    assert shot.is_file() and drawn_before > 0

@@ -163,13 +163,15 @@ class ClipPanel(QWidget):
             self.apply()
 
     def around_view(self) -> None:
-        """A box centred on the focal point, half as wide as the focal distance, the full data height."""
+        """A box centred on the focal point, a quarter of the focal distance and at most 60 % of the data
+        across, the full data height."""
         f = self.focus()
         bounds = self.document.bounds()
         if f is None or bounds is None:
             return
         centre, dist = f
-        half = max(dist * 0.25, 1.0)
+        extent = float(np.min(bounds[1][:2] - bounds[0][:2]))
+        half = max(min(dist * 0.25, extent * 0.3), 1.0)
         lo = np.array([centre[0] - half, centre[1] - half, bounds[0][2] - 1.0])
         hi = np.array([centre[0] + half, centre[1] + half, bounds[1][2] + 1.0])
         self.set_box(lo, hi)

@@ -168,6 +168,7 @@ class SceneView(QWidget):
             w, h = self.renderer.GetSize()
             dist = float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
             self.hud.update(cam, 2.0 * dist * np.tan(np.radians(cam.fovy_deg) / 2.0) / max(h, 1), (w, h))
+            self._measure_text.SetPosition(12, max(h - 40, 12))  # top left: the scale bar is bottom right
 
     def request_render(self) -> None:
         """Render at the next timer tick (coalesces several model changes into one frame)."""
@@ -555,6 +556,10 @@ class SceneView(QWidget):
 
     def shutdown(self) -> None:
         self.timer.stop()
+        if self.document.edl:
+            from citylod.render.hud import set_edl
+
+            set_edl(self.renderer, False)
         self.scene.detach()
         self.vtk.Finalize()
 

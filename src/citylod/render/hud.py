@@ -80,6 +80,11 @@ def set_edl(renderer: Any, on: bool) -> None:
         renderer.SetPass(edl)
         renderer._citylod_edl = (edl, basic)  # keep the passes alive with the renderer
     else:
+        passes = getattr(renderer, "_citylod_edl", None)
+        window = renderer.GetRenderWindow()
+        if passes is not None and window is not None:
+            # The pass owns GL objects: free them while the context exists (VTK complains otherwise).
+            passes[0].ReleaseGraphicsResources(window)
         renderer.SetPass(None)
         renderer._citylod_edl = None
 
@@ -109,6 +114,7 @@ class ClipBox:
         if self.active:
             actor.GetMapper().SetClippingPlanes(self.planes)
 
+
     def set_box(self, box: tuple[npt.ArrayLike, npt.ArrayLike] | None, origin: npt.ArrayLike) -> None:
         self.planes.RemoveAllItems()
         self.active = box is not None
@@ -134,7 +140,11 @@ class ClipBox:
             self.outline.GetMapper().SetInputData(data)
         self.outline.SetVisibility(self.active)
         for actor in self._actors:
-            actor.GetMapper().SetClippingPlanes(self.planes if self.active else None)
+            mapper = actor.GetMapper()
+            if self.active:
+                mapper.SetClippingPlanes(self.planes)
+            else:
+                mapper.RemoveAllClippingPlanes()
 
 
 class Hud:
@@ -142,7 +152,9 @@ class Hud:
 
     def __init__(self, renderer: Any) -> None:
         self.renderer = renderer
-        self.bar = self._lines_actor((0.1, 0.1, 0.1), 3.0)
+        # Two strokes, a wide dark one under a narrow white one: readable on dark terrain and on the sky.
+        self.bar_shadow = self._lines_actor((0.05, 0.05, 0.05), 5.0)
+        self.bar = self._lines_actor((1.0, 1.0, 1.0), 2.0)
         self.arrow = self._lines_actor((0.75, 0.05, 0.05), 3.0)
         self.bar_text = self._text(14)
         self.north_text = self._text(16)
@@ -191,14 +203,15 @@ class Hud:
         """Place both aids for a view ``size`` (w, h) pixels where one pixel spans ``metres_per_px`` at the
         focal distance."""
         w, h = size
-        for prop in (self.bar, self.arrow, self.bar_text, self.north_text):
+        for prop in (self.bar_shadow, self.bar, self.arrow, self.bar_text, self.north_text):
             prop.VisibilityOn()
         length_m, length_px = nice_length(metres_per_px, min(150.0, w / 4))
         self.length_m = length_m
         x1, y = w - 20.0, 24.0
         x0 = x1 - length_px
-        self._polyline(self.bar, [(x0, y), (x1, y), (x0, y - 6), (x0, y + 6), (x1, y - 6), (x1, y + 6)],
-                       [(0, 1), (2, 3), (4, 5)])
+        for actor in (self.bar_shadow, self.bar):
+            self._polyline(actor, [(x0, y), (x1, y), (x0, y - 6), (x0, y + 6), (x1, y - 6), (x1, y + 6)],
+                           [(0, 1), (2, 3), (4, 5)])
         label = f"{length_m:g} m" if length_m >= 1 else f"{length_m * 100:g} cm"
         if length_m >= 1000:
             label = f"{length_m / 1000:g} km"
