@@ -2,7 +2,7 @@
 
 Per pixel, both depth images give a 3D point along the same pixel ray (eye + d · ray). The measured
 error is the object-space distance between the LOD point and the full-resolution point, divided by the
-footprint of a pixel at that distance, ``2 · d · tan(fovy/2) / H`` (DESIGN.md §2): the error in pixels.
+footprint of a pixel at that distance, ``2 · d · tan(fovy/2) / H`` (docs/DESIGN.md, decision 2): the error in pixels.
 
 Two variants, both reported by the benchmark:
 
