@@ -18,7 +18,7 @@ def test_readme_python_examples_run(tmp_path, monkeypatch) -> None:
     assert len(blocks) >= 2, "the README lost its scripting examples"
     monkeypatch.chdir(tmp_path)
     ns: dict[str, object] = {}
-    exec(compile("\n".join(blocks), "README.md", "exec"), ns)  # noqa: S102 - the README is ours
+    exec(compile("\n".join(blocks), "README.md", "exec"), ns)
     rgb = ns["rgb"]
     assert isinstance(rgb, np.ndarray) and rgb.shape == (360, 640, 3)
     assert len(np.unique(rgb.reshape(-1, 3), axis=0)) > 100, "the render is blank"
