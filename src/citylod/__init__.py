@@ -5,8 +5,10 @@ The scripting entry points are re-exported here and imported lazily, so ``import
 Examples
 --------
 >>> import citylod
->>> sorted(citylod.__all__)[:3]
-['__version__', 'add_lod_layer', 'build_city']
+>>> citylod.open_tileset.__module__
+'citylod.io.tiles3d.tileset'
+>>> "build_dsm" in dir(citylod)
+True
 """
 
 from __future__ import annotations

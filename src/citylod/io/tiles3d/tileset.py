@@ -438,7 +438,22 @@ def _bounding_box(bv: dict[str, Any], source: str, key: str) -> Box:
 
 
 def open_tileset(path: str | os.PathLike[str]) -> Tileset:
-    """Open a 3D Tiles 1.x tileset: a ``tileset.json`` or the folder holding one."""
+    """Open a 3D Tiles 1.x tileset: a ``tileset.json`` or the folder holding one.
+
+    Only the tileset document (and external tilesets it names) is read; tile content loads on demand
+    (:meth:`Tile.load`). Coordinates come out in :attr:`Tileset.crs`: the source CRS for tilesets citylod
+    built, ECEF (EPSG:4978) for others.
+
+    Examples
+    --------
+    >>> import citylod
+    >>> ts = citylod.open_tileset("TILES")                                   # doctest: +SKIP
+    >>> ts.crs.name, ts.root.geometric_error                                  # doctest: +SKIP
+    ('WGS 84 / UTM zone 32N', 21.97)
+    >>> mesh = ts.root.load()                                                 # doctest: +SKIP
+    >>> mesh.vertices.shape[1], mesh.faces.shape[1]                           # doctest: +SKIP
+    (3, 3)
+    """
     p = Path(path)
     if p.is_dir():
         p = p / "tileset.json"

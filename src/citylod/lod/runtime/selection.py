@@ -345,6 +345,16 @@ def select(
     -------
     Selection
         ``render`` (resident tiles to draw), ``request`` (keys to load, most needed first) and ``stats``.
+
+    Examples
+    --------
+    >>> import citylod
+    >>> from citylod.core.camera import View
+    >>> ts = citylod.open_tileset("TILES")                                   # doctest: +SKIP
+    >>> cam = citylod.load_cameras("camera.json")[0]                          # doctest: +SKIP
+    >>> sel = select(ts.root, View(cam, 1280, 720), tau_px=1.0)               # doctest: +SKIP
+    >>> sel.request[:3], sel.stats.selected                                   # doctest: +SKIP
+    (['0/0/0'], 0)
     """
     budget = budget or UNLIMITED
     fr = _Frame(view, resident, unavailable)
