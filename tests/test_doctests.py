@@ -13,6 +13,8 @@ MODULES = [
     "citylod.io.tiles3d.tileset",
     "citylod.lod.runtime.selection",
     "citylod.lod.runtime.loader",
+    "citylod.app.navigation",
+    "citylod.render.hud",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
 ]

@@ -467,11 +467,18 @@ def test_picture_picked_building_with_measurement(qtbot, window, xin, sample, tm
         assert window.open_path(s)
     doc, view = window.document, window.view
     tallest = doc.tallest_building()
+    import shapely
+
+    from citylod.app.models import focus_on
     from citylod.app.navigation import orbit
 
     assert view.frame_objects([tallest])
-    cam = view.camera()
-    view.set_camera(orbit(cam, 25.0, 0.0))
+    px = doc.store.proxies
+    i = px.index_of(tallest)
+    inside = shapely.point_on_surface(px.footprints[i])
+    roof = (inside.x, inside.y, px.zmax[i] - px.inflate)
+    # Look at the roof from a little to the side: the building is in the middle of the view.
+    view.set_camera(orbit(focus_on(view.camera(), roof, zoom=1.0), 25.0, 0.0))
     _wait_resolved(qtbot, window, 180000)
     vw, vh = view.vtk.width(), view.vtk.height()
     xin.click(view.vtk, vw // 2, vh // 2)

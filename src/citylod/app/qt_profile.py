@@ -78,5 +78,5 @@ class ProfiledApplication(QApplication):
             ms = timer.nsecsElapsed() / 1e6
             if ms > 1.0:  # only what could matter; naming every event would cost more than it tells
                 name = f"event.{type(receiver).__name__}.{event.type().name}"
-                if TIMINGS.record(name, ms, SLOW_MS):
+                if TIMINGS.record(name, ms, SLOW_MS) and enabled():
                     print(f"citylod: GUI thread held {ms:.1f} ms by {name}", file=sys.stderr)
