@@ -138,6 +138,27 @@ def _ray_hit(camera, width: int, height: int, x: int, y: int, dsm) -> np.ndarray
     return pts[i - 1] + (pts[i] - pts[i - 1]) * (a0 / (a0 - a1))
 
 
+def _start_tool(qtbot, window, xin, sample, key: str, kind: str) -> None:  # noqa: F811
+    """Open the sample's DSM at its camera, wait for the full frame, press a tool's key."""
+    from citylod.core.camera import load_cameras
+
+    window.open_path(sample["tiles"])
+    window.view.set_camera(load_cameras(sample["camera"])[0])
+    _wait_resolved(qtbot, window)
+    xin.key(window.view.vtk, key)
+    qtbot.waitUntil(lambda: window.view.measure_kind == kind, timeout=3000)
+
+
+def _roof(doc, object_id: str) -> tuple[float, float, float]:
+    """A point on the roof of an object's proxy (inside its footprint, at its un-inflated top)."""
+    import shapely
+
+    px = doc.store.proxies
+    i = px.index_of(object_id)
+    inside = shapely.point_on_surface(px.footprints[i])
+    return inside.x, inside.y, float(px.zmax[i] - px.inflate)
+
+
 # -------------------------------------------------------------------------------------------- tests
 def test_click_building_fills_inspector_and_tree(qtbot, window, xin, sample) -> None:  # noqa: F811
     store_path = _store(sample)
@@ -145,15 +166,10 @@ def test_click_building_fills_inspector_and_tree(qtbot, window, xin, sample) -> 
     window.open_path(store_path)
     doc = window.document
     tallest = doc.tallest_building()
-    import shapely
-
     from citylod.app.models import focus_on
 
-    px = doc.store.proxies
-    i = px.index_of(tallest)
-    inside = shapely.point_on_surface(px.footprints[i])
     assert window.view.frame_objects([tallest])
-    window.view.set_camera(focus_on(window.view.camera(), (inside.x, inside.y, px.zmax[i] - px.inflate)))
+    window.view.set_camera(focus_on(window.view.camera(), _roof(doc, tallest)))
     _wait_resolved(qtbot, window)
     vw, vh = window.view.vtk.width(), window.view.vtk.height()
     assert doc.state.selection == set()
@@ -162,19 +178,13 @@ def test_click_building_fills_inspector_and_tree(qtbot, window, xin, sample) -> 
     assert window.tree.selected_ids() == [tallest]
     assert window.inspector.object_id == tallest
     assert tallest in window.inspector.as_text()
-    # A click on empty sky clears the selection; a drag (orbit) does not pick.
+    # A drag (an orbit) does not pick.
     xin.drag(window.view.vtk, [(vw // 2, vh // 2), (vw // 2 + 60, vh // 2), (vw // 2 + 120, vh // 2)])
     assert doc.state.selection == {tallest}
 
 
 def test_measure_distance_with_clicks(qtbot, window, xin, sample) -> None:  # noqa: F811
-    from citylod.core.camera import load_cameras
-
-    window.open_path(sample["tiles"])
-    window.view.set_camera(load_cameras(sample["camera"])[0])
-    _wait_resolved(qtbot, window)
-    xin.key(window.view.vtk, "m")  # Tools → Measure distance
-    qtbot.waitUntil(lambda: window.view.measure_kind == "distance", timeout=3000)
+    _start_tool(qtbot, window, xin, sample, "m", "distance")  # Tools → Measure distance
     vw, vh = window.view.vtk.width(), window.view.vtk.height()
     clicks = [(vw // 2, int(vh * 0.75)), (vw // 3, int(vh * 0.85))]
     cam = window.view.camera()
@@ -197,13 +207,7 @@ def test_measure_distance_with_clicks(qtbot, window, xin, sample) -> None:  # no
 def test_profile_heights_agree_with_raster(qtbot, window, xin, sample) -> None:  # noqa: F811
     import rasterio
 
-    from citylod.core.camera import load_cameras
-
-    window.open_path(sample["tiles"])
-    window.view.set_camera(load_cameras(sample["camera"])[0])
-    _wait_resolved(qtbot, window)
-    xin.key(window.view.vtk, "p")  # Tools → Height profile
-    qtbot.waitUntil(lambda: window.view.measure_kind == "profile", timeout=3000)
+    _start_tool(qtbot, window, xin, sample, "p", "profile")  # Tools → Height profile
     vw, vh = window.view.vtk.width(), window.view.vtk.height()
     for x, y in ((vw // 4, int(vh * 0.8)), (3 * vw // 4, int(vh * 0.6))):
         xin.click(window.view.vtk, x, y)
@@ -364,15 +368,10 @@ def test_city_store_alone_is_drawn_and_pickable(qtbot, window, xin, sample) -> N
     qtbot.waitUntil(lambda: doc.entries[0].visible, timeout=3000)
     # Click the tallest building from above.
     tallest = doc.tallest_building()
-    import shapely
-
     from citylod.app.models import focus_on
 
-    px = doc.store.proxies
-    i = px.index_of(tallest)
-    inside = shapely.point_on_surface(px.footprints[i])
     assert view.frame_objects([tallest])
-    view.set_camera(focus_on(view.camera(), (inside.x, inside.y, px.zmax[i] - px.inflate)))
+    view.set_camera(focus_on(view.camera(), _roof(doc, tallest)))
     qtbot.waitUntil(lambda: not view.navigator.moving and not doc.moving, timeout=3000)
     view.render_now()
     xin.click(view.vtk, view.vtk.width() // 2, view.vtk.height() // 2)
@@ -467,25 +466,19 @@ def test_picture_picked_building_with_measurement(qtbot, window, xin, sample, tm
         assert window.open_path(s)
     doc, view = window.document, window.view
     tallest = doc.tallest_building()
-    import shapely
-
     from citylod.app.models import focus_on
     from citylod.app.navigation import orbit
 
     assert view.frame_objects([tallest])
-    px = doc.store.proxies
-    i = px.index_of(tallest)
-    inside = shapely.point_on_surface(px.footprints[i])
-    roof = (inside.x, inside.y, px.zmax[i] - px.inflate)
     # Look at the roof from a little to the side: the building is in the middle of the view.
-    view.set_camera(orbit(focus_on(view.camera(), roof, zoom=1.0), 25.0, 0.0))
+    view.set_camera(orbit(focus_on(view.camera(), _roof(doc, tallest), zoom=1.0), 25.0, 0.0))
     _wait_resolved(qtbot, window, 180000)
     vw, vh = view.vtk.width(), view.vtk.height()
     xin.click(view.vtk, vw // 2, vh // 2)
     qtbot.waitUntil(lambda: doc.state.selection == {tallest}, timeout=5000)
     xin.key(view.vtk, "m")
     qtbot.waitUntil(lambda: view.measure_kind == "distance", timeout=3000)
-    for x, y in ((int(vw * 0.3), int(vh * 0.8)), (int(vw * 0.7), int(vh * 0.75))):
+    for x, y in ((vw // 2, vh // 2), (int(vw * 0.56), int(vh * 0.62))):  # from the roof down its side
         xin.click(view.vtk, x, y)
     qtbot.waitUntil(lambda: view.measurement is not None and len(view.measurement.points) == 2, timeout=5000)
     assert window.inspector.object_id == tallest

@@ -70,13 +70,14 @@ class ProfiledApplication(QApplication):
     is counted with them), so the longest entry is the longest time the GUI thread was held."""
 
     def notify(self, receiver: QObject, event: QEvent) -> bool:
+        # Named before delivery: a DeferredDelete (or any handler) may destroy the receiver and the
+        # event, and touching their wrappers afterwards corrupts reference counts.
+        name = f"event.{type(receiver).__name__}.{event.type().name}"
         timer = QElapsedTimer()
         timer.start()
         try:
             return super().notify(receiver, event)
         finally:
             ms = timer.nsecsElapsed() / 1e6
-            if ms > 1.0:  # only what could matter; naming every event would cost more than it tells
-                name = f"event.{type(receiver).__name__}.{event.type().name}"
-                if TIMINGS.record(name, ms, SLOW_MS) and enabled():
-                    print(f"citylod: GUI thread held {ms:.1f} ms by {name}", file=sys.stderr)
+            if TIMINGS.record(name, ms, SLOW_MS) and enabled():
+                print(f"citylod: GUI thread held {ms:.1f} ms by {name}", file=sys.stderr)
