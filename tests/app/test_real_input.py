@@ -543,3 +543,19 @@ def test_picture_delft_classes_and_clip_box(qtbot, window, xin, tmp_path_factory
     qtbot.wait(100)
     shot = window.save_screenshot(_picture_dir(tmp_path) / "app_delft_classes_clip.png")
     assert shot.is_file() and drawn_before > 0
+
+
+def test_cli_view_profile_gui(sample, tmp_path) -> None:  # noqa: F811
+    """``citylod view --profile-gui`` (documented, once rejected by the parser) runs, times every GUI event
+    and prints the longest per handler at exit, with exit code 0."""
+    import sys
+
+    out = tmp_path / "shot.png"
+    env = dict(os.environ, XDG_CONFIG_HOME=str(tmp_path / "config"))
+    r = subprocess.run([sys.executable, "-m", "citylod.cli", "view", str(sample["tiles"]), "--camera",
+                        str(sample["camera"]), "--screenshot", str(out), "--exit", "--profile-gui"],
+                       capture_output=True, text=True, timeout=180, env=env)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert out.is_file()
+    assert "GUI-thread handlers (longest run):" in r.stderr
+    assert "SceneView.render" in r.stderr and "event." in r.stderr
