@@ -172,7 +172,7 @@ def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True) -> li
     F = city.surface_height(x, y)
     V = ~city.nodata_mask(x, y)
     F = np.where(V, F, 0.0)
-    H, W = F.shape
+    _H, _W = F.shape
     d = city.spacing
     allpos = np.column_stack([x.reshape(-1), y.reshape(-1), F.reshape(-1)])
 

@@ -72,7 +72,7 @@ class ShapeParams:
             roof_max_slope_deg=self.roof_max_slope_deg,
             facade_eps=self.facade_eps if self.facade_eps is not None else 0.8 * spacing,
             facade_min_area=self.facade_min_area, jump=self.jump,
-            map_eps=self.map_eps if self.map_eps is not None else max(0.25, 0.5 * spacing),
+            map_eps=self.map_eps if self.map_eps is not None else max(0.25, 0.8 * spacing),
             min_edge_angle_deg=self.min_edge_angle_deg, seed=self.seed)
 
 
@@ -117,7 +117,7 @@ def detect_shapes(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, params
     cols = shapes.facade_columns(F, V, dx, dy, p.jump)
     fl, fplanes = shapes.detect_facades(cols, spacing, p.facade_eps, p.facade_min_area / (spacing * spacing),
                                         p.seed, 24, 24, 4.0 * spacing, 2.5 * spacing)
-    smap = shapes.shape_map(F, V, dx, dy, label, planes, p.map_eps, fl, cols, len(planes),
+    smap = shapes.shape_map(F, V, dx, dy, label, planes, p.map_eps, fl, cols, fplanes, p.facade_eps, len(planes),
                             math.cos(math.radians(p.min_edge_angle_deg)))
     return Shapes(label, planes, fplanes, len(cols), smap)
 
@@ -245,7 +245,7 @@ def extract_buildings(F: F64, V: npt.NDArray[np.bool_], transform: tuple[float, 
                 continue
         r0, c0 = sl[0].start, sl[1].start
         polys = [to_shape(geom) for geom, val in features.shapes(m.astype(np.uint8), mask=m,
-                                                                  transform=aff * Affine.translation(c0, r0))
+                                                                  transform=aff @ Affine.translation(c0, r0))
                  if val == 1]
         if not polys:
             continue

@@ -282,7 +282,17 @@ def detect_roof_planes(F, V, dx, dy, eps, max_angle_deg, min_size, max_slope_deg
             nz = 1.0 / math.sqrt(a * a + b * b + 1.0)
             nx, ny = -a * nz, -b * nz
         size = _flood(F, V, N, free, scratch, tag, bsr, bsc, a, b, c0, nx, ny, nz, eps, cos_a, dx, dy, stack)
-        if size < min_size:
+        # a shape must be wide as well as large: a strip one or two samples wide (the flat top the grid
+        # makes of a ridge between two sample rows, a wall's staircase) has no sample whose four
+        # neighbours are all in it, and is left to the planes it separates
+        inner = 0
+        if size >= min_size:
+            for r in range(1, H - 1):
+                for c in range(1, W - 1):
+                    if (scratch[r, c] == tag and scratch[r - 1, c] == tag and scratch[r + 1, c] == tag
+                            and scratch[r, c - 1] == tag and scratch[r, c + 1] == tag):
+                        inner += 1
+        if size < min_size or inner < max(1, min_size // 4):
             fails += 1
             continue
         fails = 0
@@ -527,15 +537,18 @@ def _add_id(S, v, k):
 
 
 @njit(cache=True, nogil=True)
-def shape_map(F, V, dx, dy, roof_label, roof_planes, eps, col_label, cols, facade_offset, min_cos_edge):
+def shape_map(F, V, dx, dy, roof_label, roof_planes, eps, col_label, cols, facade_planes, facade_eps, facade_offset,
+              min_cos_edge):
     """Shape IDs within ε of every grid vertex, (H·W, MAX_IDS) int32 sorted, -1 padded.
 
-    A vertex gets roof plane k when it is an inlier of k, or touches an inlier of k (8-neighbourhood) and
+    A vertex gets roof plane k when it is an inlier of k, or is within two samples of an inlier of k (the
+    samples next to a ridge have one-sided normals of neither face and are often inliers of none) and
     lies within ``eps`` of the plane, and the two planes meet at an angle whose cosine is below
     ``min_cos_edge``: so the samples along a ridge carry both roof planes, while two nearly coplanar pieces
     of terrain do not make an edge. It gets façade f
     (ID ``facade_offset + f``) when it is an end of a discontinuity edge assigned to f: the sample at the
-    top of a wall (eave) and the one at its foot.
+    top of a wall (eave) and the one at its foot; and a discontinuity sample next to such an end, at a
+    similar height and within ``facade_eps`` of the façade plane (so eave corners carry both walls).
     """
     H, W = F.shape
     S = np.full((H * W, MAX_IDS), -1, np.int32)
@@ -547,8 +560,8 @@ def shape_map(F, V, dx, dy, roof_label, roof_planes, eps, col_label, cols, facad
             k0 = roof_label[r, c]
             if k0 >= 0:
                 _add_id(S, v, k0)
-            for rr in range(max(r - 1, 0), min(r + 2, H)):
-                for cc in range(max(c - 1, 0), min(c + 2, W)):
+            for rr in range(max(r - 2, 0), min(r + 3, H)):
+                for cc in range(max(c - 2, 0), min(c + 3, W)):
                     k = roof_label[rr, cc]
                     if k < 0 or k == k0:
                         continue
@@ -559,10 +572,28 @@ def shape_map(F, V, dx, dy, roof_label, roof_planes, eps, col_label, cols, facad
                             + roof_planes[k, 3])
                     if abs(dist) <= eps:
                         _add_id(S, v, k)
+    disc = np.zeros(H * W, np.bool_)
+    for e in range(cols.shape[0]):
+        disc[int(cols[e, 4])] = True
+        disc[int(cols[e, 5])] = True
     for e in range(cols.shape[0]):
         f = col_label[e]
         if f < 0:
             continue
-        _add_id(S, int(cols[e, 4]), facade_offset + f)
-        _add_id(S, int(cols[e, 5]), facade_offset + f)
+        for end in (4, 5):
+            u = int(cols[e, end])
+            _add_id(S, u, facade_offset + f)
+            # the wall's end samples at a corner often belong to the other wall's columns: give the
+            # façade to discontinuity samples next to its own within facade_eps of its plane
+            ur, uc = u // W, u % W
+            for rr in range(max(ur - 1, 0), min(ur + 2, H)):
+                for cc in range(max(uc - 1, 0), min(uc + 2, W)):
+                    x = rr * W + cc
+                    if x == u or not disc[x]:
+                        continue
+                    if abs(F[rr, cc] - F[ur, uc]) > 0.5 * abs(cols[e, 3] - cols[e, 2]):
+                        continue  # the other end of the wall, not a neighbour along it
+                    dist = facade_planes[f, 0] * cc * dx - facade_planes[f, 1] * rr * dy + facade_planes[f, 3]
+                    if abs(dist) <= facade_eps:
+                        _add_id(S, x, facade_offset + f)
     return S
