@@ -7,7 +7,8 @@ cover them) lie within ``tol`` (0.5 m) of the mesh, distances measured in 3D to 
 
 :func:`compare` runs, on one DSM grid of the city, the full grid triangulation, the shape-constrained
 simplification at a certified bound ε, the same collapse without shapes, and pymeshlab's quadric edge
-collapse (``meshing_decimation_quadric_edge_collapse``) at the constrained result's triangle count, and
+collapse (``meshing_decimation_quadric_edge_collapse``) at the constrained and at the unconstrained
+result's triangle counts, and
 reports triangles, the share of buildings whose features are kept, and the Hausdorff distance to the grid
 that pymeshlab samples (an independent check of the certified bound).
 """
@@ -191,9 +192,138 @@ def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True) -> li
     t = time.perf_counter()
     ppos, pfaces = pymeshlab_decimate(gpos, gfaces, len(cfaces))
     tp = time.perf_counter() - t
+    t = time.perf_counter()
+    qpos, qfaces = pymeshlab_decimate(gpos, gfaces, len(ufaces))
+    tq = time.perf_counter() - t
     for name, (p, f), secs in ((f"constrained, certified ≤ {max_error:g} m", (cpos, cfaces), con.seconds),
                                (f"unconstrained QEM, certified ≤ {max_error:g} m", (upos, ufaces), unc.seconds),
-                               ("pymeshlab quadric edge collapse, same triangles", (ppos, pfaces), tp)):
+                               ("pymeshlab QEC, constrained's triangles", (ppos, pfaces), tp),
+                               ("pymeshlab QEC, unconstrained's triangles", (qpos, qfaces), tq)):
         hd = _pymeshlab_hausdorff(p, f, gpos, gfaces) if hausdorff else float("nan")
         rows.append(Row(name, len(f), kept_fraction(city, p, f)[0], secs, hd))
     return rows
+
+
+def tile_tree_leaf_triangles(dsm: str, out_dir: str, max_error: float) -> int:
+    """Triangles (skirts excluded) in the leaves of the DSM tile tree built at the same leaf bound."""
+    from citylod.io.tiles3d.tileset import open_tileset
+    from citylod.lod.build.dsm import build_dsm
+
+    build_dsm(dsm, out_dir, max_error=max_error, workers=0, progress=False)
+    ts = open_tileset(out_dir)
+    total = 0
+    stack = [ts.root]
+    while stack:
+        t = stack.pop()
+        if t.children:
+            stack.extend(t.children)
+            continue
+        if t.content_bytes:
+            for m in t.load_content().meshes:
+                total += int(len(m.faces) - (0 if m.skirt is None else m.skirt.sum()))
+    return total
+
+
+def _footprints(model: object) -> list[tuple[str, object, float | None]]:
+    """(id, shapely footprint, measuredHeight) of each Building: its GroundSurface polygons, else its
+    lowest horizontal polygon, projected to the plane."""
+    from shapely.geometry import Polygon
+    from shapely.ops import unary_union
+
+    out = []
+    for o in model.objects:  # type: ignore[attr-defined]
+        if o.type != "Building" or not o.surfaces:
+            continue
+        ground = [poly for poly, sem in zip(o.surfaces, o.semantics or [None] * len(o.surfaces), strict=False)
+                  if sem == "GroundSurface"]
+        if not ground:
+            flat = [poly for poly in o.surfaces if np.ptp(poly[0][:, 2]) < 0.01]
+            if not flat:
+                continue
+            zmin = min(float(poly[0][0, 2]) for poly in flat)
+            ground = [poly for poly in flat if abs(float(poly[0][0, 2]) - zmin) < 0.01]
+        geom = unary_union([Polygon(poly[0][:, :2], [r[:, :2] for r in poly[1:]]).buffer(0) for poly in ground])
+        h = o.attributes.get("measuredHeight")
+        if h is None:
+            pts = o.points()
+            h = float(pts[:, 2].max() - pts[:, 2].min())
+        out.append((o.id, geom, float(h)))
+    return out
+
+
+def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool = False) -> dict[str, float]:
+    """Rasterise the two AHN3 tiles at ``spacing``, build the model, and compare the derived buildings'
+    footprints and heights with ``testarea.city.json``: per reference building (at least 90 % inside the
+    valid raster) the IoU with the derived footprint that overlaps it most, and whether that footprint's
+    measured height is within 1 m of the reference ``measuredHeight``."""
+    from pathlib import Path
+
+    from shapely.geometry import box
+
+    from citylod.io.city.read import read_city_model
+    from citylod.io.raster import read_info
+    from citylod.lod.build.model import build_model, rasterize_las
+
+    d = Path(data_dir)
+    out = Path(out_dir)
+    tif = rasterize_las(sorted(d.glob("ahn3_*.laz")), out / "delft_dsm.tif", spacing=spacing, crs="EPSG:28992")
+    rep = build_model(tif, out / "model", workers=0, progress=progress)
+    derived = _footprints(read_city_model(out / "model" / "buildings.city.json", lod=1))
+    truth = _footprints(read_city_model(d / "testarea.city.json", lod=1))
+    info = read_info(tif)
+    a, _, c, _, e, f = info.transform
+    extent = box(c, f + e * info.height, c + a * info.width, f).buffer(-2.0)
+    ious, hok = [], []
+    for _, g, h in truth:
+        if g.is_empty or g.intersection(extent).area < 0.9 * g.area:
+            continue
+        best, bh = 0.0, None
+        for _, dg, dh in derived:
+            if not dg.intersects(g):
+                continue
+            iou = g.intersection(dg).area / g.union(dg).area
+            if iou > best:
+                best, bh = iou, dh
+        ious.append(best)
+        hok.append(bh is not None and h is not None and abs(bh - h) <= 1.0)
+    return {"reference_buildings": len(ious), "derived_buildings": len(derived),
+            "median_iou": float(np.median(ious)) if ious else float("nan"),
+            "heights_within_1m": float(np.mean(hok)) if hok else float("nan"),
+            "triangles": rep.triangles, "samples": rep.samples, "seconds": rep.seconds}
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m citylod.bench.model_bench --size 385 --max-error 1.0``: the comparison as a table."""
+    import argparse
+    import tempfile
+
+    from citylod.sample.city import make_city
+    from citylod.sample.files import make_sample
+
+    ap = argparse.ArgumentParser(description=main.__doc__)
+    ap.add_argument("--size", type=int, default=385)
+    ap.add_argument("--spacing", type=float, default=0.5)
+    ap.add_argument("--max-error", type=float, default=1.0)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
+    a = ap.parse_args(argv)
+    if a.delft:
+        with tempfile.TemporaryDirectory() as tmp:
+            print(delft(a.delft, tmp, progress=True))
+        return
+    city = make_city(a.size, seed=a.seed, spacing=a.spacing)
+    rows = compare(city, a.max_error)
+    print(f"sample city {a.size}² at {a.spacing} m, {len(city.buildings)} buildings, ε = {a.max_error} m")
+    print(f"{'method':52s} {'triangles':>9s} {'kept':>6s} {'seconds':>8s} {'Hausdorff (sampled)':>20s}")
+    for r in rows:
+        print(f"{r.method:52s} {r.triangles:9d} {100 * r.kept:5.1f}% {r.seconds:8.1f} {r.hausdorff_sampled:20.3f}")
+    print(f"throughput of the constrained run: {a.size * a.size / rows[1].seconds:,.0f} vertices/s")
+    with tempfile.TemporaryDirectory() as tmp:
+        info = make_sample(tmp, size=a.size, seed=a.seed, spacing=a.spacing)
+        leaves = tile_tree_leaf_triangles(str(info.files["dsm"]), f"{tmp}/dsm", a.max_error)
+    print(f"DSM tile tree leaves at the same bound: {leaves} triangles, "
+          f"{leaves / rows[1].triangles:.2f}x the constrained model")
+
+
+if __name__ == "__main__":
+    main()
