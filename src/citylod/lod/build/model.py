@@ -55,13 +55,13 @@ class ShapeParams:
 
     roof_eps: float | None = None
     roof_angle_deg: float = 20.0
-    roof_min_area: float = 6.0
+    roof_min_area: float = 15.0
     roof_max_slope_deg: float = 75.0
     facade_eps: float | None = None
-    facade_min_area: float = 4.0
+    facade_min_area: float = 12.0
     jump: float = 1.5
     map_eps: float | None = None
-    min_edge_angle_deg: float = 12.0
+    min_edge_angle_deg: float = 25.0
     seed: int = 1
 
     def resolved(self, spacing: float) -> ShapeParams:

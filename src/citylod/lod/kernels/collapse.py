@@ -12,9 +12,11 @@ it passes, in this order:
 2. **topological edges and corners**: when ``|ς(v)| ≥ 2`` the neighbours u with ``ς(u) ⊇ ς(v)`` (the
    edge through v) must be exactly two, and w one of them: the edge enters and leaves the one-ring
    through the same two neighbours and v slides along it. Corners (``|ς| > 2``) have no such pair and
-   stay;
+   stay. Where the ε-band of an edge is wider than one sample (more than two such neighbours), v may
+   move onto a neighbour with exactly its own set: the band thins, the edge stays;
 3. **shape-border rule**: a vertex of one shape k that has a neighbour outside k lies on k's border; it
-   may only slide along that border, onto one of exactly two neighbours that are border vertices of k;
+   may only slide along that border, onto one of exactly two neighbours that are border vertices of k
+   (onto any border neighbour of k alone where the border is ragged and has more);
 4. **tunnel rule**: an unassigned vertex may move onto an assigned w only if every assigned neighbour
    shares a shape with w, so a collapse never tunnels one shape's triangles into another's region;
 5. **topological filter**: no new triangle may join three edge or corner vertices that share no shape
@@ -268,7 +270,9 @@ def _rules_ok(tri, alive, head, nxt, S, W, locked, v, w, nb, cn, cp, n):
                 cnt += 1
                 if nb[q] == w:
                     hit = True
-        if cnt != 2 or not hit:
+        # an ε-band two or more samples wide has more than two such neighbours: inside it v may still
+        # move onto a neighbour with exactly its own set, which thins the band without moving the edge
+        if not hit or (cnt != 2 and not (cnt > 2 and _ssize(S, w) == sv)):
             return False
     elif sv == 1:
         k = S[v, 0]
@@ -285,7 +289,7 @@ def _rules_ok(tri, alive, head, nxt, S, W, locked, v, w, nb, cn, cp, n):
                     cnt += 1
                     if nb[q] == w:
                         hit = True
-            if cnt != 2 or not hit:
+            if not hit or (cnt != 2 and _ssize(S, w) != 1):
                 return False
     elif _ssize(S, w) > 0:
         for q in range(n):
@@ -467,9 +471,10 @@ def _best_cost(tri, alive, head, nxt, S, W, locked, Q, P, v, nb, cn, cp):
     best = _INF
     if n <= 0:
         return best
+    # the key uses the subset rule only (cheap); the full rules and the bound are checked when v is popped
     for q in range(n):
         w = nb[q]
-        if _rules_ok(tri, alive, head, nxt, S, W, locked, v, w, nb, cn, cp, n):
+        if _subset(S, v, w):
             cst = _cost(Q, P, v, w)
             if cst < best:
                 best = cst
