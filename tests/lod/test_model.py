@@ -179,6 +179,12 @@ def test_build_model_writes_tiles_and_cityjson_read_back(tmp_path: Path, scene, 
     assert any(abs(h - 12.0) < 0.7 for h in heights)
     if geographic:  # positions projected to the UTM zone: metres, not degrees
         assert ts.root.children[0].box.center[0] > 1000.0
+    else:  # the command line reads the buildings back into a semantic store
+        from citylod.cli import main
+
+        assert main(["-q", "build", "city", str(tmp_path / "out" / "buildings.city.json"), "-o",
+                     str(tmp_path / "city.gpkg")]) == 0
+        assert (tmp_path / "city.gpkg").stat().st_size > 0
 
 
 def test_build_model_bad_input(tmp_path: Path) -> None:

@@ -167,7 +167,7 @@ def pymeshlab_decimate(pos: F64, faces: npt.NDArray[np.int64], target: int) -> t
     return m.vertex_matrix() + o, m.face_matrix().astype(np.int64)
 
 
-def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True) -> list[Row]:
+def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True, share: float = 0.9) -> list[Row]:
     """The four methods of the module docstring on the city's DSM grid (pixel centres, no-data masked)."""
     x, y = city.pixel_centers()
     F = city.surface_height(x, y)
@@ -184,7 +184,7 @@ def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True) -> li
     from citylod.lod.kernels.collapse import grid_triangles
 
     gpos, gfaces = mesh_of(grid_triangles(V))
-    rows = [Row("grid (full triangulation)", len(gfaces), kept_fraction(city, gpos, gfaces)[0], 0.0, 0.0)]
+    rows = [Row("grid (full triangulation)", len(gfaces), kept_fraction(city, gpos, gfaces, share=share)[0], 0.0, 0.0)]
     con = simplify_grid(F, V, d, d, max_error)
     cpos, cfaces = mesh_of(con.faces)
     unc = simplify_grid(F, V, d, d, max_error, constrained=False)
@@ -200,7 +200,7 @@ def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True) -> li
                                ("pymeshlab QEC, constrained's triangles", (ppos, pfaces), tp),
                                ("pymeshlab QEC, unconstrained's triangles", (qpos, qfaces), tq)):
         hd = _pymeshlab_hausdorff(p, f, gpos, gfaces) if hausdorff else float("nan")
-        rows.append(Row(name, len(f), kept_fraction(city, p, f)[0], secs, hd))
+        rows.append(Row(name, len(f), kept_fraction(city, p, f, share=share)[0], secs, hd))
     return rows
 
 
@@ -305,6 +305,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--spacing", type=float, default=0.5)
     ap.add_argument("--max-error", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--share", type=float, default=0.9, help="share of a segment's points within 0.5 m to keep it")
     ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
     a = ap.parse_args(argv)
     if a.delft:
@@ -312,8 +313,9 @@ def main(argv: list[str] | None = None) -> None:
             print(delft(a.delft, tmp, progress=True))
         return
     city = make_city(a.size, seed=a.seed, spacing=a.spacing)
-    rows = compare(city, a.max_error)
-    print(f"sample city {a.size}² at {a.spacing} m, {len(city.buildings)} buildings, ε = {a.max_error} m")
+    rows = compare(city, a.max_error, share=a.share)
+    print(f"sample city {a.size}² at {a.spacing} m, {len(city.buildings)} buildings, ε = {a.max_error} m, "
+          f"segment kept when {100 * a.share:g} % of its points are within 0.5 m")
     print(f"{'method':52s} {'triangles':>9s} {'kept':>6s} {'seconds':>8s} {'Hausdorff (sampled)':>20s}")
     for r in rows:
         print(f"{r.method:52s} {r.triangles:9d} {100 * r.kept:5.1f}% {r.seconds:8.1f} {r.hausdorff_sampled:20.3f}")
