@@ -13,6 +13,7 @@ MODULES = [
     "citylod.io.tiles3d.tileset",
     "citylod.lod.runtime.selection",
     "citylod.lod.runtime.loader",
+    "citylod.lod.build.model",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
 ]
