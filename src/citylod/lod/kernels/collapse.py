@@ -81,6 +81,11 @@ def _orient(W, a, b, c):
 
 
 @njit(cache=True, nogil=True)
+def _gap(f, t):  # |F − T| at an overlay vertex; no data under the triangle counts as unbounded
+    return _INF if math.isnan(f) else abs(f - t)
+
+
+@njit(cache=True, nogil=True)
 def triangle_error(F, V, W, a, b, c, eps):
     """Exact max |T − F| over triangle (a, b, c) (flat indices, counter-clockwise); stops early above eps
     and returns a value > eps then; returns 1e300 where the triangle covers a sample without data."""
@@ -130,39 +135,24 @@ def triangle_error(F, V, W, a, b, c, eps):
         for y in range(min(y0, y1) + 1, max(y0, y1)):
             t = (y - y0) / (y1 - y0)
             x = x0 + t * (x1 - x0)
-            f = _f_row(F, V, y, x)
-            if math.isnan(f):
-                return _INF
-            d = abs(f - (za + A * (x - ca) + B * (y - ra)))
-            if d > worst:
-                worst = d
-                if worst > eps:
-                    return worst
+            worst = max(worst, _gap(_f_row(F, V, y, x), za + A * (x - ca) + B * (y - ra)))
+            if worst > eps:
+                return worst
         for x in range(min(x0, x1) + 1, max(x0, x1)):
             t = (x - x0) / (x1 - x0)
             y = y0 + t * (y1 - y0)
-            f = _f_col(F, V, y, x)
-            if math.isnan(f):
-                return _INF
-            d = abs(f - (za + A * (x - ca) + B * (y - ra)))
-            if d > worst:
-                worst = d
-                if worst > eps:
-                    return worst
+            worst = max(worst, _gap(_f_col(F, V, y, x), za + A * (x - ca) + B * (y - ra)))
+            if worst > eps:
+                return worst
         k0 = y0 - x0
         k1 = y1 - x1
         for k in range(min(k0, k1) + 1, max(k0, k1)):
             t = (k - k0) / (k1 - k0)
             y = y0 + t * (y1 - y0)
             x = x0 + t * (x1 - x0)
-            f = _f_diag(F, V, y, k)
-            if math.isnan(f):
-                return _INF
-            d = abs(f - (za + A * (x - ca) + B * (y - ra)))
-            if d > worst:
-                worst = d
-                if worst > eps:
-                    return worst
+            worst = max(worst, _gap(_f_diag(F, V, y, k), za + A * (x - ca) + B * (y - ra)))
+            if worst > eps:
+                return worst
     return worst
 
 
@@ -203,6 +193,14 @@ def _share(S, a, b):
 
 
 # ------------------------------------------------------------------------------------------- mesh state
+@njit(cache=True, nogil=True)
+def _in(a, n, x):  # x among a[:n]
+    for q in range(n):
+        if a[q] == x:
+            return True
+    return False
+
+
 @njit(cache=True, nogil=True)
 def _ring(tri, alive, head, nxt, v, nb, cnt_next, cnt_prev):
     """Neighbours of v into nb; per neighbour how often it follows v (cnt_next) and precedes v (cnt_prev)
@@ -341,19 +339,9 @@ def _collapse_ok(F, V, W, tri, alive, head, nxt, S, v, w, nb, n, eps):
             x = tri[t, (k + o) % 3]
             if x == v:
                 continue
-            isn = False
-            for q in range(n):
-                if nb[q] == x:
-                    isn = True
-                    break
-            if not isn:
+            if not _in(nb, n, x):
                 continue
-            dup = False
-            for q in range(distinct):
-                if seen[q] == x:
-                    dup = True
-                    break
-            if not dup:
+            if not _in(seen, distinct, x):
                 if distinct >= _MAXD:
                     return False
                 seen[distinct] = x
