@@ -513,7 +513,9 @@ def build_model(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str],
         lo = np.min([c.lo for c in children], axis=0)
         hi = np.max([c.hi for c in children], axis=0)
         extent = float(np.linalg.norm(hi - lo))
-        root = TileSpec("root", 0, 0.5 * (lo + hi), lo, hi, max(extent / 16.0, 2 * eps), children=children)
+        # the root has no content: drawing it instead of its children would show nothing, an error as large
+        # as the whole box, so a client always refines it
+        root = TileSpec("root", 0, 0.5 * (lo + hi), lo, hi, max(extent, 2 * eps), children=children)
         crs = info.metric_crs()
         write_tileset(partial, root, crs, extras={"citylod": {"kind": "model", "max_error_m": eps}})
         fps = [fp for r in results for fp in r["footprints"]]
