@@ -168,7 +168,17 @@ def test_build_model_writes_tiles_and_cityjson_read_back(tmp_path: Path, scene, 
         dsm = _write_tif(tmp_path / "deg.tif", F, V, "EPSG:4326", tr)
     else:
         dsm = _write_tif(tmp_path / "m.tif", F, V, "EPSG:32632", Affine(D, 0, 512000.0, 0, -D, 5403000.0))
-    rep = build_model(dsm, tmp_path / "out", max_error=0.3, cell=48, workers=0, progress=False)
+    ortho = None
+    if not geographic:  # an orthophoto whose red channel is the column: the texture must follow x
+        import rasterio
+
+        rgb = np.zeros((3, 96, 96), np.uint8)
+        rgb[0] = (np.arange(96) * 2.5).astype(np.uint8)[None, :]
+        ortho = tmp_path / "ortho.tif"
+        with rasterio.open(ortho, "w", driver="GTiff", width=96, height=96, count=3, dtype="uint8", crs="EPSG:32632",
+                           transform=Affine(D, 0, 512000.0, 0, -D, 5403000.0)) as ds:
+            ds.write(rgb)
+    rep = build_model(dsm, tmp_path / "out", max_error=0.3, cell=48, workers=0, progress=False, ortho=ortho)
     assert rep.cells == 4 and rep.triangles < rep.grid_triangles / 4
     ts = open_tileset(tmp_path / "out")
     assert len(ts.root.children) == 4
@@ -188,6 +198,16 @@ def test_build_model_writes_tiles_and_cityjson_read_back(tmp_path: Path, scene, 
             ea = {round(float(v), 3) for v in tiles[a][np.abs(tiles[a][:, axis] - val) < 1e-3][:, 1 - axis]}
             eb = {round(float(v), 3) for v in tiles[b][np.abs(tiles[b][:, axis] - val) < 1e-3][:, 1 - axis]}
             assert len(ea) > 40 and ea == eb
+        # textured: the red of the texel under each vertex grows with its x like the orthophoto's
+        from citylod.io.image import decode_image
+
+        t = ts.root.children[0]
+        mesh = t.load_content().meshes[0]
+        img = decode_image(mesh.texture)
+        px = np.clip((mesh.uv * (np.array(img.shape[1::-1]) - 1)).round().astype(int), 0, img.shape[0] - 1)
+        red = img[px[:, 1], px[:, 0], 0].astype(float)
+        xw = t.load().vertices[:, 0]
+        assert np.corrcoef(red, xw)[0, 1] > 0.95
         # the command line reads the buildings back into a semantic store
         from citylod.cli import main
 

@@ -33,6 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--max-error", type=float, help="certified vertical error bound in metres (default: the spacing)")
     m.add_argument("--cell", type=int, default=512, help="samples per out-of-core cell side (default 512)")
     m.add_argument("--no-shapes", action="store_true", help="plain QEM collapse under the bound, no shape rules")
+    m.add_argument("--ortho", type=Path, help="orthophoto to texture the mesh with")
     m.add_argument("--workers", type=int)
     m.add_argument("--scheduler")
     c = bsub.add_parser("city", help="CityGML / CityJSON to a GeoPackage semantic store")
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace, progress: bool) -> int:
 
         report = build_model(args.raster, args.output, max_error=args.max_error, cell=args.cell,
                              constrained=not args.no_shapes, workers=args.workers, scheduler=args.scheduler,
-                             progress=progress)
+                             progress=progress, ortho=args.ortho)
     else:
         from citylod.semantics.store import build_city
 

@@ -384,9 +384,10 @@ class ModelBuildReport:
 
 
 def _cell_task(raster: str, r0: int, c0: int, cell: int, max_error: float, params: ShapeParams,
-               out_dir: str, key: str, constrained: bool) -> dict[str, Any]:
+               out_dir: str, key: str, constrained: bool, ortho: str | None = None) -> dict[str, Any]:
     """One cell: read its window (sharing the border row/column with the east/south neighbours), simplify
-    with the border locked, write its glb, find its buildings. Returns the tile's description."""
+    with the border locked, write its glb (textured by the orthophoto projected from above when one is
+    given), find its buildings. Returns the tile's description."""
     from citylod.io.raster import RasterSource
     from citylod.io.tiles3d.content import MeshData, TileContent
     from citylod.io.tiles3d.tileset import write_content
@@ -422,7 +423,20 @@ def _cell_task(raster: str, r0: int, c0: int, cell: int, max_error: float, param
     faces = inv.reshape(-1, 3)
     # counter-clockwise in (col, row) is clockwise seen from above (row grows southwards): flip for glTF
     faces = faces[:, ::-1]
-    content = TileContent(meshes=[MeshData((pos - center).astype(np.float32), faces.astype(np.uint32))])
+    uv = texture = None
+    if ortho is not None:
+        from citylod.io.image import encode_image
+        from citylod.io.raster import read_image_window
+
+        # orthophoto projected from above: one texel per sample, uv from the horizontal position
+        size = 1 << max(6, min(11, int(math.ceil(math.log2(max(nr, nc))))))
+        img = read_image_window(ortho, (lo[0], lo[1], hi[0], hi[1]), info.metric_crs(), size)
+        if img is not None:
+            texture = encode_image(img, "jpg")
+            span = np.maximum(hi[:2] - lo[:2], 1e-9)
+            uv = np.column_stack([(x - lo[0]) / span[0], (hi[1] - y) / span[1]]).astype(np.float32)
+    content = TileContent(meshes=[MeshData((pos - center).astype(np.float32), faces.astype(np.uint32), uv=uv,
+                                           texture=texture)])
     res["content"] = write_content(out_dir, key, content)
     res.update(center=center.tolist(), lo=lo.tolist(), hi=hi.tolist())
     if mesh.shapes is not None:
@@ -462,7 +476,8 @@ def _window_transform(info: Any, r0: int, c0: int) -> tuple[float, ...]:
 
 def build_model(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, max_error: float | None = None,
                 cell: int = 512, params: ShapeParams | None = None, workers: int | None = None,
-                scheduler: str | None = None, progress: bool = True, constrained: bool = True) -> ModelBuildReport:
+                scheduler: str | None = None, progress: bool = True, constrained: bool = True,
+                ortho: str | os.PathLike[str] | None = None) -> ModelBuildReport:
     """Build the simplified city mesh of a DSM as 3D Tiles plus its buildings as CityJSON.
 
     Parameters
@@ -477,6 +492,8 @@ def build_model(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str],
         Samples per cell side; memory grows with ``cell²`` times the cells in flight.
     workers, scheduler
         As for :func:`citylod.lod.build.dsm.build_dsm`: local processes, or a Dask scheduler address.
+    ortho
+        Orthophoto (any CRS) to texture the mesh with, projected from above.
 
     Raises
     ------
@@ -500,7 +517,10 @@ def build_model(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str],
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial", dir=out.parent))
     try:
-        tasks = [(str(src.path), r0, c0, cell, eps, p, str(partial), f"{r0 // cell}_{c0 // cell}", constrained)
+        if ortho is not None and not Path(ortho).is_file():
+            raise InputError("no such orthophoto", ortho)
+        tasks = [(str(src.path), r0, c0, cell, eps, p, str(partial), f"{r0 // cell}_{c0 // cell}", constrained,
+                  None if ortho is None else str(ortho))
                  for r0 in range(0, max(info.height - 1, 1), cell) for c0 in range(0, max(info.width - 1, 1), cell)]
         results = []
         with make_executor(workers, scheduler) as ex:
