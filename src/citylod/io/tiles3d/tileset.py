@@ -15,10 +15,12 @@ No VTK and no Qt here.
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 import os
 import urllib.parse
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +36,8 @@ from citylod.core.fileio import atomic_write_bytes, atomic_write_text
 from citylod.core.frames import geodetic_to_ecef
 from citylod.core.geometry import F64, Box, translation
 from citylod.io.crs import ecef_from_local, parse_crs
-from citylod.io.tiles3d.content import TileContent, decode_content, glb_buffer
+from citylod.io.tiles3d.content import PointData, TileContent, glb_buffer
+from citylod.io.tiles3d.legacy import decode_content
 
 
 # --------------------------------------------------------------------------------------- atomic writing
@@ -175,11 +178,12 @@ class TileMesh:
 class Tile:
     """One tile of an opened tileset. See docs/CONTRACTS.md."""
 
-    __slots__ = ("_size", "box", "children", "content_path", "content_uri", "geometric_error", "key",
-                 "level", "matrix", "parent", "point_count", "refine", "tileset", "triangle_count")
+    __slots__ = ("_size", "box", "children", "content_path", "content_paths", "content_uri", "geometric_error",
+                 "key", "level", "matrix", "parent", "point_count", "refine", "tileset", "triangle_count")
 
     def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
-                 geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None) -> None:
+                 geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None,
+                 content_paths: list[Path] | None = None) -> None:
         self.tileset = tileset
         self.key = key
         self.level = level
@@ -191,6 +195,9 @@ class Tile:
         self.refine = refine
         self.content_uri = content_uri
         self.content_path = content_path
+        # Every content of the tile (3D Tiles 1.1 ``contents``): all are loaded and drawn together.
+        self.content_paths: list[Path] = content_paths if content_paths is not None else (
+            [] if content_path is None else [content_path])
         self._size: int | None = None
         # Cost hints for budgets before a tile is loaded (written by citylod builders in tile extras).
         self.triangle_count = 0
@@ -205,24 +212,43 @@ class Tile:
 
     @property
     def content_bytes(self) -> int:
-        if self.content_path is None:
-            return 0
         if self._size is None:
-            try:
-                self._size = self.content_path.stat().st_size
-            except OSError:
-                self._size = 0
+            self._size = 0
+            for p in self.content_paths:
+                try:
+                    self._size += p.stat().st_size
+                except OSError:
+                    pass
         return self._size
 
     def load_content(self) -> TileContent:
         """The content with float32 positions relative to the tile's origin (map them with ``matrix``)."""
-        if self.content_path is None:
-            return TileContent()
+        parts = [self._load_one(p) for p in self.content_paths]
+        if len(parts) == 1:
+            return parts[0]
+        out = TileContent(meshes=[m for c in parts for m in c.meshes])
+        pts = [c.points for c in parts if c.points is not None]
+        if pts:
+            out.points = PointData(np.concatenate([p.positions for p in pts]))
+            if all(p.rgb is not None for p in pts):
+                out.points.rgb = np.concatenate([p.rgb for p in pts])  # type: ignore[misc]
+        return out
+
+    def _load_one(self, path: Path) -> TileContent:
         try:
-            data = self.content_path.read_bytes()
+            data = path.read_bytes()
         except OSError as exc:
-            raise InputError(f"cannot read tile content ({exc.strerror})", self.content_path) from exc
-        return decode_content(data, str(self.content_path), y_up=self.tileset.y_up)
+            raise InputError(f"cannot read tile content ({exc.strerror})", path) from exc
+        folder = self.tileset.folder
+
+        def resolve(uri: str) -> bytes:
+            target = safe_resolve(path.parent, uri, folder, str(path))
+            try:
+                return target.read_bytes()
+            except OSError as exc:
+                raise InputError(f"cannot read {uri!r} ({exc.strerror})", path) from exc
+
+        return decode_content(data, str(path), y_up=self.tileset.y_up, resolve=resolve)
 
     def load(self) -> TileMesh:
         """The content in the tileset's CRS, float64."""
@@ -290,24 +316,24 @@ class Tileset:
                 self._crs_from_world if in_ecef else matrix)
             refine = str(tj.get("refine", parent.refine if parent else "REPLACE")).upper()
             uri = None
-            cpath = None
-            content = tj.get("content") or (tj.get("contents") or [None])[0]
-            if isinstance(content, dict):
-                uri = content.get("uri", content.get("url"))
+            cpaths: list[Path] = []
             children_json = list(tj.get("children", []))
-            if uri and uri.lower().split("?")[0].endswith(".json"):
-                ext_path = safe_resolve(base, uri, self.folder, source)
-                if depth > 32:
-                    raise InputError("external tilesets nest deeper than 32 levels", source)
-                ext = _read_json(ext_path)
-                children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
-                                                    "_external_source": str(ext_path)})
-                uri = None
-            elif uri:
-                cpath = safe_resolve(base, uri, self.folder, source)
-            if "implicitTiling" in tj:
-                raise InputError(f"tile {key} uses implicit tiling, which citylod does not read yet", source)
-            tile = Tile(self, key, level, parent, matrix, box, float(tj["geometricError"]), refine, uri, cpath)
+            for content in _contents(tj):
+                curi = content.get("uri", content.get("url")) if isinstance(content, dict) else None
+                if not curi:
+                    continue
+                if curi.lower().split("?")[0].endswith(".json"):
+                    ext_path = safe_resolve(base, curi, self.folder, source)
+                    if depth > 32:
+                        raise InputError("external tilesets nest deeper than 32 levels", source)
+                    ext = _read_json(ext_path)
+                    children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
+                                                        "_external_source": str(ext_path)})
+                else:
+                    uri = uri or curi
+                    cpaths.append(safe_resolve(base, curi, self.folder, source))
+            tile = Tile(self, key, level, parent, matrix, box, float(tj["geometricError"]), refine, uri,
+                        cpaths[0] if cpaths else None, cpaths)
             hints = tj.get("extras", {})
             if isinstance(hints, dict):
                 tile.triangle_count = int(hints.get("triangles", 0) or 0)
@@ -350,14 +376,25 @@ class Tileset:
         return f"Tileset({str(self.path)!r}, kind={self.kind!r}, crs={self.crs.name!r})"
 
 
+def _contents(tj: dict[str, Any]) -> list[Any]:
+    """A tile's contents: ``content``, 1.1 ``contents`` and the 1.0 ``3DTILES_multiple_contents`` extension."""
+    out = [tj["content"]] if tj.get("content") else []
+    out += list(tj.get("contents") or [])
+    out += list(tj.get("extensions", {}).get("3DTILES_multiple_contents", {}).get("contents", []))
+    return out
+
+
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        raw = path.read_bytes()
+        if raw[:2] == b"\x1f\x8b":  # gzip-compressed tileset JSON, as some servers store it
+            raw = gzip.decompress(raw)
+        doc = json.loads(raw.decode("utf-8"))
     except FileNotFoundError as exc:
         raise InputError("tileset not found", path) from exc
     except OSError as exc:
-        raise InputError(f"cannot read tileset ({exc.strerror})", path) from exc
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read tileset ({exc.strerror or exc})", path) from exc
+    except (UnicodeDecodeError, json.JSONDecodeError, EOFError, zlib.error) as exc:
         raise InputError(f"tileset is not valid JSON ({exc})", path) from exc
     if not isinstance(doc, dict) or "root" not in doc:
         raise InputError("not a 3D Tiles tileset (no 'root')", path)
