@@ -6,8 +6,9 @@ in the tile ``transform`` (float64). The root transform places the data on the g
 shows it; the source CRS and the local origin are recorded in ``extras.citylod`` so citylod works in the
 source CRS.
 
-What citylod reads: any 3D Tiles 1.x tileset — glb, b3dm and pnts content, box / region / sphere bounding
-volumes, tile transforms, external tilesets. URIs that leave the tileset's folder (``../``, absolute paths,
+What citylod reads: any 3D Tiles 1.x tileset — glb, glTF, b3dm, i3dm, cmpt and pnts content (gzip or not),
+several contents per tile, implicit tiling (:mod:`.implicit`), box / region / sphere bounding volumes, tile
+transforms, external tilesets, gzip-compressed tileset JSON. URIs that leave the tileset's folder (``../``, absolute paths,
 URLs) are refused with :class:`~citylod.core.errors.UnsafePathError`.
 
 No VTK and no Qt here.
@@ -21,7 +22,7 @@ import math
 import os
 import urllib.parse
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,7 @@ from citylod.core.frames import geodetic_to_ecef
 from citylod.core.geometry import F64, Box, translation
 from citylod.io.crs import ecef_from_local, parse_crs
 from citylod.io.tiles3d.content import PointData, TileContent, glb_buffer
+from citylod.io.tiles3d.implicit import expand_implicit
 from citylod.io.tiles3d.legacy import decode_content
 
 
@@ -309,6 +311,8 @@ class Tileset:
             tj, world, parent, key, level, base, source, depth = stack.pop()
             if not isinstance(tj, dict) or "boundingVolume" not in tj or "geometricError" not in tj:
                 raise InputError(f"tile {key} lacks boundingVolume or geometricError", source)
+            if "implicitTiling" in tj or "3DTILES_implicit_tiling" in tj.get("extensions", {}):
+                tj = expand_implicit(tj, _reader(base, self.folder, source), source)
             matrix = self._crs_from_world @ world
             # A region is in ECEF whatever the tile's transform; boxes and spheres live in the tile's frame.
             in_ecef = "region" in tj["boundingVolume"]
@@ -374,6 +378,19 @@ class Tileset:
 
     def __repr__(self) -> str:
         return f"Tileset({str(self.path)!r}, kind={self.kind!r}, crs={self.crs.name!r})"
+
+
+def _reader(base: Path, root: Path, source: str) -> Callable[[str], bytes]:
+    """Reads URIs relative to ``base`` that stay inside ``root`` (implicit tiling's subtrees)."""
+
+    def read(uri: str) -> bytes:
+        path = safe_resolve(base, uri, root, source)
+        try:
+            return path.read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read {uri!r} ({exc.strerror})", source) from exc
+
+    return read
 
 
 def _contents(tj: dict[str, Any]) -> list[Any]:
