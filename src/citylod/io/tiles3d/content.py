@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import json
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from citylod._version import __version__
+from citylod.core.geometry import F64
 from citylod.io.tiles3d.colour import SRGB8_TO_LINEAR16
 
 _COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
@@ -71,10 +72,47 @@ class PointData:
 
 @dataclass
 class TileContent:
-    """What one content file holds: meshes (surfaces, quads) and/or points."""
+    """What one content file holds: meshes (surfaces, quads) and/or points.
+
+    Positions are float32 relative to ``origin`` (3,) float64, in the tile's z-up frame. A reader puts a
+    content's large offset there (``RTC_CENTER``, a far node translation) instead of adding it to float32
+    positions, which at ECEF magnitudes (≈6e6 m) would round them to half a metre.
+    """
 
     meshes: list[MeshData] = field(default_factory=list)
     points: PointData | None = None
+    origin: F64 = field(default_factory=lambda: np.zeros(3))
+
+    def rebased(self, origin: npt.ArrayLike) -> TileContent:
+        """This content with positions relative to ``origin`` (shifted in float64, stored float32)."""
+        new = np.asarray(origin, np.float64)
+        delta = self.origin - new
+        if not delta.any():
+            return self
+
+        def shift(p: np.ndarray) -> np.ndarray:
+            return (p.astype(np.float64) + delta).astype(np.float32)
+
+        meshes = [replace(m, positions=shift(m.positions)) for m in self.meshes]
+        points = None if self.points is None else replace(self.points, positions=shift(self.points.positions))
+        return TileContent(meshes=meshes, points=points, origin=new)
+
+    @staticmethod
+    def merged(parts: list[TileContent]) -> TileContent:
+        """One content holding every part's meshes and points, relative to the first part's origin."""
+        if len(parts) == 1:
+            return parts[0]
+        origin = parts[0].origin if parts else np.zeros(3)
+        parts = [p.rebased(origin) for p in parts]
+        out = TileContent(meshes=[m for p in parts for m in p.meshes], origin=origin)
+        pts = [p.points for p in parts if p.points is not None]
+        if pts:
+            out.points = PointData(np.concatenate([p.positions for p in pts]))
+            for attr in ("rgb", "intensity", "classification", "return_number"):
+                vals = [getattr(p, attr) for p in pts]
+                if all(v is not None for v in vals):
+                    setattr(out.points, attr, np.concatenate(vals))
+        return out
 
     @property
     def nbytes(self) -> int:
@@ -87,6 +125,19 @@ class TileContent:
     @property
     def point_count(self) -> int:
         return 0 if self.points is None else len(self.points.positions)
+
+
+def recentre(pos: np.ndarray, origin: npt.ArrayLike | None = None) -> tuple[npt.NDArray[np.float32], F64]:
+    """(float32 positions, float64 origin) of float64 positions (N, 3): ``origin`` (default zero) plus, where
+    the positions lie far from it (over 10 km), the centre of their bounding box, so float32 keeps them exact
+    to well under a millimetre."""
+    o = np.zeros(3) if origin is None else np.asarray(origin, np.float64).copy()
+    pos = np.asarray(pos, np.float64).reshape(-1, 3)
+    if len(pos) and float(np.abs(pos).max()) > 1e4:
+        mid = np.round((pos.min(axis=0) + pos.max(axis=0)) / 2.0)
+        pos = pos - mid
+        o = o + mid
+    return pos.astype(np.float32), o
 
 
 # ----------------------------------------------------------------------------------------------- glb writer

@@ -29,7 +29,7 @@ import numpy as np
 from citylod.core.errors import InputError
 from citylod.core.geometry import F64
 from citylod.io.tiles3d.colour import linear_colors_to_srgb8, linear_to_srgb, srgb_to_linear
-from citylod.io.tiles3d.content import _POINT_ATTRS, MeshData, PointData, TileContent
+from citylod.io.tiles3d.content import _POINT_ATTRS, MeshData, PointData, TileContent, recentre
 
 #: Reads a URI relative to the content (external buffers and images); raises InputError when it cannot.
 Resolver = Callable[[str], bytes]
@@ -44,7 +44,7 @@ _HONOURED = {
     "KHR_draco_mesh_compression", "KHR_mesh_quantization", "EXT_mesh_gpu_instancing", "CESIUM_RTC",
     "KHR_materials_unlit", "KHR_materials_pbrSpecularGlossiness", "KHR_materials_emissive_strength",
     "EXT_mesh_features", "EXT_structural_metadata", "EXT_instance_features", "CESIUM_primitive_outline",
-    "KHR_binary_glTF",
+    "KHR_binary_glTF", "KHR_techniques_webgl",
 }
 _WHY = {
     "EXT_meshopt_compression": "meshopt-compressed buffers",
@@ -125,6 +125,15 @@ def decode_gltf(gltf: dict[str, Any], chunks: list[bytes], source: str, *, rtc_c
         raise InputError(f"glTF content is invalid ({type(exc).__name__}: {exc})", source) from exc
     if point_parts:
         content.points = _concat_points(point_parts)
+    # Positions were kept float64 (z-up, without the RTC centre): one origin for all, float32 relative to it.
+    parts = [m.positions for m in content.meshes] + ([content.points.positions] if content.points else [])
+    bounds = np.array([[p.min(axis=0), p.max(axis=0)] for p in parts if len(p)]).reshape(-1, 3)
+    _, shift = recentre(bounds)
+    for m in content.meshes:
+        m.positions = (m.positions - shift).astype(np.float32)
+    if content.points is not None:
+        content.points.positions = (content.points.positions - shift).astype(np.float32)
+    content.origin = shift + (np.zeros(3) if rtc_center is None else np.asarray(rtc_center, np.float64))
     return content
 
 
@@ -205,6 +214,9 @@ def _read_accessor(gltf: dict[str, Any], buffers: list[bytes], index: int, sourc
             arr = np.ascontiguousarray(rows).view(dtype).reshape(count, ncomp)
     if acc.get("normalized") and dtype.kind in "ui":
         arr = _normalize(arr)
+    if "_decodeMatrix" in acc:  # glTF 1.0 WEB3D_quantized_attributes: v = M · (q, 1), M column-major
+        m = np.asarray(acc["_decodeMatrix"], np.float64).reshape(ncomp + 1, ncomp + 1).T
+        arr = arr.astype(np.float64) @ m[:ncomp, :ncomp].T + m[:ncomp, ncomp]
     return arr[:, 0] if ncomp == 1 else arr
 
 
@@ -319,9 +331,7 @@ def _decode_group(gltf: dict[str, Any], buffers: list[bytes], group: list[dict[s
     local = np.asarray(attribute("POSITION"), np.float64).reshape(-1, 3)
     mats = [node_m] if instances is None else [node_m @ m for m in instances]
     pos = np.concatenate([local @ m[:3, :3].T + m[:3, 3] for m in mats])
-    if rtc_center is not None:
-        pos = pos + (_Z_UP_TO_Y_UP @ rtc_center if y_up else rtc_center)
-    pos32 = (pos @ _Z_UP_TO_Y_UP if y_up else pos).astype(np.float32)  # y-up -> z-up: p_zup = M^T p_yup
+    pos32 = pos @ _Z_UP_TO_Y_UP if y_up else pos  # y-up -> z-up (p_zup = M^T p_yup); float64 until the end
     nv, k = len(local), len(mats)
 
     def repeat(a: np.ndarray) -> np.ndarray:
@@ -434,8 +444,14 @@ def _images(gltf: dict[str, Any], buffers: list[bytes], resolve: Resolver | None
 def _material_texture(gltf: dict[str, Any], prim: dict[str, Any], images: list[bytes | None]) -> bytes | None:
     try:
         mat = gltf["materials"][prim["material"]]
-        tex = gltf["textures"][mat["pbrMetallicRoughness"]["baseColorTexture"]["index"]]
-        return images[tex["source"]]
+    except (KeyError, IndexError, TypeError):
+        return None
+    index = mat.get("pbrMetallicRoughness", {}).get("baseColorTexture", {}).get("index")
+    if index is None:  # KHR_techniques_webgl (glTF 1.0 shaders carried into 2.0): its first texture value
+        values = mat.get("extensions", {}).get("KHR_techniques_webgl", {}).get("values", {})
+        index = next((v["index"] for v in values.values() if isinstance(v, dict) and "index" in v), None)
+    try:
+        return None if index is None else images[gltf["textures"][index]["source"]]
     except (KeyError, IndexError, TypeError):
         return None
 
@@ -470,6 +486,8 @@ def _gltf1_to_2(doc: dict[str, Any], source: str) -> dict[str, Any]:
                              "byteOffset": a.get("byteOffset", 0), "byteStride": a.get("byteStride", 0),
                              "componentType": a["componentType"], "count": a["count"], "type": a["type"],
                              "normalized": bool(a.get("normalized", False))}
+                            | ({"_decodeMatrix": a["extensions"]["WEB3D_quantized_attributes"]["decodeMatrix"]}
+                               if "WEB3D_quantized_attributes" in a.get("extensions", {}) else {})
                             for a in doc.get("accessors", {}).values()]
         out["images"] = []
         for img in doc.get("images", {}).values():

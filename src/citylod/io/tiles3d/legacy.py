@@ -20,7 +20,7 @@ import pyproj
 
 from citylod.core.errors import InputError
 from citylod.core.frames import enu_to_ecef_matrix
-from citylod.io.tiles3d.content import MeshData, PointData, TileContent
+from citylod.io.tiles3d.content import MeshData, PointData, TileContent, recentre
 from citylod.io.tiles3d.gltf import Resolver, decode_glb, decode_gltf_json
 
 #: CesiumJS's test for the legacy b3dm headers: a JSON length this large is really the start of the glb.
@@ -53,6 +53,8 @@ def decode_content(data: bytes, source: str, *, y_up: bool = True, resolve: Reso
         return _decode_cmpt(data, source, y_up, resolve)
     if magic == b"pnts":
         return _decode_pnts(data, source)
+    if magic == b"PK\x03\x04" or data[:16] == b"SQLite format 3\x00":
+        raise InputError("3D Tiles packages (.3tz, .3dtiles) are not supported; extract the package first", source)
     if magic == b"vctr" or magic == b"geom":
         raise InputError(f"{magic.decode()} (vector / geometry) content is not supported", source)
     raise InputError(f"unknown tile content (magic {magic!r}); expected glb, glTF, b3dm, i3dm, cmpt or pnts", source)
@@ -168,9 +170,13 @@ def _decode_i3dm(data: bytes, source: str, y_up: bool, resolve: Resolver | None)
     if s3 is not None:
         scale = scale * s3
     lin = rot * scale[:, None, :]
-    out = TileContent()
-    for m in model.meshes:  # the model (z-up) placed at every instance, in one array operation per mesh
-        p = np.einsum("kij,vj->kvi", lin, m.positions.astype(np.float64)) + (pos + rtc)[:, None, :]
+    # The model (z-up, positions + its origin) placed at every instance, one array operation per mesh; the
+    # instances' mean position becomes the content's origin (with RTC_CENTER), keeping float32 small.
+    centre = pos.mean(axis=0) if n else np.zeros(3)
+    out = TileContent(origin=rtc + centre)
+    for m in model.meshes:
+        local = m.positions.astype(np.float64) + model.origin
+        p = np.einsum("kij,vj->kvi", lin, local) + (pos - centre)[:, None, :]
         nv = len(m.positions)
         faces = (m.faces[None].astype(np.int64) + (np.arange(n) * nv)[:, None, None]).reshape(-1, 3)
         out.meshes.append(MeshData(
@@ -179,7 +185,8 @@ def _decode_i3dm(data: bytes, source: str, y_up: bool, resolve: Resolver | None)
             uv=None if m.uv is None else np.tile(m.uv, (n, 1)), texture=m.texture,
             colors=None if m.colors is None else np.tile(m.colors, (n, 1)), name=m.name))
     if model.points is not None:
-        p = np.einsum("kij,vj->kvi", lin, model.points.positions.astype(np.float64)) + (pos + rtc)[:, None, :]
+        local = model.points.positions.astype(np.float64) + model.origin
+        p = np.einsum("kij,vj->kvi", lin, local) + (pos - centre)[:, None, :]
         out.points = PointData(positions=p.reshape(-1, 3).astype(np.float32),
                                rgb=None if model.points.rgb is None else np.tile(model.points.rgb, (n, 1)))
     return out
@@ -189,8 +196,7 @@ def _decode_cmpt(data: bytes, source: str, y_up: bool, resolve: Resolver | None)
     if len(data) < 16:
         raise InputError("cmpt header is truncated", source)
     _, _, length, count = struct.unpack_from("<4sIII", data, 0)
-    out = TileContent()
-    points: list[PointData] = []
+    parts: list[TileContent] = []
     off = 16
     for i in range(count):
         if off + 12 > min(length, len(data)):
@@ -198,17 +204,10 @@ def _decode_cmpt(data: bytes, source: str, y_up: bool, resolve: Resolver | None)
         inner_len = struct.unpack_from("<I", data, off + 8)[0]
         if inner_len < 12:
             raise InputError(f"cmpt inner tile {i} has an invalid length {inner_len}", source)
-        inner = decode_content(data[off: off + inner_len], f"{source} (inner tile {i})", y_up=y_up,
-                               resolve=resolve)
-        out.meshes.extend(inner.meshes)
-        if inner.points is not None:
-            points.append(inner.points)
+        parts.append(decode_content(data[off: off + inner_len], f"{source} (inner tile {i})", y_up=y_up,
+                                    resolve=resolve))
         off += inner_len
-    if points:
-        out.points = PointData(np.concatenate([p.positions for p in points]))
-        if all(p.rgb is not None for p in points):
-            out.points.rgb = np.concatenate([p.rgb for p in points])  # type: ignore[misc]
-    return out
+    return TileContent.merged(parts) if parts else TileContent()
 
 
 def _decode_pnts(data: bytes, source: str) -> TileContent:
@@ -230,8 +229,8 @@ def _decode_pnts(data: bytes, source: str) -> TileContent:
         scale = np.asarray(ft.json["QUANTIZED_VOLUME_SCALE"], float)
         offset = np.asarray(ft.json["QUANTIZED_VOLUME_OFFSET"], float)
         pos = q.astype(np.float64) / 65535.0 * scale + offset
-    pos64 = np.asarray(pos, np.float64).reshape(-1, 3) + np.asarray(ft.json.get("RTC_CENTER", [0, 0, 0]), float)
-    if not np.all(np.isfinite(pos64)):
+    pos32, origin = recentre(np.asarray(pos, np.float64), ft.json.get("RTC_CENTER"))
+    if not np.all(np.isfinite(pos32)) or not np.all(np.isfinite(origin)):
         raise InputError("pnts positions are not finite numbers", source)
     rgb = decoded.get("RGB")
     if rgb is None:
@@ -244,9 +243,9 @@ def _decode_pnts(data: bytes, source: str) -> TileContent:
         c = ft.get("RGB565", np.uint16, 1)[:, 0].astype(np.uint32)  # type: ignore[index]
         rgb = np.column_stack([(c >> 11) * 255 // 31, ((c >> 5) & 63) * 255 // 63, (c & 31) * 255 // 31])
     if rgb is None and "CONSTANT_RGBA" in ft.json:
-        rgb = np.tile(np.asarray(ft.json["CONSTANT_RGBA"], np.uint8)[:3], (len(pos64), 1))
+        rgb = np.tile(np.asarray(ft.json["CONSTANT_RGBA"], np.uint8)[:3], (len(pos32), 1))
     colours = None if rgb is None else np.ascontiguousarray(np.asarray(rgb)[:, :3], np.uint8)
-    return TileContent(points=PointData(positions=pos64.astype(np.float32), rgb=colours))
+    return TileContent(points=PointData(positions=pos32, rgb=colours), origin=origin)
 
 
 def _draco_points(ft: _FeatureTable, ext: dict[str, Any], source: str) -> dict[str, np.ndarray]:

@@ -37,7 +37,7 @@ from citylod.core.fileio import atomic_write_bytes, atomic_write_text
 from citylod.core.frames import geodetic_to_ecef
 from citylod.core.geometry import F64, Box, translation
 from citylod.io.crs import ecef_from_local, parse_crs
-from citylod.io.tiles3d.content import PointData, TileContent, glb_buffer
+from citylod.io.tiles3d.content import TileContent, glb_buffer
 from citylod.io.tiles3d.implicit import expand_implicit
 from citylod.io.tiles3d.legacy import decode_content
 
@@ -181,7 +181,7 @@ class Tile:
     """One tile of an opened tileset. See docs/CONTRACTS.md."""
 
     __slots__ = ("_size", "box", "children", "content_path", "content_paths", "content_uri", "geometric_error",
-                 "key", "level", "matrix", "parent", "point_count", "refine", "tileset", "triangle_count")
+                 "key", "level", "matrix", "parent", "point_count", "refine", "shift", "tileset", "triangle_count")
 
     def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
                  geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None,
@@ -192,6 +192,9 @@ class Tile:
         self.parent = parent
         self.children: list[Tile] = []
         self.matrix = matrix
+        # Where the content's positions are measured from in the tile's own frame (``matrix`` includes it):
+        # zero, or the bounding volume's centre when the tile frame is far from its content (ECEF tilesets).
+        self.shift = np.zeros(3)
         self.box = box
         self.geometric_error = geometric_error
         self.refine = refine
@@ -225,15 +228,11 @@ class Tile:
 
     def load_content(self) -> TileContent:
         """The content with float32 positions relative to the tile's origin (map them with ``matrix``)."""
-        parts = [self._load_one(p) for p in self.content_paths]
-        if len(parts) == 1:
-            return parts[0]
-        out = TileContent(meshes=[m for c in parts for m in c.meshes])
-        pts = [c.points for c in parts if c.points is not None]
-        if pts:
-            out.points = PointData(np.concatenate([p.positions for p in pts]))
-            if all(p.rgb is not None for p in pts):
-                out.points.rgb = np.concatenate([p.rgb for p in pts])  # type: ignore[misc]
+        if not self.content_paths:
+            return TileContent()
+        # Positions relative to the tile frame's point ``shift`` (what ``matrix`` includes), in float64 first.
+        out = TileContent.merged([self._load_one(p) for p in self.content_paths]).rebased(self.shift)
+        out.origin = np.zeros(3)
         return out
 
     def _load_one(self, path: Path) -> TileContent:
@@ -250,7 +249,14 @@ class Tile:
             except OSError as exc:
                 raise InputError(f"cannot read {uri!r} ({exc.strerror})", path) from exc
 
-        return decode_content(data, str(path), y_up=self.tileset.y_up, resolve=resolve)
+        content = decode_content(data, str(path), y_up=self.tileset.y_up, resolve=resolve)
+        if self.tileset.up_axis == "X":  # CesiumJS's Axis.X_UP_TO_Z_UP, a −90° turn about y; RTC is z-up already
+            turn = np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]])
+            for m in content.meshes:
+                m.positions = (m.positions.astype(np.float64) @ turn.T).astype(np.float32)
+            if content.points is not None:
+                content.points.positions = (content.points.positions.astype(np.float64) @ turn.T).astype(np.float32)
+        return content
 
     def load(self) -> TileMesh:
         """The content in the tileset's CRS, float64."""
@@ -285,7 +291,9 @@ class Tileset:
         self.doc = doc
         self.extras: dict[str, Any] = doc.get("extras", {}) or {}
         cl = self.extras.get("citylod", {}) if isinstance(self.extras, dict) else {}
-        self.y_up = doc.get("asset", {}).get("gltfUpAxis", "Y").upper() != "Z"
+        # 3D Tiles 1.0 ``asset.gltfUpAxis`` (Y by default; Z and X were allowed, and CesiumJS still honours them).
+        self.up_axis = str(doc.get("asset", {}).get("gltfUpAxis", "Y")).upper()
+        self.y_up = self.up_axis not in ("Z", "X")
         self.citylod: dict[str, Any] = cl if isinstance(cl, dict) else {}
         root_json = doc["root"]
         root_m = _tile_transform(root_json, str(path))
@@ -316,8 +324,12 @@ class Tileset:
             matrix = self._crs_from_world @ world
             # A region is in ECEF whatever the tile's transform; boxes and spheres live in the tile's frame.
             in_ecef = "region" in tj["boundingVolume"]
-            box = _bounding_box(tj["boundingVolume"], source, key).transformed(
-                self._crs_from_world if in_ecef else matrix)
+            local_box = _bounding_box(tj["boundingVolume"], source, key)
+            box = local_box.transformed(self._crs_from_world if in_ecef else matrix)
+            centre = (np.linalg.inv(world) @ [*local_box.center, 1.0])[:3] if in_ecef else local_box.center
+            # Content far from its tile frame's origin (ECEF coordinates with identity transforms) is loaded
+            # relative to the volume's centre, so float32 positions keep millimetres (Tile.load_content).
+            shift = np.round(centre) if float(np.abs(centre).max()) > 1e4 else np.zeros(3)
             refine = str(tj.get("refine", parent.refine if parent else "REPLACE")).upper()
             uri = None
             cpaths: list[Path] = []
@@ -336,8 +348,9 @@ class Tileset:
                 else:
                     uri = uri or curi
                     cpaths.append(safe_resolve(base, curi, self.folder, source))
-            tile = Tile(self, key, level, parent, matrix, box, float(tj["geometricError"]), refine, uri,
-                        cpaths[0] if cpaths else None, cpaths)
+            tile = Tile(self, key, level, parent, matrix @ translation(shift), box, float(tj["geometricError"]),
+                        refine, uri, cpaths[0] if cpaths else None, cpaths)
+            tile.shift = shift
             hints = tj.get("extras", {})
             if isinstance(hints, dict):
                 tile.triangle_count = int(hints.get("triangles", 0) or 0)
