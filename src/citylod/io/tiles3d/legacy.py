@@ -229,9 +229,9 @@ def _decode_pnts(data: bytes, source: str) -> TileContent:
         scale = np.asarray(ft.json["QUANTIZED_VOLUME_SCALE"], float)
         offset = np.asarray(ft.json["QUANTIZED_VOLUME_OFFSET"], float)
         pos = q.astype(np.float64) / 65535.0 * scale + offset
+    if not np.all(np.isfinite(pos)):
+        raise InputError("pnts positions are not finite numbers (corrupt or misread data)", source)
     pos32, origin = recentre(np.asarray(pos, np.float64), ft.json.get("RTC_CENTER"))
-    if not np.all(np.isfinite(pos32)) or not np.all(np.isfinite(origin)):
-        raise InputError("pnts positions are not finite numbers", source)
     rgb = decoded.get("RGB")
     if rgb is None:
         rgb = decoded.get("RGBA")
