@@ -212,7 +212,7 @@ def test_copied_sample_outside_its_folder_is_refused(tmp_path: Path) -> None:
 def test_points_of_other_writers_keep_their_colour_bytes() -> None:
     """pnts RGB is sRGB (as CesiumJS draws it): read unchanged."""
     raw = (DATA / "PointCloud/PointCloudRGB/pointCloudRGB.pnts").read_bytes()
-    ft_len, ft_bin = struct.unpack_from("<II", raw, 12)
+    ft_len = struct.unpack_from("<I", raw, 12)[0]
     ft = json.loads(raw[28:28 + ft_len])
     off = 28 + ft_len + ft["RGB"]["byteOffset"]
     rgb = np.frombuffer(raw, np.uint8, count=3000, offset=off).reshape(-1, 3)
