@@ -33,6 +33,8 @@ def linear_to_srgb(c: npt.ArrayLike) -> npt.NDArray[np.float64]:
 #: sRGB byte -> linear normalized uint16 (what citylod writes into COLOR_0).
 SRGB8_TO_LINEAR16: npt.NDArray[np.uint16] = np.round(
     srgb_to_linear(np.arange(256) / 255.0) * 65535.0).astype(np.uint16)
+#: sRGB byte -> linear normalized uint8 (palette colours written for other clients only; dark steps merge).
+SRGB8_TO_LINEAR8: npt.NDArray[np.uint8] = np.round(srgb_to_linear(np.arange(256) / 255.0) * 255.0).astype(np.uint8)
 #: linear normalized uint16 -> sRGB byte (what citylod reads from COLOR_0 of any component type).
 LINEAR16_TO_SRGB8: npt.NDArray[np.uint8] = np.round(
     linear_to_srgb(np.arange(65536) / 65535.0) * 255.0).astype(np.uint8)
@@ -59,4 +61,4 @@ def linear_colors_to_srgb8(c: np.ndarray) -> npt.NDArray[np.uint8]:
     return out
 
 
-__all__ = ["LINEAR16_TO_SRGB8", "SRGB8_TO_LINEAR16", "linear_colors_to_srgb8", "linear_to_srgb", "srgb_to_linear"]
+__all__ = ["LINEAR16_TO_SRGB8", "SRGB8_TO_LINEAR8", "SRGB8_TO_LINEAR16", "linear_colors_to_srgb8", "linear_to_srgb", "srgb_to_linear"]

@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from citylod._version import __version__
 from citylod.core.geometry import F64
-from citylod.io.tiles3d.colour import SRGB8_TO_LINEAR16
+from citylod.io.tiles3d.colour import SRGB8_TO_LINEAR8, SRGB8_TO_LINEAR16
 
 _COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
@@ -53,10 +53,15 @@ class MeshData:
 
 @dataclass
 class PointData:
-    """Points of a tile: ``positions`` (N, 3) float32 relative to the tile centre and per-point attributes."""
+    """Points of a tile: ``positions`` (N, 3) float32 relative to the tile centre and per-point attributes.
+
+    ``rgb_from_class``: ``rgb`` holds class colours for other 3D Tiles clients (a cloud without RGB), not
+    measured colour; citylod writes them and reads them back as no RGB, keeping its own colour modes.
+    """
 
     positions: npt.NDArray[np.float32]
     rgb: npt.NDArray[np.uint8] | None = None
+    rgb_from_class: bool = False
     intensity: npt.NDArray[np.uint16] | None = None
     classification: npt.NDArray[np.uint8] | None = None
     return_number: npt.NDArray[np.uint8] | None = None
@@ -304,6 +309,8 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
         unlit = True
         prim = {"attributes": attrs, "mode": 0, "material": mat,
                 "extras": {"citylod_name": "points", "citylod_extra_dtypes": dtypes}}
+        if pts.rgb is not None and pts.rgb_from_class:
+            prim["extras"]["citylod_rgb_from_class"] = True
         if props:
             _point_metadata(b, prim, props)
         primitives.append(prim)
@@ -386,14 +393,19 @@ def _point_attributes(b: _GlbBuilder, pts: PointData) -> dict[str, int]:
     pos_out, rgb_out, ret_out = np.empty((n, 3), np.float32), np.empty((n, 4), np.uint16), np.empty((n, 4), np.uint8)
     int_out, cls_out = np.empty((n, 2), np.uint16), np.empty((n, 4), np.uint8)
     lo, hi = np.empty(3, np.float32), np.empty(3, np.float32)
-    point_vertex_columns(pos, column(pts.rgb, np.uint8, 3), SRGB8_TO_LINEAR16, column(pts.intensity, np.uint16, 1),
+    measured = None if pts.rgb_from_class else pts.rgb
+    point_vertex_columns(pos, column(measured, np.uint8, 3), SRGB8_TO_LINEAR16, column(pts.intensity, np.uint16, 1),
                          column(pts.classification, np.uint8, 1), column(pts.return_number, np.uint8, 1),
                          pos_out, rgb_out, int_out, cls_out, ret_out, lo, hi)
 
     attrs = {"POSITION": b.register(b.view(pos_out, 34962), 5126, n, "VEC3", lo=[float(v) for v in lo],
                                     hi=[float(v) for v in hi])}
-    if pts.rgb is not None:
+    if measured is not None:
         attrs["COLOR_0"] = b.register(b.view(rgb_out, 34962, 8), 5123, n, "VEC3", normalized=True)
+    elif pts.rgb is not None:  # class colours for other clients: 8-bit linear is enough for a palette
+        lin8 = np.zeros((n, 4), np.uint8)
+        lin8[:, :3] = SRGB8_TO_LINEAR8[np.asarray(pts.rgb, np.uint8).reshape(n, 3)]
+        attrs["COLOR_0"] = b.register(b.view(lin8, 34962, 4), 5121, n, "VEC3", normalized=True)
     outs: tuple[np.ndarray, ...] = (int_out, cls_out, ret_out)
     for (gl_name, attr), out, ctype in zip(_POINT_ATTRS.items(), outs, (5123, 5121, 5121), strict=True):
         if getattr(pts, attr) is not None:

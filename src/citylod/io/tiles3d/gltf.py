@@ -344,6 +344,8 @@ def _decode_group(gltf: dict[str, Any], buffers: list[bytes], group: list[dict[s
         pts = PointData(positions=pos32, rgb=None if colors is None else colors[:, :3].copy())
         if colors is None:
             pts.rgb = _material_rgb(gltf, first, len(pos32))
+        if first.get("extras", {}).get("citylod_rgb_from_class"):
+            pts.rgb = None  # class colours citylod wrote for other clients; it colours by class itself
         for gl_name, attr in _POINT_ATTRS.items():
             if gl_name in names:
                 setattr(pts, attr, repeat(np.asarray(attribute(gl_name))).copy())
