@@ -84,6 +84,27 @@ class _FeatureTable:
         except (TypeError, ValueError) as exc:
             raise InputError(f"feature table {count_key} is not a number", source) from exc
 
+    def positions(self, kind: str, decoded: dict[str, np.ndarray] | None = None) -> np.ndarray:
+        """(n, 3) float64 ``POSITION``, or ``POSITION_QUANTIZED`` dequantized by the quantized volume
+        (``decoded``: properties a Draco body already holds)."""
+        decoded = decoded or {}
+        pos = decoded.get("POSITION")
+        if pos is None:
+            pos = self.get("POSITION", np.float32, 3)
+        if pos is not None:
+            return np.asarray(pos, np.float64)
+        q = decoded.get("POSITION_QUANTIZED")
+        if q is None:
+            q = self.get("POSITION_QUANTIZED", np.uint16, 3)
+        if q is None:
+            raise InputError(f"{kind} has neither POSITION nor POSITION_QUANTIZED", self.source)
+        try:
+            scale = np.asarray(self.json["QUANTIZED_VOLUME_SCALE"], float)
+            offset = np.asarray(self.json["QUANTIZED_VOLUME_OFFSET"], float)
+        except KeyError as exc:
+            raise InputError(f"{kind} quantized positions lack {exc}", self.source) from exc
+        return q.astype(np.float64) / 65535.0 * scale + offset
+
     def get(self, name: str, dtype: Any, ncomp: int) -> np.ndarray | None:
         if name not in self.json:
             return None
@@ -140,15 +161,7 @@ def _decode_i3dm(data: bytes, source: str, y_up: bool, resolve: Resolver | None)
         body = resolve(uri)
     model = decode_glb(body, source, y_up=y_up, resolve=resolve)
     n = ft.n
-    pos = ft.get("POSITION", np.float32, 3)
-    if pos is None:
-        q = ft.get("POSITION_QUANTIZED", np.uint16, 3)
-        if q is None:
-            raise InputError("i3dm has neither POSITION nor POSITION_QUANTIZED", source)
-        scale = np.asarray(ft.json["QUANTIZED_VOLUME_SCALE"], float)
-        offset = np.asarray(ft.json["QUANTIZED_VOLUME_OFFSET"], float)
-        pos = q.astype(np.float64) / 65535.0 * scale + offset
-    pos = pos.astype(np.float64)
+    pos = ft.positions("i3dm")
     rtc = np.asarray(ft.json.get("RTC_CENTER", [0.0, 0.0, 0.0]), float)
     up, right = ft.get("NORMAL_UP", np.float32, 3), ft.get("NORMAL_RIGHT", np.float32, 3)
     if up is None and "NORMAL_UP_OCT32P" in ft.json:
@@ -217,18 +230,7 @@ def _decode_pnts(data: bytes, source: str) -> TileContent:
     ft = _FeatureTable(data, 28, ftj, ftb, "POINTS_LENGTH", source)
     draco = ft.json.get("extensions", {}).get("3DTILES_draco_point_compression")
     decoded = _draco_points(ft, draco, source) if draco else {}
-    pos = decoded.get("POSITION")
-    if pos is None:
-        pos = ft.get("POSITION", np.float32, 3)
-    if pos is None:
-        q = decoded.get("POSITION_QUANTIZED")
-        if q is None:
-            q = ft.get("POSITION_QUANTIZED", np.uint16, 3)
-        if q is None:
-            raise InputError("pnts has no POSITION", source)
-        scale = np.asarray(ft.json["QUANTIZED_VOLUME_SCALE"], float)
-        offset = np.asarray(ft.json["QUANTIZED_VOLUME_OFFSET"], float)
-        pos = q.astype(np.float64) / 65535.0 * scale + offset
+    pos = ft.positions("pnts", decoded)
     if not np.all(np.isfinite(pos)):
         raise InputError("pnts positions are not finite numbers (corrupt or misread data)", source)
     pos32, origin = recentre(np.asarray(pos, np.float64), ft.json.get("RTC_CENTER"))
