@@ -266,8 +266,11 @@ def _draco_points(ft: _FeatureTable, ext: dict[str, Any], source: str) -> dict[s
     out: dict[str, np.ndarray] = {}
     for name, uid in ext.get("properties", {}).items():
         att = decoded.get_attribute_by_unique_id(int(uid))
-        if att is not None:
-            out[name] = np.asarray(att["data"])
+        if att is None:
+            # The feature table's own entry for a Draco property points into the compressed bytes: reading
+            # it there is what returned ±3e38 and NaN before.
+            raise InputError(f"Draco point data lacks its {name} attribute (id {uid}): corrupt", source)
+        out[name] = np.asarray(att["data"])
     if "POSITION" in out:
         out["POSITION"] = out["POSITION"].astype(np.float64)
     for name in ("RGB", "RGBA"):
