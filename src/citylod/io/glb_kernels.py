@@ -2,9 +2,9 @@
 calls for point content).
 
 Why compiled: a point build encodes its tiles on two threads of one process. Encoded with numpy (the axis
-turn to y-up, sRGB to linear colour, the padding of RGB16, uint16 and uint8 attributes to 4-byte elements, the position min/max),
-a 10 k-point tile took ≈0.6 ms, all of it holding the GIL, which kept the other build thread waiting; this
-one pass takes a few tens of microseconds without the GIL. No library writes glTF vertex buffers from
+turn to y-up, sRGB to linear colour, the padding of RGB16, uint16 and uint8 attributes to multiples of 4 bytes,
+the position min/max), every pass holds the GIL, which kept the other build thread waiting; this one pass runs
+without the GIL. No library writes glTF vertex buffers from
 numpy columns in one pass (pygltflib and trimesh assemble them with numpy as the code this replaces did).
 
 Every attribute is in its own buffer view: positions tightly packed float32, the others padded with zeros to
