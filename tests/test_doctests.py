@@ -10,6 +10,7 @@ import pytest
 MODULES = [
     "citylod",
     "citylod.io.image",
+    "citylod.io.tiles3d.colour",
     "citylod.io.tiles3d.tileset",
     "citylod.lod.runtime.selection",
     "citylod.lod.runtime.loader",

@@ -45,6 +45,17 @@ def linear_colors_to_srgb8(c: np.ndarray) -> npt.NDArray[np.uint8]:
 
     Float values are linear in [0, 1]; uint8 and uint16 are normalized linear (divided by 255 or 65535).
     Alpha is not gamma-encoded in glTF, so it is only rescaled. A scalar colour becomes grey.
+
+    Examples
+    --------
+    A yellow field as citylod writes it (linear uint16) and reads it back:
+
+    >>> import numpy as np
+    >>> stored = SRGB8_TO_LINEAR16[np.array([[203, 182, 107]])]
+    >>> (stored / 65535).round(3)
+    array([[0.597, 0.468, 0.147]])
+    >>> linear_colors_to_srgb8(stored)
+    array([[203, 182, 107]], dtype=uint8)
     """
     c = np.asarray(c)
     if c.dtype.kind == "f":
