@@ -120,7 +120,8 @@ def test_point_attributes_absent_or_converted() -> None:
     jlen = struct.unpack_from("<I", data, 12)[0]
     gltf = json.loads(data[20:20 + jlen])
     attrs = gltf["meshes"][0]["primitives"][0]["attributes"]
-    assert set(attrs) == {"POSITION", "_INTENSITY", "_CLASSIFICATION"}
+    assert set(attrs) == {"POSITION", "_INTENSITY", "_CLASSIFICATION", "_FEATURE_ID_0"}
+    assert attrs["_FEATURE_ID_0"] == attrs["_CLASSIFICATION"]  # the class is the feature ID, no extra bytes
     back = decode_glb(data, "x.glb").points
     assert back is not None and back.rgb is None and back.return_number is None
     np.testing.assert_array_equal(back.positions, block[:, 1:4].astype(np.float32))

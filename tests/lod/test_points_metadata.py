@@ -1,5 +1,6 @@
-"""Point tiles describe class, intensity and return number with EXT_structural_metadata, and a cloud without
-RGB carries the class colours its coarse quads are baked with, so other clients show one look at every level."""
+"""Point tiles describe class, intensity and return number with EXT_structural_metadata (the class also as
+an EXT_mesh_features feature ID), and a cloud without RGB carries the class colours its coarse quads are
+baked with, so other clients show one look at every level."""
 
 from __future__ import annotations
 
@@ -52,6 +53,10 @@ def test_point_attributes_are_property_attributes(no_rgb) -> None:
     # the property attribute is the point's LAS class, as citylod reads it back
     assert np.array_equal(cls, leaf.load_content().points.classification)
     assert set(np.unique(cls)) <= {1, 2, 6}
+    # the class is also the EXT_mesh_features feature ID, one feature per class present
+    (fid,) = prim["extensions"]["EXT_mesh_features"]["featureIds"]
+    assert prim["attributes"][f"_FEATURE_ID_{fid['attribute']}"] == prim["attributes"]["_CLASSIFICATION"]
+    assert fid["featureCount"] == len(np.unique(cls))
 
 
 def test_cloud_without_rgb_carries_its_class_colours(no_rgb) -> None:

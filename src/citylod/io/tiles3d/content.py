@@ -313,6 +313,8 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             prim["extras"]["citylod_rgb_from_class"] = True
         if props:
             _point_metadata(b, prim, props)
+        if pts.classification is not None:
+            _class_features(b, prim, np.asarray(pts.classification))
         primitives.append(prim)
     if primitives:
         b.gltf["meshes"] = [{"primitives": primitives}]
@@ -349,6 +351,18 @@ def _point_metadata(b: _GlbBuilder, prim: dict[str, Any], props: dict[str, str])
     }}
     prim["extensions"] = {"EXT_structural_metadata": {"propertyAttributes": [0]}}
     b.gltf.setdefault("extensionsUsed", []).append("EXT_structural_metadata")
+
+
+def _class_features(b: _GlbBuilder, prim: dict[str, Any], classification: np.ndarray) -> None:
+    """The LAS class as an ``EXT_mesh_features`` feature ID: clients that pick or style by feature (CesiumJS's
+    ``feature.featureId``) see one feature per class. ``_FEATURE_ID_0`` names the classification accessor
+    itself, so no bytes are added."""
+    count = int(np.count_nonzero(np.bincount(classification, minlength=1)))
+    prim["attributes"]["_FEATURE_ID_0"] = prim["attributes"]["_CLASSIFICATION"]
+    prim.setdefault("extensions", {})["EXT_mesh_features"] = {
+        "featureIds": [{"featureCount": max(count, 1), "attribute": 0, "label": "classification"}]}
+    if "EXT_mesh_features" not in b.gltf.setdefault("extensionsUsed", []):
+        b.gltf["extensionsUsed"].append("EXT_mesh_features")
 
 
 def _linear_rgba16(colors: npt.ArrayLike) -> npt.NDArray[np.uint16]:
