@@ -165,7 +165,7 @@ def test_random_terrain_in_thin_strips_matches_reference(tmp_path: Path, eight: 
         wet = d != DEPTH_NODATA
         assert r.cells == wet.sum()
         assert r.area_m2 == pytest.approx(wet.sum())  # 1 m cells
-        assert r.volume_m3 == pytest.approx(float((level - h)[wet].sum()), rel=1e-9)
+        assert r.volume_m3 == pytest.approx(float((level - h)[wet].sum()), rel=1e-6)  # float32 depths
     # the same result with the whole raster in one strip and in memory
     whole = FloodModel(np.nan_to_num(h), ~np.isnan(h), np.pad(np.zeros((59, 45), bool), 1, constant_values=True),
                        eight=eight)

@@ -333,7 +333,19 @@ def _depth_profile(info: RasterInfo) -> dict[str, object]:
 
     return {"driver": "GTiff", "width": info.width, "height": info.height, "count": 1, "dtype": "float32",
             "crs": info.crs_wkt, "transform": Affine(*info.transform), "nodata": DEPTH_NODATA,
-            "tiled": True, "blockxsize": 256, "blockysize": 256, "compress": "deflate", "zlevel": 1}
+            "tiled": True, "blockxsize": 256, "blockysize": 256}
+
+
+def _open_depth(path: Path, info: RasterInfo):  # type: ignore[no-untyped-def]
+    """A depth GeoTIFF opened for writing: ZSTD level 1 (a 4097² depth raster writes ≈5x faster than with
+    DEFLATE level 1; GDAL ≥ 2.3 and QGIS read it), DEFLATE where this GDAL lacks ZSTD."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    try:
+        return rasterio.open(path, "w", **_depth_profile(info), compress="zstd", zstd_level=1)
+    except RasterioError:
+        return rasterio.open(path, "w", **_depth_profile(info), compress="deflate")
 
 
 def flood_raster(raster: str | os.PathLike[str], levels: Sequence[float], out_dir: str | os.PathLike[str], *,
@@ -456,13 +468,12 @@ def _bar(progress: bool, total: int, desc: str):  # type: ignore[no-untyped-def]
 
 def _write_depths(src: RasterSource, strips: list[_Strip], levels: list[float], keep: list[np.ndarray],
                   struct: np.ndarray, folder: Path, bar) -> list[LevelResult]:  # type: ignore[no-untyped-def]
-    import rasterio
     from rasterio.windows import Window
 
     info = src.info
     areas = cell_areas(info)
     names = [f"depth_{k:03d}.tif" for k in range(len(levels))]
-    dsts = [rasterio.open(folder / n, "w", **_depth_profile(info)) for n in names]
+    dsts = [_open_depth(folder / n, info) for n in names]
     cells = [0] * len(levels)
     area = [0.0] * len(levels)
     volume = [0.0] * len(levels)
@@ -480,15 +491,17 @@ def _write_depths(src: RasterSource, strips: list[_Strip], levels: list[float], 
                 h, labs = st.heights, st.labels
             row_area = areas[st.row0:st.row1]
             for k, level in enumerate(levels):
-                wet = keep[k][labs[k]]
-                depth = np.where(wet, level - h, DEPTH_NODATA).astype(np.float32)
+                dry = ~keep[k][labs[k]]
+                depth = np.subtract(np.float32(level), h, dtype=np.float32)
+                np.copyto(depth, np.float32(0.0), where=dry)
+                per_row = (h.shape[1] - dry.sum(axis=1)).astype(np.float64)
+                if per_row.any():
+                    cells[k] += int(per_row.sum())
+                    area[k] += float(per_row @ row_area)
+                    volume[k] += float(depth.sum(axis=1, dtype=np.float64) @ row_area)
+                    deepest[k] = max(deepest[k], float(depth.max()))
+                np.copyto(depth, np.float32(DEPTH_NODATA), where=dry)
                 dsts[k].write(depth, 1, window=Window(0, st.row0, info.width, st.row1 - st.row0))
-                if wet.any():
-                    d = np.where(wet, level - h, 0.0)
-                    cells[k] += int(wet.sum())
-                    area[k] += float(wet.sum(axis=1) @ row_area)
-                    volume[k] += float(d.sum(axis=1) @ row_area)
-                    deepest[k] = max(deepest[k], float(d.max()))
             st.heights = st.valid = None
             st.labels = None
             bar.update(1)
