@@ -100,8 +100,12 @@ class WaterSurface:
         self.set_depth(depth, level)
 
     def set_depth(self, depth: npt.ArrayLike, level: float) -> None:
-        """Show water ``depth`` (H, W) over the bounds (row 0 north; NaN or ≤ 0 dry) at height ``level``."""
-        rgba = water_rgba(depth)
+        """Show water ``depth`` (H, W) over the bounds (row 0 north; NaN or ≤ 0 dry) at height ``level``.
+
+        Grids larger than 4096 a side are decimated (every k-th cell) to fit a texture."""
+        d = np.asarray(depth)
+        step = max(1, -(-max(d.shape) // _MAX_TEXELS))
+        rgba = water_rgba(d[::step, ::step] if step > 1 else d)
         h, w = rgba.shape[:2]
         img = _vtk.vtkImageData()
         img.SetDimensions(w, h, 1)
@@ -113,10 +117,14 @@ class WaterSurface:
         self.set_level(level)
         self.actor.SetVisibility(bool(rgba[..., 3].any()))
 
-    def set_mask(self, mask: npt.ArrayLike, heights: npt.ArrayLike, level: float) -> None:
-        """Show the flooded cells ``mask`` (H, W) bool of ``heights`` at ``level`` (the GUI's slider)."""
+    def set_mask(self, mask: npt.ArrayLike, heights: npt.ArrayLike | None, level: float) -> None:
+        """Show the flooded cells ``mask`` (H, W) bool at ``level`` (the GUI's slider): depth-shaded with
+        ``heights`` (H, W), flat blue without."""
         m = np.asarray(mask, bool)
-        self.set_depth(np.where(m, np.float32(level) - np.asarray(heights, np.float32), np.nan), level)
+        if heights is None:
+            self.set_depth(np.where(m, np.float32(1.0), np.float32(np.nan)), level)
+        else:
+            self.set_depth(np.where(m, np.float32(level) - np.asarray(heights, np.float32), np.nan), level)
 
     def set_level(self, level: float) -> None:
         """Move the quad to height ``level`` (the scene's vertical unit)."""
