@@ -10,6 +10,7 @@ river valley, 1 m cells) and times, per repeat, in the same process:
   decimated preview and the full-resolution extent.
 
 Timings are printed as seconds and as ratios to ``read``; they are not assertions (machine load varies).
+``--view [SIZE]`` times a new level from the slider to a drawn frame instead (:func:`view_latency`).
 """
 
 from __future__ import annotations
@@ -69,7 +70,52 @@ def run(size: int = 4097, repeats: int = 3) -> dict[str, list[float]]:
     return times
 
 
+def view_latency(size: int = 4097, repeats: int = 5) -> dict[str, list[float]]:
+    """Seconds from a new level to a rendered frame with the water (off screen, 1280×720): the coarse
+    preview (:meth:`FloodScenario.preview`) and the full-resolution result (:meth:`FloodScenario.compute`),
+    each including the water texture's rebuild and the draw."""
+    from citylod.analysis.flood import FloodSources
+    from citylod.analysis.scenario import FloodScenario
+    from citylod.render import _vtk
+    from citylod.render.tileset_actor import Scene
+    from citylod.render.water import WaterSurface
+
+    out: dict[str, list[float]] = {"coarse shown": [], "full shown": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        sc = FloodScenario(make_terrain(Path(tmp) / "terrain.tif", size), FloodSources(edge=True))
+        win = _vtk.offscreen_window(1280, 720)
+        ren = _vtk.vtkOpenGLRenderer()
+        win.AddRenderer(ren)
+        scene = Scene(ren)
+        x0, y0, x1, y1 = sc.bounds
+        scene.origin = np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
+        water = WaterSurface(scene, sc.bounds)
+        cam = ren.GetActiveCamera()
+        cam.SetPosition(0, -0.7 * size, 0.7 * size)
+        cam.SetFocalPoint(0, 0, 0)
+        for level in np.linspace(sc.model.min_height + 5, sc.model.min_height + 40, repeats):
+            t = time.perf_counter()
+            res = sc.preview(float(level))
+            water.set_mask(res.mask, None, float(level))
+            ren.ResetCameraClippingRange()
+            win.Render()
+            win.WaitForCompletion()
+            out["coarse shown"].append(time.perf_counter() - t)
+            t = time.perf_counter()
+            res = sc.compute(float(level))
+            water.set_mask(res.mask, sc.model.heights, float(level))
+            win.Render()
+            win.WaitForCompletion()
+            out["full shown"].append(time.perf_counter() - t)
+        win.Finalize()
+    return out
+
+
 def main(argv: list[str]) -> None:
+    if argv and argv[0] == "--view":
+        for name, ts in view_latency(int(argv[1]) if len(argv) > 1 else 4097).items():
+            print(f"  {name:13s} median {statistics.median(ts):.3f} s  all: {', '.join(f'{v:.3f}' for v in ts)}")
+        return
     size = int(argv[0]) if argv else 4097
     repeats = int(argv[1]) if len(argv) > 1 else 3
     times = run(size, repeats)
