@@ -335,3 +335,39 @@ def test_polygon_layer_round_trips(tmp_path: Path) -> None:
         for a, b in zip(back.polygons, polys, strict=True):
             # KML stores lon/lat: the round trip through WGS 84 is exact to a millimetre
             assert a.geometry.symmetric_difference(b.geometry).area < 0.05, suffix
+
+
+def test_polygons_as_other_tools_write_them(tmp_path: Path) -> None:
+    """KML as Google Earth writes it (lon,lat,alt triples, styles, MultiGeometry, a hole) and GeoJSON as QGIS
+    writes it (an OGC URN CRS, null properties)."""
+    from citylod.analysis.polygons import load_polygons
+
+    kml = tmp_path / "earth.kml"
+    kml.write_text("""<?xml version="1.0" encoding="UTF-8"?>
+<kml xmlns="http://www.opengis.net/kml/2.2" xmlns:gx="http://www.google.com/kml/ext/2.2">
+<Document><name>edits</name><Style id="s"><PolyStyle><color>7f00ff00</color></PolyStyle></Style>
+<Folder><Placemark><name>polder</name><styleUrl>#s</styleUrl>
+<ExtendedData><Data name="action"><value>displace</value></Data><Data name="height_m"><value>1.5</value></Data>
+</ExtendedData>
+<MultiGeometry><Polygon><outerBoundaryIs><LinearRing><coordinates>
+ 4.35,52.01,0 4.36,52.01,0 4.36,52.02,0 4.35,52.02,0 4.35,52.01,0
+</coordinates></LinearRing></outerBoundaryIs><innerBoundaryIs><LinearRing><coordinates>
+ 4.352,52.012,0 4.354,52.012,0 4.354,52.014,0 4.352,52.012,0</coordinates></LinearRing></innerBoundaryIs>
+</Polygon><Polygon><outerBoundaryIs><LinearRing><coordinates>4.37,52.01 4.38,52.01 4.38,52.02 4.37,52.01
+</coordinates></LinearRing></outerBoundaryIs></Polygon></MultiGeometry></Placemark></Folder></Document></kml>
+""")
+    layer = load_polygons(kml)
+    (p,) = layer.polygons
+    assert p.name == "polder" and p.action == "displace" and p.height_m == 1.5
+    assert p.geometry.geom_type == "MultiPolygon" and len(p.geometry.geoms[0].interiors) == 1
+    assert layer.crs.to_epsg() == 4326
+    gj = tmp_path / "qgis.geojson"
+    gj.write_text(json.dumps({
+        "type": "FeatureCollection", "name": "edits",
+        "crs": {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::28992"}},
+        "features": [{"type": "Feature", "properties": {"fid": 1, "action": None, "color": None},
+                      "geometry": {"type": "MultiPolygon", "coordinates": [[[[85000, 447500], [85010, 447500],
+                                                                              [85010, 447510], [85000, 447500]]]]}}]}))
+    g = load_polygons(gj)
+    assert g.crs.to_epsg() == 28992 and g.polygons[0].action == "recolor"
+    assert g.polygons[0].geometry.area == pytest.approx(50.0)

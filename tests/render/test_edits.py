@@ -153,3 +153,30 @@ def test_mesh_edits_discard_displace_and_tint(tmp_path: Path) -> None:
     rest = seen & ~cut & ~up & ~blue
     rest[seen] &= margin_ok(polys, xy, m + 6.0)
     np.testing.assert_array_equal(edited.rgb[rest], plain.rgb[rest])
+
+
+def test_texture_edit_drapes_the_image_over_the_polygon(points_tiles: Path, tmp_path: Path) -> None:
+    from citylod.io.image import encode_png
+
+    quad = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [255, 255, 0]]], np.uint8)  # row 0 = north
+    img = tmp_path / "checker.png"
+    img.write_bytes(encode_png(np.repeat(np.repeat(quad, 8, axis=0), 8, axis=1)))
+    x0, y0 = CORNER[0] + 60, CORNER[1] + 60
+    poly = shapely.box(x0, y0, x0 + 120, y0 + 120)
+    layer = PolygonLayer((EditPolygon(poly, "texture", texture=str(img)),), pyproj.CRS("EPSG:25832"))
+    cam = top_camera()
+    with OffscreenRenderer([points_tiles], size=SIZE, tau_px=0.5) as r:
+        PolygonEdits(r.scene, layer)
+        frame = r.render(cam, depth=True)
+    p = world(frame, cam)
+    hit = np.isfinite(p[..., 0])
+    xy = p[hit][:, :2]
+    ok = inside(poly, xy) & margin_ok((EditPolygon(poly),), xy, 3.0)
+    # quadrant of each point (independent of the edit's sampling): north-west red, north-east green, ...
+    east = xy[:, 0] > x0 + 60
+    north = xy[:, 1] > y0 + 60
+    mid = (np.abs(xy[:, 0] - (x0 + 60)) > 3.0) & (np.abs(xy[:, 1] - (y0 + 60)) > 3.0)
+    want = quad[np.where(north, 0, 1), np.where(east, 1, 0)]
+    use = ok & mid
+    assert use.sum() > 1000
+    assert (frame.rgb[hit][use] == want[use]).all(axis=1).mean() > 0.995
