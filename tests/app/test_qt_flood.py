@@ -15,7 +15,7 @@ import rasterio
 pytest.importorskip("PySide6")
 pytest.importorskip("pytestqt")
 
-from tests.app.test_qt import needs_display, qsettings, sample, window  # noqa: F401 (fixtures)
+from tests.app.test_qt import _rgb, _wait_resolved, needs_display, qsettings, sample, window  # noqa: F401
 
 pytestmark = [pytest.mark.gui, needs_display]
 
@@ -31,8 +31,17 @@ def test_flood_sliders_and_affected_buildings(qtbot, window, sample, tmp_path: P
     levels = [float(np.percentile(h, 30)), float(np.percentile(h, 60))]
     panel = window.flood
     window.docks["flood"].raise_()
+    _wait_resolved(qtbot, window)
+
+    def blue_share() -> float:
+        qtbot.wait(200)
+        img = _rgb(window.view.framebuffer()).astype(int)
+        return float(((img[..., 2] > img[..., 0] + 60) & (img[..., 2] > img[..., 1] + 20)).mean())
+
+    dry = blue_share()
     panel.load(sample["dsm"], FloodSources(edge=True), levels=levels, city=sample["store"])
     panel.wait()
+    assert blue_share() > dry + 0.02  # the water shows in the window
 
     # a real key press on the level slider raises the level by a page (10 steps of 5 cm)
     panel.level.setFocus()

@@ -37,9 +37,10 @@ _AFFECTED_RGB = "#ff4040"
 
 class FloodPanel(QWidget):
     """Flood scenario controls for a :class:`~citylod.app.models.Document`. ``updated(result)`` after a
-    full-resolution result is shown."""
+    full-resolution result is shown; ``render_requested`` when the view should draw again."""
 
     updated = Signal(object)
+    render_requested = Signal()
 
     def __init__(self, document: Any, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -180,7 +181,7 @@ class FloodPanel(QWidget):
             self.document.select([item.text()])
 
     def _request_render(self) -> None:
-        self.document._emit("style")
+        self.render_requested.emit()
 
     def wait(self, timeout_s: float = 30.0) -> FloodResult | None:
         """Block until the pending full-resolution result is shown (scripts and tests)."""

@@ -87,6 +87,7 @@ class MainWindow(QMainWindow):
         self.measure = MeasurePanel(self.start_measure, self.view.clear_measure)
         self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, self.settings)
         self.flood = FloodPanel(self.document)
+        self.flood.render_requested.connect(self.view.request_render)
         self.docks: dict[str, QDockWidget] = {}
         left, right = Qt.DockWidgetArea.LeftDockWidgetArea, Qt.DockWidgetArea.RightDockWidgetArea
         for name, title, widget, area in (
