@@ -297,6 +297,7 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path: Path, capsys) -> Non
     x, y = cell_xy(0, 0)
     assert "no-data" in _cli_error(capsys, ["flood", *base, "--level", "1", "--seed", f"{x},{y}"], out)
     assert "water source" in _cli_error(capsys, ["flood", *base, "--level", "1"], out)
+    assert "not a number" in _cli_error(capsys, ["flood", *base, "--levels", "1,nan", "--edge"], out)
     bowtie = shapely.Polygon([(X0, Y0), (X0 + 5, Y0 - 5), (X0 + 5, Y0), (X0, Y0 - 5)])
     gj = tmp_path / "bad.geojson"
     gj.write_text(json.dumps({"type": "FeatureCollection", "crs": {"type": "name", "properties": {"name": UTM}},

@@ -389,6 +389,9 @@ def flood_raster(raster: str | os.PathLike[str], levels: Sequence[float], out_di
     levels = [float(v) for v in levels]
     if not levels:
         raise InputError("give at least one water level", src.path)
+    bad = [lv for lv in levels if not math.isfinite(lv)]
+    if bad:
+        raise InputError(f"water level {bad[0]} is not a number", src.path)
     if not sources and not depressions:
         raise InputError("give a water source (a seed, a source polygon or the edge) or flag depressions",
                          src.path)
