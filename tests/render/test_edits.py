@@ -180,3 +180,28 @@ def test_texture_edit_drapes_the_image_over_the_polygon(points_tiles: Path, tmp_
     use = ok & mid
     assert use.sum() > 1000
     assert (frame.rgb[hit][use] == want[use]).all(axis=1).mean() > 0.995
+
+
+def test_render_command_applies_edits_and_refuses_bad_polygons(points_tiles: Path, tmp_path: Path, capsys) -> None:
+    import json
+
+    from citylod.analysis.polygons import save_polygons
+    from citylod.cli import main
+    from citylod.io.image import decode_image
+
+    top_camera().save(tmp_path / "cam.json")
+    gj = save_polygons(PolygonLayer(polygons(), pyproj.CRS("EPSG:25832")), tmp_path / "edits.geojson")
+    png = tmp_path / "edited.png"
+    args = ["-q", "render", str(points_tiles), "-o", str(png), "--camera", str(tmp_path / "cam.json"),
+            "--size", "160x160"]
+    assert main([*args, "--edits", str(gj)]) == 0
+    rgb = decode_image(png.read_bytes())
+    assert ((rgb == COLOURS[0]).all(axis=-1)).sum() > 20
+    bad = tmp_path / "bad.geojson"
+    bad.write_text(json.dumps({"type": "Feature", "properties": {"action": "recolor"}, "geometry": {
+        "type": "Polygon", "coordinates": [[[0, 0], [1, 1], [1, 0], [0, 1], [0, 0]]]}}))
+    out = tmp_path / "bad.png"
+    assert main([*args[:4], str(out), *args[5:], "--edits", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "bad.geojson" in err and "Self-intersection" in err and len(err.splitlines()) == 1
+    assert not out.exists()
