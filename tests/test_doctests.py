@@ -16,6 +16,9 @@ MODULES = [
     "citylod.lod.runtime.loader",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
+    "citylod.analysis.flood",
+    "citylod.analysis.polygons",
+    "citylod.lod.runtime.budget",
 ]
 
 
