@@ -10,12 +10,16 @@ import pytest
 MODULES = [
     "citylod",
     "citylod.io.image",
+    "citylod.io.tiles3d.colour",
     "citylod.io.tiles3d.tileset",
     "citylod.lod.runtime.selection",
     "citylod.lod.runtime.loader",
     "citylod.lod.build.model",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
+    "citylod.analysis.flood",
+    "citylod.analysis.polygons",
+    "citylod.lod.runtime.budget",
 ]
 
 

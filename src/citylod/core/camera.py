@@ -23,6 +23,8 @@ import numpy.typing as npt
 from citylod.core.errors import InputError
 from citylod.core.geometry import F64, Box, Sphere
 
+_COINCIDE_M = 1e-6  # position and focal point closer than this (CRS units, metres) are one point
+
 
 def screen_space_error(geometric_error: float, distance: float, height_px: int, fovy_rad: float) -> float:
     """The screen-space error in pixels of a tile seen at ``distance``.
@@ -50,7 +52,10 @@ class Camera:
         foc = np.asarray(self.focal_point, dtype=np.float64)
         if pos.shape != (3,) or foc.shape != (3,) or not (np.all(np.isfinite(pos)) and np.all(np.isfinite(foc))):
             raise ValueError("camera position and focal_point must be three finite numbers each")
-        if np.allclose(pos, foc):
+        # An absolute tolerance in CRS units (metres): np.allclose's relative one called a camera 40 m from its
+        # focal point "coincident" at UTM or ECEF coordinates. A micrometre is far above float64 resolution at
+        # ECEF magnitudes (≈1 nm), so the view direction of any accepted camera is well defined.
+        if float(np.linalg.norm(pos - foc)) <= _COINCIDE_M:
             raise ValueError("camera position and focal_point coincide")
         if not 0.0 < self.fovy_deg < 180.0:
             raise ValueError(f"fovy_deg must be in (0, 180), got {self.fovy_deg}")

@@ -372,6 +372,21 @@ class CityStore:
         return [(r[0], decode_geometry(r[1])) for r in self._conn.execute(
             f"SELECT fid, footprint FROM city_objects WHERE fid IN ({marks}) ORDER BY fid", fids)]
 
+    def footprints(self, bounds: tuple[float, float, float, float] | None = None, *,
+                   types: Sequence[str] = _BUILDING_TYPES[:1]) -> list[tuple[str, BaseGeometry]]:
+        """(object id, footprint) of the objects of ``types`` whose footprint box meets ``bounds``
+        (xmin, ymin, xmax, ymax in the store's CRS; None: all), in fid order, through the R-tree.
+
+        The default is whole buildings (``Building``), not their parts, whose footprints lie inside."""
+        if bounds is None:
+            fids = [r[0] for r in self._conn.execute("SELECT fid FROM city_objects ORDER BY fid")]
+        else:
+            fids = self._candidates(*bounds)
+        wanted = set(types)
+        kinds = dict(self._conn.execute("SELECT fid, type FROM city_objects"))
+        return [(self.ids[f - 1], g) for f, g in self._footprints([f for f in fids if kinds.get(f) in wanted])
+                if g is not None and not g.is_empty]
+
     def within_polygon(self, polygon_xy: npt.ArrayLike | BaseGeometry, *, predicate: str = "intersects") -> list[str]:
         """Objects whose footprint intersects (or, with ``predicate='within'``, lies within) a polygon.
 
