@@ -307,7 +307,22 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--share", type=float, default=0.9, help="share of a segment's points within 0.5 m to keep it")
     ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
+    ap.add_argument("--memory-cell", type=int,
+                    help="instead: build the model of the sample DSM with cells of this many samples in this process "
+                         "and print its peak resident memory")
     a = ap.parse_args(argv)
+    if a.memory_cell:
+        import resource
+
+        from citylod.lod.build.model import build_model
+
+        with tempfile.TemporaryDirectory() as tmp:
+            info = make_sample(tmp, size=a.size, seed=a.seed, spacing=a.spacing)
+            rep = build_model(info.files["dsm"], f"{tmp}/model", max_error=a.max_error, cell=a.memory_cell, workers=0,
+                              progress=False)
+        print(rep.summary())
+        print(f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+        return
     if a.delft:
         with tempfile.TemporaryDirectory() as tmp:
             print(delft(a.delft, tmp, progress=True))
