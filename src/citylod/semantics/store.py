@@ -31,7 +31,7 @@ import pyproj
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from citylod.core.errors import InputError
+from citylod.core.errors import GeoreferenceError, InputError
 from citylod.io.city import CityModel, read_city_model, to_metric
 from citylod.io.crs import horizontal_crs
 from citylod.io.gpkg import (
@@ -146,6 +146,10 @@ def build_city(citymodel: str | PathLike[str] | CityModel, out_gpkg: str | PathL
     if not np.isfinite(infl) or infl < 0:
         raise InputError(f"inflate must be a non-negative number of metres, got {inflate}")
     model = citymodel if isinstance(citymodel, CityModel) else read_city_model(citymodel, lod=lod)
+    if model.crs is None and crs is None:
+        # A store without a CRS cannot be linked to point clouds or placed on a map; guessing is worse.
+        raise GeoreferenceError("the file names no coordinate reference system (no srsName / referenceSystem); "
+                                "say which with --crs, e.g. --crs EPSG:25832", model.source)
     model = to_metric(model, crs)
     out = Path(out_gpkg)
     if out.parent and not out.parent.exists():

@@ -22,7 +22,7 @@ import numpy as np
 
 from citylod.core.errors import EmptyInputError, InputError
 from citylod.io.city.model import F64, CityModel, CityObject, Polygon, orient_outward, repair_polygon
-from citylod.io.crs import parse_crs
+from citylod.io.crs import crs_from_srs_name
 
 __all__ = ["read_citygml"]
 
@@ -398,17 +398,8 @@ def read_citygml(path: str | PathLike[str], *, lod: int = 2) -> CityModel:
         raise EmptyInputError("no city objects (no cityObjectMember)", p)
     crs = None
     if srs:
-        crs = parse_crs(_normalise_srs(srs[0]), str(p))
+        crs = crs_from_srs_name(srs[0], str(p))
         if len(srs) > 1:
             warnings.append(f"{p.name}: several srsName values {srs}; used {srs[0]}")
     return CityModel(objects, crs, str(p), warnings, version)
 
-
-def _normalise_srs(srs: str) -> str:
-    """'urn:ogc:def:crs,crs:EPSG::28992,crs:EPSG::5109' style compound URNs and http forms to 'EPSG:n[+m]'."""
-    codes = re.findall(r"EPSG(?:/\d+/|::?|/0/)(\d+)", srs, re.IGNORECASE)
-    if len(codes) == 1:
-        return f"EPSG:{codes[0]}"
-    if len(codes) == 2:
-        return f"EPSG:{codes[0]}+{codes[1]}"
-    return srs
