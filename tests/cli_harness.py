@@ -37,7 +37,7 @@ def run_cli(args: Sequence[str | Path], *, timeout_s: float = 60.0, cap_bytes: i
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
     r = subprocess.run([sys.executable, "-m", "citylod.cli", "-q", *map(str, args)], capture_output=True,
                        text=True, timeout=timeout_s, env=env, cwd=cwd,
-                       preexec_fn=lambda: _limits(cap_bytes))  # noqa: PLW1509 (no threads in the test process)
+                       preexec_fn=lambda: _limits(cap_bytes))
     return Result(r.returncode, r.stdout, r.stderr)
 
 
