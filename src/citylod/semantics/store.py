@@ -255,6 +255,11 @@ _ALLOWED_ACTIONS = {sqlite3.SQLITE_SELECT, sqlite3.SQLITE_READ, sqlite3.SQLITE_F
                     getattr(sqlite3, "SQLITE_RECURSIVE", 33)}
 
 
+#: Longest a WHERE clause may run (a recursive CTE can loop for ever) and longest value it may build.
+QUERY_TIME_LIMIT_S = 5.0
+QUERY_MAX_LENGTH = 64 << 20
+
+
 def _read_only_authorizer(action: int, *_: Any) -> int:
     return sqlite3.SQLITE_OK if action in _ALLOWED_ACTIONS else sqlite3.SQLITE_DENY
 
@@ -274,6 +279,8 @@ class CityStore:
         self.metadata: dict[str, str] = meta
         self.crs: pyproj.CRS | None = pyproj.CRS.from_wkt(meta["crs"]) if meta.get("crs") else None
         self.inflate = float(meta.get("inflate", DEFAULT_INFLATE_M))
+        self.query_time_limit_s = QUERY_TIME_LIMIT_S
+        conn.setlimit(sqlite3.SQLITE_LIMIT_LENGTH, QUERY_MAX_LENGTH)
         self.ids: list[str] = [r[0] for r in conn.execute("SELECT object_id FROM city_objects ORDER BY fid")]
 
     @classmethod
@@ -326,12 +333,21 @@ class CityStore:
         if ";" in where_sql:
             raise InputError(f"refused SQL: ';' is not allowed in a WHERE clause: {where_sql!r}", self.path)
         sql = f"SELECT object_id FROM city_objects WHERE ({where_sql}) ORDER BY fid"
+        deadline = time.monotonic() + self.query_time_limit_s
         self._conn.set_authorizer(_read_only_authorizer)
+        # SQLite calls the handler every 10k VM steps; a non-zero return interrupts the statement.
+        self._conn.set_progress_handler(lambda: int(time.monotonic() > deadline), 10_000)
         try:
             return [r[0] for r in self._conn.execute(sql, tuple(params))]
-        except (sqlite3.Error, ValueError) as exc:
-            raise InputError(f"bad query {where_sql!r}: {exc}", self.path) from exc
+        except sqlite3.OperationalError as exc:
+            if time.monotonic() > deadline:
+                raise InputError(f"query {where_sql[:200]!r} ran longer than {self.query_time_limit_s:g} s; "
+                                 "stopped", self.path) from exc
+            raise InputError(f"bad query {where_sql[:200]!r}: {exc}", self.path) from exc
+        except (sqlite3.Error, ValueError, OverflowError, MemoryError) as exc:
+            raise InputError(f"bad query {where_sql[:200]!r}: {exc}", self.path) from exc
         finally:
+            self._conn.set_progress_handler(None, 0)
             self._conn.set_authorizer(None)
 
     def attributes(self, object_id: str) -> dict[str, Any]:
