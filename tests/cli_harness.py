@@ -50,3 +50,40 @@ def assert_clean_refusal(r: Result, name: str, *leftover_dirs: Path) -> None:
         if d.exists():
             junk = [p.name for p in d.iterdir() if p.name.endswith((".partial", ".tmp")) or ".tmp" in p.name]
             assert not junk, junk
+
+
+_BATCH = r"""
+import contextlib, io, json, sys, traceback
+from citylod.cli import main
+out = []
+for argv in json.loads(sys.stdin.read()):
+    err, std = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(std):
+        try:
+            rc = main(argv)
+        except SystemExit as exc:
+            rc = exc.code
+        except BaseException:
+            traceback.print_exc()
+            rc = "exception"
+    out.append([rc, std.getvalue(), err.getvalue()])
+sys.stdout.write(json.dumps(out))
+"""
+
+
+def run_cli_batch(argvs: Sequence[Sequence[str | Path]], *, timeout_s: float = 120.0,
+                  cap_bytes: int = RSS_CAP_BYTES) -> list[Result]:
+    """Several ``citylod`` command lines through its ``main()``, one after the other in one subprocess.
+
+    The same path as :func:`run_cli` (argument parsing, the command, the error handling of ``main``) without
+    paying the interpreter's start-up per case; the time-out and memory cap hold for the whole batch.
+    """
+    import json
+
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
+    payload = json.dumps([["-q", *map(str, a)] for a in argvs])
+    r = subprocess.run([sys.executable, "-c", _BATCH], input=payload, capture_output=True, text=True,
+                       timeout=timeout_s, env=env, preexec_fn=lambda: _limits(cap_bytes))
+    assert r.returncode == 0, r.stderr[-3000:]
+    return [Result(rc if isinstance(rc, int) else -999, so, se) for rc, so, se in json.loads(r.stdout)]

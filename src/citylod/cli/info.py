@@ -70,6 +70,9 @@ def _describe_raster(p: Path) -> str:
 def _describe_las(p: Path) -> str:
     import laspy
 
+    from citylod.io.las import check_header
+
+    check_header(p)
     try:
         with laspy.open(p) as f:
             h = f.header

@@ -14,6 +14,7 @@ or ``read_points``), import anything heavier than laspy, or touch VTK / Qt.
 from __future__ import annotations
 
 import os
+import struct
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -118,6 +119,47 @@ def supports(path: str | PathLike[str]) -> bool:
         return False
 
 
+# Public header fields (LAS 1.0-1.4, little endian) that say how much follows, read before laspy is: laspy
+# reads as many VLR headers as the count says, past the end of the file, so a 260-byte file claiming 4e9
+# VLRs keeps it busy for ever and growing. Each VLR header is 54 bytes, each extended VLR header 60.
+_HEADER_MIN = 227
+_VLR_HEADER_BYTES = 54
+_EVLR_HEADER_BYTES = 60
+
+
+def check_header(path: str | PathLike[str]) -> None:
+    """Refuse a LAS/LAZ header whose record counts cannot fit in the file, before laspy reads it.
+
+    Raises
+    ------
+    InputError
+        Missing file, no ``LASF`` signature, a header shorter than LAS 1.0's, or more (extended) variable
+        length records than the file has bytes for.
+    """
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        with open(p, "rb") as fh:
+            head = fh.read(375)
+    except FileNotFoundError:
+        raise InputError("no such file", p) from None
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror})", p) from exc
+    if head[:4] != b"LASF":
+        raise InputError("not a LAS/LAZ file (no LASF signature)", p)
+    if len(head) < _HEADER_MIN:
+        raise InputError(f"LAS header is cut short ({len(head)} bytes)", p)
+    header_size, point_offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+    if n_vlrs * _VLR_HEADER_BYTES > size or point_offset > size or header_size > size:
+        raise InputError(f"LAS header claims {n_vlrs:,} variable length records and point data at byte "
+                         f"{point_offset:,}, but the file has {size:,} bytes", p)
+    if head[24:26] >= b"\x01\x04" and len(head) >= 247:
+        evlr_start, n_evlrs = struct.unpack_from("<QI", head, 235)
+        if n_evlrs and (evlr_start > size or n_evlrs * _EVLR_HEADER_BYTES > size - min(evlr_start, size)):
+            raise InputError(f"LAS header claims {n_evlrs:,} extended records at byte {evlr_start:,}, but the "
+                             f"file has {size:,} bytes", p)
+
+
 def _laspy_errors() -> tuple[type[BaseException], ...]:
     # laspy wraps most failures in LaspyException, but lazrs raises its own error type, and a stream that
     # ends early surfaces as ValueError / EOFError / OSError from numpy or the decompressor.
@@ -144,6 +186,7 @@ def read_info(path: str | PathLike[str]) -> LasInfo:
     import laspy
 
     p = Path(path)
+    check_header(p)
     try:
         with laspy.open(p) as reader:
             h = reader.header
@@ -280,6 +323,7 @@ def iter_points(path: str | PathLike[str], *, start: int = 0, count: int | None 
     import laspy
 
     p = Path(path)
+    check_header(p)
     errors = _laspy_errors()
     got = 0
     try:

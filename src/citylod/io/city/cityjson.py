@@ -110,8 +110,11 @@ def _ring(indices: Any, verts: np.ndarray) -> np.ndarray | None:
         raise _Bad("a ring is not a flat array of vertex indices") from None
     if idx.ndim != 1 or (idx.size and idx.dtype.kind not in "iu"):
         raise _Bad(f"vertex indices must be integers, got {indices[:4]!r}")
-    # Negative indices are not CityJSON; numpy would silently read them from the end of the list.
-    if idx.size and (int(idx.min()) < 0 or int(idx.max()) >= len(verts)):
+    # Negative indices are not CityJSON (numpy would silently read them from the end of the list); an index
+    # past the end is a defect of the vertex list, left to the caller to report.
+    if idx.size and int(idx.min()) < 0:
+        raise _Bad(f"negative vertex index {int(idx.min())}")
+    if idx.size and int(idx.max()) >= len(verts):
         return None
     return verts[idx.astype(np.int64)]
 
