@@ -87,3 +87,43 @@ def run_cli_batch(argvs: Sequence[Sequence[str | Path]], *, timeout_s: float = 1
                        timeout=timeout_s, env=env, preexec_fn=lambda: _limits(cap_bytes))
     assert r.returncode == 0, r.stderr[-3000:]
     return [Result(rc if isinstance(rc, int) else -999, so, se) for rc, so, se in json.loads(r.stdout)]
+
+
+def start_cli(args: Sequence[str | Path], *, cap_bytes: int = RSS_CAP_BYTES) -> subprocess.Popen[bytes]:
+    """``citylod ARGS`` started in a subprocess (same limits as :func:`run_cli`), for tests that signal it."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), env.get("PYTHONPATH", "")])
+    return subprocess.Popen([sys.executable, "-m", "citylod.cli", "-q", *map(str, args)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            preexec_fn=lambda: _limits(cap_bytes))
+
+
+def descendants(pid: int) -> set[int]:
+    """Live descendants of ``pid`` (from /proc; zombies count as gone)."""
+    parent_of: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[0] != "Z":
+            parent_of[int(stat.parent.name)] = int(fields[1])
+    found: set[int] = set()
+    frontier = {pid}
+    while frontier:
+        frontier = {c for c, p in parent_of.items() if p in frontier} - found
+        found |= frontier
+    return found
+
+
+def alive(pids: set[int]) -> set[int]:
+    """Those of ``pids`` that still run (not gone, not zombies)."""
+    out = set()
+    for pid in pids:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            continue
+        if state != "Z":
+            out.add(pid)
+    return out
