@@ -399,7 +399,8 @@ def _finish_object(fid: str, ftype: str, attrs: dict[str, Any], col: _Collector,
         chosen = max(lower) if lower else min(avail)
     notes = list(col.notes)
     polys, sems = _repaired(col.by_lod.get(chosen, []), notes)
-    openings = col.opening_by_lod.get(chosen, [])
+    # Openings a solid already names (by xlink) are in the shell; the others are candidates.
+    openings = [o for o in col.opening_by_lod.get(chosen, []) if o[2] is None or col.walked.get(o[2]) != chosen]
     if polys and openings and chosen in col.solid_lods and open_edge_count(polys):
         # Walls with holes for their windows close only with the windows in them; windows drawn over walls
         # without holes would open a closed shell, so they join only where they close it.
