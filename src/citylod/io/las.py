@@ -153,11 +153,36 @@ def check_header(path: str | PathLike[str]) -> None:
     if n_vlrs * _VLR_HEADER_BYTES > size or point_offset > size or header_size > size:
         raise InputError(f"LAS header claims {n_vlrs:,} variable length records and point data at byte "
                          f"{point_offset:,}, but the file has {size:,} bytes", p)
-    if head[24:26] >= b"\x01\x04" and len(head) >= 247:
-        evlr_start, n_evlrs = struct.unpack_from("<QI", head, 235)
+    n_points = struct.unpack_from("<I", head, 107)[0]
+    if head[24:26] >= b"\x01\x04" and len(head) >= 255:
+        evlr_start, n_evlrs, n_points64 = struct.unpack_from("<QIQ", head, 235)
+        n_points = n_points64 or n_points
         if n_evlrs and (evlr_start > size or n_evlrs * _EVLR_HEADER_BYTES > size - min(evlr_start, size)):
             raise InputError(f"LAS header claims {n_evlrs:,} extended records at byte {evlr_start:,}, but the "
                              f"file has {size:,} bytes", p)
+    if head[104] & 0x80 and n_points:  # LAZ: bit 7 of the point format marks compressed points
+        _check_chunk_table(p, point_offset, size, n_points)
+
+
+def _check_chunk_table(p: Path, point_offset: int, size: int, n_points: int) -> None:
+    """Refuse a LAZ chunk table that cannot be right; lazrs allocates 16 bytes per chunk the table claims
+    before reading it, and aborts the process (no exception) when that allocation fails."""
+    with open(p, "rb") as fh:
+        fh.seek(point_offset)
+        raw = fh.read(8)
+        if len(raw) < 8:
+            raise InputError("LAZ point data is cut short", p)
+        table = struct.unpack("<q", raw)[0]
+        if table == -1:  # written by a streaming writer that never came back to fill it in: no table
+            return
+        if not point_offset + 8 <= table <= size - 8:
+            raise InputError(f"LAZ chunk table offset {table:,} lies outside the file ({size:,} bytes)", p)
+        fh.seek(table)
+        version, n_chunks = struct.unpack("<II", fh.read(8))
+    # Each chunk holds at least one point and takes at least a byte of the file.
+    if version != 0 or n_chunks > min(n_points, size):
+        raise InputError(f"LAZ chunk table is corrupt (version {version}, {n_chunks:,} chunks for {n_points:,} "
+                         "points)", p)
 
 
 def _laspy_errors() -> tuple[type[BaseException], ...]:

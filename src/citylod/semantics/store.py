@@ -260,7 +260,14 @@ QUERY_TIME_LIMIT_S = 5.0
 QUERY_MAX_LENGTH = 64 << 20
 
 
-def _read_only_authorizer(action: int, *_: Any) -> int:
+# Functions that can run for long inside one call, where the progress handler cannot stop them:
+# printf('%.*c', 2000000000, 'x') loops 2e9 times (25 s) even after the length limit made its result NULL.
+_DENIED_FUNCTIONS = {"printf", "format", "load_extension"}
+
+
+def _read_only_authorizer(action: int, arg1: Any = None, arg2: Any = None, *_: Any) -> int:
+    if action == sqlite3.SQLITE_FUNCTION and str(arg2).lower() in _DENIED_FUNCTIONS:
+        return sqlite3.SQLITE_DENY
     return sqlite3.SQLITE_OK if action in _ALLOWED_ACTIONS else sqlite3.SQLITE_DENY
 
 
