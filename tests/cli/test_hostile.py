@@ -9,16 +9,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import laspy
 import numpy as np
-import pyproj
 import pytest
 
 from citylod.bench.synthetic import make_terrain_tileset
 from citylod.core.camera import Camera
 from tests.cli_harness import Result, assert_clean_refusal, run_cli, run_cli_batch
-
-CORNER = (500000.0, 5400000.0, 0.0)
+from tests.inputs import CORNER, write_las
 
 
 def cube_cityjson() -> dict:
@@ -231,17 +228,7 @@ def test_render_highlight_with_recursive_cte_stops(tmp_path: Path, terrain: tupl
 # --- point clouds ---------------------------------------------------------------------------------------
 
 def _las(path: Path, n: int) -> Path:
-    rng = np.random.default_rng(1)
-    header = laspy.LasHeader(point_format=1, version="1.4")
-    header.offsets = np.array(CORNER)
-    header.scales = np.array([0.01, 0.01, 0.01])
-    header.add_crs(pyproj.CRS.from_epsg(25832))
-    las = laspy.LasData(header)
-    las.x = CORNER[0] + 495 + rng.uniform(0, 20, n)
-    las.y = CORNER[1] + 495 + rng.uniform(0, 20, n)
-    las.z = rng.uniform(0, 12, n)
-    las.write(path)
-    return path
+    return write_las(path, n, x0=CORNER[0] + 495, y0=CORNER[1] + 495)
 
 
 def test_broken_point_clouds_are_refused_by_link_and_build(tmp_path: Path) -> None:

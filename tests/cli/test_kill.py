@@ -14,12 +14,11 @@ import sys
 import time
 from pathlib import Path
 
-import laspy
 import numpy as np
-import pyproj
 import pytest
 
 from tests.cli_harness import alive, descendants, run_cli, start_cli
+from tests.inputs import write_las
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")]
@@ -43,17 +42,8 @@ def _raster(path: Path, n: int = 513) -> Path:
 
 
 def _cloud(path: Path, n: int = 300_000) -> Path:
-    rng = np.random.default_rng(1)
-    h = laspy.LasHeader(point_format=1, version="1.4")
-    h.offsets = np.array([500000.0, 5400000.0, 0.0])
-    h.scales = np.array([0.01, 0.01, 0.01])
-    h.add_crs(pyproj.CRS.from_epsg(25832))
-    las = laspy.LasData(h)
-    las.x = 500000 + rng.uniform(0, 300, n)
-    las.y = 5400000 + rng.uniform(0, 300, n)
-    las.z = 10 * np.sin(np.asarray(las.x) / 20) + rng.normal(0, 0.05, n)
-    las.write(path)
-    return path
+    noise = np.random.default_rng(1).normal(0, 0.05, n)
+    return write_las(path, n, extent=300.0, z=lambda x: 10 * np.sin(x / 20) + noise)
 
 
 def _kill_and_watch(args: list, delay_s: float) -> tuple[int, float]:

@@ -21,13 +21,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-import laspy
 import numpy as np
-import pyproj
 import pytest
 
 from citylod.core.camera import Camera, load_cameras
 from citylod.core.errors import CitylodError
+from tests.inputs import write_las
 
 # Cases per reader: 25 in CI (the whole file runs in a few seconds); set CITYLOD_FUZZ_CASES for a deeper run.
 CASES = int(os.environ.get("CITYLOD_FUZZ_CASES", "25"))
@@ -304,18 +303,7 @@ def test_fuzz_tile_content(tmp_path: Path, terrain: Path) -> None:
 
 
 def _las_bytes(tmp: Path, suffix: str) -> bytes:
-    rng = np.random.default_rng(2)
-    h = laspy.LasHeader(point_format=3, version="1.4")
-    h.offsets = np.array([500000.0, 5400000.0, 0.0])
-    h.scales = np.array([0.01, 0.01, 0.01])
-    h.add_crs(pyproj.CRS.from_epsg(25832))
-    las = laspy.LasData(h)
-    las.x = 500000 + rng.uniform(0, 50, 300)
-    las.y = 5400000 + rng.uniform(0, 50, 300)
-    las.z = rng.uniform(0, 10, 300)
-    p = tmp / f"seed{suffix}"
-    las.write(p)
-    return p.read_bytes()
+    return write_las(tmp / f"seed{suffix}", 300, extent=50.0, point_format=3, seed=2).read_bytes()
 
 
 @pytest.mark.parametrize("suffix", [".las", ".laz"])
