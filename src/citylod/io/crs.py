@@ -76,6 +76,13 @@ def crs_from_srs_name(name: Any, source: str | None = None) -> pyproj.CRS:
     ------
     GeoreferenceError
         The name is not a CRS pyproj knows, or it names only a vertical CRS (positions could not be placed).
+
+    Examples
+    --------
+    >>> crs_from_srs_name("urn:ogc:def:crs:EPSG:6.12:25833").to_epsg()
+    25833
+    >>> crs_from_srs_name("urn:adv:crs:ETRS89_UTM32*DE_DHHN2016_NH").name
+    'ETRS89 / UTM zone 32N + DHHN2016 height'
     """
     text = str(name).strip()
     if len(text) > 4096:
