@@ -199,3 +199,27 @@ def test_windows_close_walls_with_holes_only(tmp_path: Path) -> None:
     p.write_text(doc([]))
     m = read_citygml(p, lod=3)
     assert "Window" not in m.objects[0].semantics and not m.warnings, m.warnings
+
+
+def test_citygml3_samples_count_crs_and_missing_srsname(tmp_path: Path) -> None:
+    ade = DATA / "citygml4j" / "test_ade_objects_v3.gml"
+    model = read_citygml(ade)
+    tree = etree.parse(str(ade))
+    members = tree.xpath("/*/*[local-name()='cityObjectMember']/*")
+    parts = tree.xpath("/*/*[local-name()='cityObjectMember']//*[local-name()='buildingPart']/*")
+    assert len(model.objects) == len(members) + len(parts) and model.version == "CityGML 3.0"
+    assert model.crs.sub_crs_list[0].equals(pyproj.CRS.from_epsg(25832))
+    assert model.crs.sub_crs_list[1].equals(pyproj.CRS.from_epsg(5783))
+    # A real file that names no CRS: build city says so in one line and asks for --crs; info describes it.
+    bare = DATA / "citygml4j" / "invalid_building_v3.gml"
+    assert not etree.parse(str(bare)).xpath("//@srsName")
+    out = tmp_path / "b.gpkg"
+    r = run_cli(["build", "city", bare, "-o", out])
+    assert r.returncode == 2 and "invalid_building_v3.gml" in r.stderr and "--crs" in r.stderr
+    assert r.stderr.count("\n") == 1 and not out.exists()
+    assert run_cli(["info", bare]).returncode == 0
+    r = run_cli(["build", "city", bare, "-o", out, "--crs", "EPSG:25832"])
+    assert r.returncode == 0 and out.exists(), r.stderr
+    r = run_cli(["info", out])
+    n = len(etree.parse(str(bare)).xpath("/*/*[local-name()='cityObjectMember']/*"))
+    assert r.returncode == 0 and f"{n} objects" in r.stdout and "UTM zone 32N" in r.stdout, r.stdout + r.stderr
