@@ -223,3 +223,20 @@ def test_citygml3_samples_count_crs_and_missing_srsname(tmp_path: Path) -> None:
     r = run_cli(["info", out])
     n = len(etree.parse(str(bare)).xpath("/*/*[local-name()='cityObjectMember']/*"))
     assert r.returncode == 0 and f"{n} objects" in r.stdout and "UTM zone 32N" in r.stdout, r.stdout + r.stderr
+
+
+def test_versioned_compound_urn_of_a_real_file() -> None:
+    # citygml4j's lod2_buildings_v3.gml: "EPSG:6.12:3068" was read as EPSG:6 and the build stopped.
+    path = DATA / "citygml4j" / "lod2_buildings_v3_excerpt.gml"
+    model = read_citygml(path)
+    tree = etree.parse(str(path))
+    assert tree.xpath("//@srsName")[0] == "urn:ogc:def:crs,crs:EPSG:6.12:3068,crs:EPSG:6.12:5783"
+    assert model.crs.sub_crs_list[0].equals(pyproj.CRS.from_epsg(3068))
+    assert model.crs.sub_crs_list[1].equals(pyproj.CRS.from_epsg(5783))
+    members = tree.xpath("/*/*[local-name()='cityObjectMember']/*")
+    assert [o.id for o in model.objects] == [m.get("{http://www.opengis.net/gml/3.2}id") for m in members]
+    # Every polygon, once, with the same vertices.
+    xyz = [np.array(p.text.split(), float).reshape(-1, 3) for p in tree.xpath("//*[local-name()='posList']")]
+    assert sum(len(o.surfaces) for o in model.objects) == len(xyz)
+    got = np.unique(np.round(np.concatenate([o.points() for o in model.objects]), 6), axis=0)
+    assert np.array_equal(got, np.unique(np.round(np.concatenate(xyz), 6), axis=0))
