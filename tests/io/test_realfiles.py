@@ -195,6 +195,14 @@ def test_windows_close_walls_with_holes_only(tmp_path: Path) -> None:
     p.write_text(doc([hole]))
     m = read_citygml(p, lod=3)
     assert m.objects[0].semantics.count("Window") == 1 and not m.warnings, m.warnings
+    # The same window named by xlink from a second wall (as exporters write a window shared by two
+    # surfaces) is still one window.
+    text = doc([hole]).replace("</bldg:lod3MultiSurface></bldg:WallSurface>",
+                               '</bldg:lod3MultiSurface><bldg:opening xlink:href="#W"/></bldg:WallSurface>', 1)
+    assert 'xlink:href="#W"' in text
+    p.write_text(text)
+    m = read_citygml(p, lod=3)
+    assert m.objects[0].semantics.count("Window") == 1 and not m.warnings, m.warnings
     # Control: a window drawn over a wall without a hole stays out (the shell is closed without it).
     p.write_text(doc([]))
     m = read_citygml(p, lod=3)

@@ -372,8 +372,9 @@ def _resolve_xlinks(col: _Collector, index: dict[str, Any], dim: int) -> None:
         sub = _Collector()
         _geometry_walk(elem, dim, sub, opening=True)
         for level, polys in sub.opening_by_lod.items():
-            col.opening_by_lod.setdefault(level, []).extend(
-                (rings, s or _local(elem.tag), gid) for rings, s, gid in polys)
+            have = col.opening_by_lod.setdefault(level, [])
+            known = {gid for _, _, gid in have if gid}  # the same window inline in another wall
+            have.extend((rings, s or _local(elem.tag), gid) for rings, s, gid in polys if gid is None or gid not in known)
 
 
 def _repaired(collected: list[_Collected], notes: list[str]) -> tuple[list[Polygon], list[str | None]]:
