@@ -9,6 +9,7 @@ import pytest
 
 MODULES = [
     "citylod",
+    "citylod.io.crs",
     "citylod.io.image",
     "citylod.io.tiles3d.colour",
     "citylod.io.tiles3d.tileset",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import warnings
 from typing import Any
 
@@ -30,6 +31,84 @@ def parse_crs(value: Any, source: str | None = None) -> pyproj.CRS:
         return pyproj.CRS.from_user_input(value)
     except (pyproj.exceptions.CRSError, TypeError) as exc:
         raise GeoreferenceError(f"not a coordinate reference system: {value!r} ({exc})", source) from exc
+
+
+# EPSG codes in the forms found in city model files: "EPSG:n", "urn:ogc:def:crs:EPSG::n", versioned
+# "urn:ogc:def:crs:EPSG:6.12:n", "http(s)://www.opengis.net/def/crs/EPSG/0/n", ".../epsg.xml#n"; the version
+# group must be consumed whole, or "EPSG:6.12:25833" reads as EPSG:6.
+_EPSG_CODE = re.compile(r"EPSG(?::[0-9.]*:|/[0-9.]+/|\.xml#|:)([0-9]{1,6})(?![0-9.])", re.IGNORECASE)
+_CRS84 = re.compile(r"(?:OGC:[0-9.]*:|OGC/[0-9.]+/)CRS84\b", re.IGNORECASE)
+
+# AdV (German surveying authorities) CRS names used in ALKIS/CityGML: "urn:adv:crs:HORIZONTAL*VERTICAL[*...]".
+_ADV_HORIZONTAL: dict[str, int] = {
+    "ETRS89_UTM31": 25831, "ETRS89_UTM32": 25832, "ETRS89_UTM33": 25833,
+    "DE_DHDN_3GK2": 31466, "DE_DHDN_3GK3": 31467, "DE_DHDN_3GK4": 31468, "DE_DHDN_3GK5": 31469,
+    "ETRS89_LAT-LON": 4258, "DE_DHDN_LAT-LON": 4314,
+}
+_ADV_VERTICAL: dict[str, int] = {
+    "DE_DHHN2016_NH": 7837, "DE_DHHN92_NH": 5783, "DE_DHHN85_NOH": 5784, "DE_SNN76_NH": 5785,
+}
+
+
+def _adv_codes(name: str) -> list[int] | None:
+    """EPSG codes (horizontal, then vertical if known) of an AdV URN; None when ``name`` is not one."""
+    m = re.match(r"\s*urn:adv:crs:([^\s]+)", name, re.IGNORECASE)
+    if m is None:
+        return None
+    parts = m.group(1).upper().split("*")
+    # Regional variants carry a suffix ("DE_DHDN_3GK3_BW100", "ETRS89_UTM32_HE"): match the longest known prefix.
+    horiz = next((code for key, code in sorted(_ADV_HORIZONTAL.items(), key=lambda kv: -len(kv[0]))
+                  if parts[0].startswith(key)), None)
+    if horiz is None:
+        return []
+    vert = _ADV_VERTICAL.get(parts[1]) if len(parts) > 1 else None
+    return [horiz] if vert is None else [horiz, vert]
+
+
+def crs_from_srs_name(name: Any, source: str | None = None) -> pyproj.CRS:
+    """The CRS named by a city model file (CityGML ``srsName``, CityJSON ``referenceSystem``).
+
+    Understands EPSG codes in all the URN and URL spellings found in published files, versioned or not
+    (``urn:ogc:def:crs:EPSG:6.12:25833``), compound URNs and URLs (``urn:ogc:def:crs,crs:EPSG::28992,crs:EPSG::5709``
+    is the compound RD New + NAP height, not its last part), OGC CRS84 and the AdV names of German
+    surveying data (``urn:adv:crs:ETRS89_UTM32*DE_DHHN2016_NH`` is EPSG:25832 + EPSG:7837). Other names go
+    to pyproj as they are.
+
+    Raises
+    ------
+    GeoreferenceError
+        The name is not a CRS pyproj knows, or it names only a vertical CRS (positions could not be placed).
+
+    Examples
+    --------
+    >>> crs_from_srs_name("urn:ogc:def:crs:EPSG:6.12:25833").to_epsg()
+    25833
+    >>> crs_from_srs_name("urn:adv:crs:ETRS89_UTM32*DE_DHHN2016_NH").name
+    'ETRS89 / UTM zone 32N + DHHN2016 height'
+    """
+    text = str(name).strip()
+    if len(text) > 4096:
+        raise GeoreferenceError(f"not a coordinate reference system name ({len(text)} characters)", source)
+    adv = _adv_codes(text)
+    if adv is not None:
+        if not adv:
+            raise GeoreferenceError(f"unknown AdV coordinate reference system {text!r}", source)
+        codes = [str(c) for c in adv]
+    else:
+        codes = _EPSG_CODE.findall(text)
+    if len(codes) > 2:
+        raise GeoreferenceError(f"{text!r} names {len(codes)} coordinate reference systems, expected at most 2",
+                                source)
+    if codes:
+        crs = parse_crs("EPSG:" + "+".join(codes), source)
+    elif _CRS84.search(text):
+        crs = pyproj.CRS.from_user_input("OGC:CRS84")
+    else:
+        crs = parse_crs(text, source)
+    if crs.is_vertical and not crs.is_compound:
+        raise GeoreferenceError(f"{text!r} names only a vertical CRS ({crs.name}); positions need a horizontal "
+                                "one", source)
+    return crs
 
 
 def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:

@@ -288,13 +288,14 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
             if water is not None and series and i > 0:
                 water.load_level(args.flood, i)
             frame = r.render(cam, depth=args.depth is not None)
+            if r.scene.loader.failed:
+                # A picture with tiles missing looks plausible and is wrong: refuse it rather than warn.
+                key, msg = next(iter(r.scene.loader.failed.items()))
+                raise InputError(f"tile {key} could not be drawn: {msg}")
             save_png(frame_path(out, i, n), frame.rgb)
             if args.depth is not None and frame.depth is not None:
                 _save_npy(frame_path(Path(args.depth), i, n), frame.depth)
             last = frame.stats
-        failed = r.scene.loader.failed
-    for key, msg in failed.items():
-        print(f"citylod: warning: tile {key} skipped: {msg}")
     if last is not None:
         where = out if n == 1 else out.with_name(f"{out.stem}_NNNN{out.suffix}")
         print(f"{where}: {n} frame(s), last: {last.tiles} tiles, {last.triangles} triangles, "

@@ -156,6 +156,8 @@ def safe_resolve(base_dir: Path, uri: str, root_dir: Path, source: str) -> Path:
     if parsed.scheme or parsed.netloc:
         raise UnsafePathError(f"content URI {uri!r} is a URL; only files inside the tileset folder are read", source)
     rel = urllib.parse.unquote(parsed.path)
+    if "\x00" in rel:
+        raise UnsafePathError(f"content URI {uri!r} holds a NUL byte", source)
     if not rel or rel.startswith(("/", "\\")) or (len(rel) > 1 and rel[1] == ":"):
         raise UnsafePathError(f"content URI {uri!r} is an absolute path", source)
     target = (base_dir / rel).resolve()
@@ -320,8 +322,23 @@ class Tile:
         )
 
 
+# Limits on what a tileset may make citylod build, so that a small hostile file cannot exhaust memory or time:
+# deep nesting, a chain of external tilesets each referenced many times (8 children pointing at the next file,
+# nine files deep, are 8^9 tiles), self references. Real tilesets stay far below them: a quadtree of 64
+# levels already resolves 1 mm on the Earth, and a file referenced from more than a few places is unusual.
+MAX_TILES = 2_000_000
+MAX_LEVELS = 64
+MAX_EXTERNAL_LOADS = 10_000
+MAX_LOADS_PER_EXTERNAL = 64
+
+
 class Tileset:
-    """An opened 3D Tiles tileset (see :func:`open_tileset`)."""
+    """An opened 3D Tiles tileset (see :func:`open_tileset`).
+
+    Opening builds every tile of the tree (external tilesets spliced in) under the limits :data:`MAX_TILES`,
+    :data:`MAX_LEVELS`, :data:`MAX_EXTERNAL_LOADS` and :data:`MAX_LOADS_PER_EXTERNAL`; a tileset that refers
+    to itself, directly or through others, is refused.
+    """
 
     def __init__(self, path: Path, doc: dict[str, Any]) -> None:
         self.path = path
@@ -345,18 +362,27 @@ class Tileset:
             self.origin = np.zeros(3)
             self._crs_from_world = np.eye(4)
         self.kind = str(self.citylod.get("kind", "unknown"))
-        self.root = self._build(root_json, root_m, None, "0", 0, self.folder, str(path), depth=0)
+        self.root = self._build(root_json, root_m, None, "0", 0, self.folder, str(path))
 
     def _build(self, tj: dict[str, Any], world: F64, parent: Tile | None, key: str, level: int,
-               base: Path, source: str, depth: int) -> Tile:
-        # Explicit stack over the JSON tree (tilesets can be deep); external tilesets are spliced in.
+               base: Path, source: str) -> Tile:
+        # Explicit stack over the JSON tree (tilesets can be deep); external tilesets are spliced in. Each
+        # entry carries the chain of tileset files above it, to name a cycle.
         root_tile: Tile | None = None
-        stack: list[tuple[dict[str, Any], F64, Tile | None, str, int, Path, str, int]] = [
-            (tj, world, parent, key, level, base, source, depth)]
+        chain0 = (str(self.path),)
+        stack: list[tuple[dict[str, Any], F64, Tile | None, str, int, Path, str, tuple[str, ...]]] = [
+            (tj, world, parent, key, level, base, source, chain0)]
+        tiles = external_loads = 0
+        loads: dict[str, int] = {}
         while stack:
-            tj, world, parent, key, level, base, source, depth = stack.pop()
+            tj, world, parent, key, level, base, source, chain = stack.pop()
+            tiles += 1
+            if tiles > MAX_TILES:
+                raise InputError(f"more than {MAX_TILES:,} tiles; refused as a likely hostile tileset", source)
+            if level > MAX_LEVELS:
+                raise InputError(f"tiles nest deeper than {MAX_LEVELS} levels; refused", source)
             if not isinstance(tj, dict) or "boundingVolume" not in tj or "geometricError" not in tj:
-                raise InputError(f"tile {key} lacks boundingVolume or geometricError", source)
+                raise InputError(f"tile {key[:80]} lacks boundingVolume or geometricError", source)
             if "implicitTiling" in tj or "3DTILES_implicit_tiling" in tj.get("extensions", {}):
                 tj = expand_implicit(tj, _reader(base, self.folder, source), source)
             matrix = self._crs_from_world @ world
@@ -374,15 +400,26 @@ class Tileset:
             children_json = list(tj.get("children", []))
             for content in _contents(tj):
                 curi = content.get("uri", content.get("url")) if isinstance(content, dict) else None
+                if curi is not None and not isinstance(curi, str):
+                    raise InputError(f"tile {key[:80]} has a content URI that is not a string", source)
                 if not curi:
                     continue
                 if curi.lower().split("?")[0].endswith(".json"):
                     ext_path = safe_resolve(base, curi, self.folder, source)
-                    if depth > 32:
-                        raise InputError("external tilesets nest deeper than 32 levels", source)
+                    external = str(ext_path)
+                    if external in chain:
+                        raise InputError(f"tileset refers to itself through {curi!r} (a cycle of external "
+                                         f"tilesets: {' -> '.join(Path(c).name for c in chain)} -> {ext_path.name})",
+                                         source)
+                    loads[external] = loads.get(external, 0) + 1
+                    external_loads += 1
+                    if loads[external] > MAX_LOADS_PER_EXTERNAL or external_loads > MAX_EXTERNAL_LOADS:
+                        raise InputError(f"external tileset {curi!r} is referenced {loads[external]} times "
+                                         f"({external_loads} external loads in all); refused as a likely hostile "
+                                         "tileset", source)
                     ext = _read_json(ext_path)
                     children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
-                                                        "_external_source": str(ext_path)})
+                                                        "_external_source": external})
                 else:
                     uri = uri or curi
                     cpaths.append(safe_resolve(base, curi, self.folder, source))
@@ -402,7 +439,8 @@ class Tileset:
                 child_world = world @ _tile_transform(cj, source)
                 cbase = Path(cj.pop("_external_base")) if "_external_base" in cj else base
                 csource = cj.pop("_external_source", source)
-                stack.append((cj, child_world, tile, f"{key}/{ci}", level + 1, cbase, csource, depth + 1))
+                cchain = (*chain, csource) if csource != source else chain
+                stack.append((cj, child_world, tile, f"{key}/{ci}", level + 1, cbase, csource, cchain))
         assert root_tile is not None
         # children were pushed reversed and popped in order; restore document order
         for t in self.walk_from(root_tile):
@@ -462,11 +500,14 @@ def _read_json(path: Path) -> dict[str, Any]:
         raise InputError("tileset not found", path) from exc
     except OSError as exc:
         raise InputError(f"cannot read tileset ({exc.strerror or exc})", path) from exc
-    except (UnicodeDecodeError, json.JSONDecodeError, EOFError, zlib.error) as exc:
-        raise InputError(f"tileset is not valid JSON ({exc})", path) from exc
+    except RecursionError as exc:
+        raise InputError("tileset JSON nests too deeply to read", path) from exc
+    except (UnicodeDecodeError, ValueError, EOFError, zlib.error) as exc:  # JSONDecodeError, 5000-digit numbers
+        raise InputError(f"tileset is not valid JSON ({str(exc)[:200]})", path) from exc
     if not isinstance(doc, dict) or "root" not in doc:
         raise InputError("not a 3D Tiles tileset (no 'root')", path)
-    version = str(doc.get("asset", {}).get("version", ""))
+    asset = doc.get("asset")
+    version = str(asset.get("version", "") if isinstance(asset, dict) else "")[:20]
     if not version.startswith("1."):
         raise InputError(f"3D Tiles version {version!r} is not supported (1.x only)", path)
     return doc
@@ -527,5 +568,6 @@ def open_tileset(path: str | os.PathLike[str]) -> Tileset:
     doc = _read_json(p)
     try:
         return Tileset(p.resolve(), doc)
-    except (KeyError, TypeError) as exc:
-        raise InputError(f"tileset structure is invalid ({exc})", p) from exc
+    except (KeyError, TypeError, AttributeError, ValueError, OverflowError, IndexError) as exc:
+        # Any shape the schema does not allow (a string where a number belongs, a list for an object).
+        raise InputError(f"tileset structure is invalid ({type(exc).__name__}: {str(exc)[:200]})", p) from exc

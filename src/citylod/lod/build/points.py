@@ -52,7 +52,7 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod._version import __version__
-from citylod.core.fileio import atomic_write, atomic_write_bytes, publish_dir
+from citylod.core.fileio import atomic_write, atomic_write_bytes, discard_partial_on_refusal, publish_dir
 from citylod.core.palette import ASPRS_CLASS_RGB
 from citylod.io.image import encode_png
 from citylod.io.las import POINT_DTYPE, iter_points, point_fields, read_metadata
@@ -702,6 +702,7 @@ def _build_chunked(ex: Executor, params: _Params, segments: list[tuple[str, int,
 
 
 # ----------------------------------------------------------------------------------------------- build
+@discard_partial_on_refusal
 def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[str], *, crs: Any = None,
                  hybrid: bool = True, workers: int | None = None, scheduler: Any = None,
                  progress: bool = True, phi: float = 8.0, max_leaf_points: int = 20_000,
