@@ -56,7 +56,7 @@ GROUND, BUILDING, WATER, UNCLASSIFIED = 2, 6, 9, 1
 VEGETATION = (3, 4, 5)
 
 #: What an added point is, in :attr:`Augmentation.kind`.
-KIND_GROUND, KIND_WALL = 1, 2
+KIND_GROUND, KIND_WALL, KIND_STEP = 1, 2, 3
 
 WALL_MODES = ("points", "quads", "none")
 
@@ -140,7 +140,8 @@ class Augmentation:
     normals
         (N, 3) float32 unit normals (walls: horizontal, outwards; ground: the terrain's).
     kind
-        (N,) uint8 :data:`KIND_GROUND` or :data:`KIND_WALL`.
+        (N,) uint8 :data:`KIND_GROUND`, :data:`KIND_WALL` (outer walls, roof down to the ground) or
+        :data:`KIND_STEP` (walls between two roofs).
     classification
         (N,) uint8 ASPRS class the point stands for (2 or 6).
     intensity
@@ -171,7 +172,7 @@ class Augmentation:
 
     @property
     def counts(self) -> dict[str, int]:
-        return {"ground": int(np.sum(self.kind == KIND_GROUND)), "wall": int(np.sum(self.kind == KIND_WALL)),
+        return {"ground": int(np.sum(self.kind == KIND_GROUND)), "wall": int(np.sum(self.kind >= KIND_WALL)),
                 "quads": len(self.quads)}
 
     def summary(self) -> str:
@@ -386,7 +387,7 @@ def _roof(grid: CellGrid, mask: npt.NDArray[np.bool_]) -> F64:
 @dataclass
 class _Edges:
     """Wall edges of the cell grid: a straight horizontal segment (x0, y0)-(x1, y1), its outward normal,
-    its bottom and top heights. ``(E,)`` float64 arrays."""
+    its bottom and top heights, whether it is a step between two roofs. ``(E,)`` arrays."""
 
     x0: F64
     y0: F64
@@ -396,6 +397,7 @@ class _Edges:
     ny: F64
     bottom: F64
     top: F64
+    step: npt.NDArray[np.bool_]
 
 
 def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions) -> _Edges:
@@ -457,18 +459,20 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
             nrm_x = np.where(bad, float(dx), nrm_x)
             nrm_y = np.where(bad, float(dy), nrm_y)
             norm = np.hypot(nrm_x, nrm_y)
-            parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top))
+            parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, float(sel is step)))
     if not parts:
         z = np.zeros(0)
-        return _Edges(z, z, z, z, z, z, z, z)
+        return _Edges(z, z, z, z, z, z, z, z, np.zeros(0, bool))
     cols = [np.concatenate([np.broadcast_to(np.asarray(pt[k], np.float64), (len(pt[7]),)) for pt in parts])
-            for k in range(8)]
+            for k in range(9)]
     keep = cols[7] - cols[6] >= opts.min_wall_m
-    return _Edges(*(a[keep] for a in cols))
+    return _Edges(*(a[keep] for a in cols[:8]), cols[8][keep] > 0)
 
 
-def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator) -> tuple[F64, F32]:
-    """Points on every wall edge at ``spacing``: a jittered grid along the edge and down its height."""
+def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator
+                 ) -> tuple[F64, F32, npt.NDArray[np.uint8]]:
+    """Points on every wall edge at ``spacing``: a jittered grid along the edge and down its height.
+    Returns positions, normals and kinds (:data:`KIND_WALL` or :data:`KIND_STEP`)."""
     length = np.hypot(edges.x1 - edges.x0, edges.y1 - edges.y0)
     # A wall at an angle to the grid is a staircase of x- and y-edges; each edge stands for the part of
     # the wall it faces, |cos| of the angle between the wall's normal and its own, so a 45° wall gets
@@ -486,7 +490,8 @@ def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator) -> tup
     y = edges.y0[e] + a * (edges.y1[e] - edges.y0[e])
     z = edges.top[e] - b * (edges.top[e] - edges.bottom[e])
     nrm = np.column_stack([edges.nx[e], edges.ny[e], np.zeros(total)]).astype(np.float32)
-    return np.column_stack([x, y, z]), nrm
+    kind = np.where(edges.step[e], KIND_STEP, KIND_WALL).astype(np.uint8)
+    return np.column_stack([x, y, z]), nrm, kind
 
 
 def _wall_quads(edges: _Edges) -> tuple[F64, F32]:
@@ -521,26 +526,26 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions()) -> A
     rng = np.random.default_rng(opts.seed)
     dtm = terrain(grid)
     mask = building_mask(grid, opts) if n_building else np.zeros(grid.shape, bool)
-    pieces: list[tuple[F64, F32, int, int]] = []
+    pieces: list[tuple[F64, F32, npt.NDArray[np.uint8], int]] = []
     g_sp = w_sp = 0.0
     if opts.ground and n_ground:
         gxyz, gn, g_sp = _ground_fill(grid, dtm, mask, opts, rng)
-        pieces.append((gxyz, gn, KIND_GROUND, GROUND))
+        pieces.append((gxyz, gn, np.full(len(gxyz), KIND_GROUND, np.uint8), GROUND))
     quads, qn = np.zeros((0, 4, 3)), np.zeros((0, 3), np.float32)
     if opts.walls != "none" and mask.any():
         edges = wall_edges(grid, dtm, mask, opts)
         has = grid.planes[_B_N] > 0
         w_sp = grid.cell / np.sqrt(max(1.0, float(np.median(grid.planes[_B_N][has]))))
         if opts.walls == "points":
-            wxyz, wn = _wall_points(edges, w_sp, rng)
-            pieces.append((wxyz, wn, KIND_WALL, BUILDING))
+            wxyz, wn, wk = _wall_points(edges, w_sp, rng)
+            pieces.append((wxyz, wn, wk, BUILDING))
         else:
             quads, qn = _wall_quads(edges)
     mean_int = grid.class_intensity / np.maximum(grid.class_n, 1.0)
     if pieces:
         xyz = np.concatenate([pc[0] for pc in pieces])
         nrm = np.concatenate([pc[1] for pc in pieces])
-        kind = np.concatenate([np.full(len(pc[0]), pc[2], np.uint8) for pc in pieces])
+        kind = np.concatenate([pc[2] for pc in pieces])
         cls = np.concatenate([np.full(len(pc[0]), pc[3], np.uint8) for pc in pieces])
     else:
         xyz, nrm = np.zeros((0, 3)), np.zeros((0, 3), np.float32)
@@ -673,6 +678,6 @@ def finish(out: Path) -> None:
     synthetic_path(out).unlink(missing_ok=True)
 
 
-__all__ = ["KIND_GROUND", "KIND_WALL", "WALL_MODES", "Augmentation", "CellGrid", "CompleteOptions", "add_wall_tiles",
+__all__ = ["KIND_GROUND", "KIND_STEP", "KIND_WALL", "WALL_MODES", "Augmentation", "CellGrid", "CompleteOptions", "add_wall_tiles",
            "augment", "augment_grid", "building_mask", "complete_inputs", "finish", "scan_grid", "synthetic_path",
            "terrain", "wall_edges", "wall_mesh", "write_las"]

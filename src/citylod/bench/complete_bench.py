@@ -1,0 +1,288 @@
+"""How complete a LiDAR render looks against a city model of the same houses (``build points --complete``).
+
+The measure of issue #25, on Delft (AHN3 points + the CityJSON model made from the same sources):
+
+* **wall coverage** — from oblique cameras (30-45° down) over the model's area, the wall pixels are the
+  pixels where the city model's walls are the nearest surface (the model is rendered in the same run,
+  every object, walls apart); a wall pixel is covered when the LiDAR render's surface there lies
+  within ``tol_m`` of the model's depth. Measured for the plain build and the completed one;
+* **wall accuracy** — the distance from every added wall point to the model's nearest wall, computed
+  on densely sampled wall triangles (``scipy.spatial.cKDTree``; independent of the augmentation);
+* **cost** — build times plain and completed, interleaved in one run, and the frame time of each
+  from the same cameras.
+
+``python -m citylod.bench.complete_bench OUT_DIR --data ../shared/data/delft`` writes ``complete.json`` and before/after pictures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import statistics
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.core.camera import Camera
+from citylod.io.city import read_city_model
+from citylod.io.city.model import CityModel
+from citylod.render import _vtk
+from citylod.render.offscreen import OffscreenRenderer, save_png
+
+F64 = npt.NDArray[np.float64]
+
+__all__ = ["ModelMesh", "model_mesh", "oblique_cameras", "wall_coverage", "wall_distances"]
+
+
+@dataclass(frozen=True)
+class ModelMesh:
+    """A city model as triangles in its CRS: ``walls`` and ``others`` (T, 3, 3) float64."""
+
+    walls: F64
+    others: F64
+
+
+def _triangulate(polys: Sequence[list[F64]]) -> F64:
+    """Exterior rings (K, 3) to triangles (T, 3, 3), by VTK's polygon triangulation (concave rings too)."""
+    if not polys:
+        return np.zeros((0, 3, 3))
+    rings = [np.asarray(p[0], np.float64)[:-1] for p in polys]  # closed rings: drop the repeated vertex
+    rings = [r for r in rings if len(r) >= 3]
+    base = np.mean([r.mean(axis=0) for r in rings], axis=0)
+    pts = np.concatenate(rings) - base
+    sizes = np.array([len(r) for r in rings])
+    offs = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    conn = np.concatenate([np.concatenate([[n], o + np.arange(n)]) for n, o in zip(sizes, offs, strict=True)])
+    data = _vtk.vtkPolyData()
+    vp = _vtk.vtkPoints()
+    vp.SetData(_vtk.numpy_to_vtk(pts, deep=True))
+    data.SetPoints(vp)
+    cells = _vtk.vtkCellArray()
+    cells.SetCells(len(rings), _vtk.numpy_to_vtkIdTypeArray(conn.astype(np.int64), deep=True))
+    data.SetPolys(cells)
+    tri = _vtk.vtkTriangleFilter()
+    tri.SetInputData(data)
+    tri.Update()
+    out = tri.GetOutput()
+    verts = _vtk.vtk_to_numpy(out.GetPoints().GetData()).astype(np.float64) + base
+    ids = _vtk.vtk_to_numpy(out.GetPolys().GetConnectivityArray()).reshape(-1, 3)
+    return verts[ids]
+
+
+def model_mesh(model: CityModel) -> ModelMesh:
+    """Triangles of every object's surfaces; walls are the building surfaces that stand vertical
+    (|n_z| < 0.1 by Newell's normal) or are labelled ``WallSurface``."""
+    walls, others = [], []
+    for obj in model.objects:
+        is_bldg = obj.type in ("Building", "BuildingPart")
+        sem = obj.semantics or [None] * len(obj.surfaces)
+        for poly, s in zip(obj.surfaces, sem, strict=False):
+            ring = np.asarray(poly[0], np.float64)
+            d = ring[1:] - ring[:1]
+            n = np.cross(d[:-1], d[1:]).sum(axis=0)
+            nz = abs(n[2]) / max(float(np.linalg.norm(n)), 1e-12)
+            (walls if is_bldg and (s == "WallSurface" or (s is None and nz < 0.1)) else others).append(poly)
+    return ModelMesh(_triangulate(walls), _triangulate(others))
+
+
+def _mesh_actor(tris: F64, origin: F64) -> Any:
+    data = _vtk.vtkPolyData()
+    vp = _vtk.vtkPoints()
+    vp.SetData(_vtk.numpy_to_vtk(np.ascontiguousarray((tris.reshape(-1, 3) - origin).astype(np.float32)), deep=True))
+    data.SetPoints(vp)
+    n = len(tris)
+    conn = np.column_stack([np.full(n, 3), np.arange(3 * n).reshape(n, 3)]).reshape(-1)
+    cells = _vtk.vtkCellArray()
+    cells.SetCells(n, _vtk.numpy_to_vtkIdTypeArray(conn.astype(np.int64), deep=True))
+    data.SetPolys(cells)
+    mapper = _vtk.vtkPolyDataMapper()
+    mapper.SetInputData(data)
+    actor = _vtk.vtkActor()
+    actor.SetMapper(mapper)
+    actor.GetProperty().BackfaceCullingOff()
+    actor.VisibilityOff()
+    return actor
+
+
+def oblique_cameras(lo: F64, hi: F64, *, pitches_deg: Sequence[float] = (30.0, 45.0), azimuths: int = 4,
+                    distance: float | None = None, ground_z: float = 0.0, fovy_deg: float = 45.0) -> list[Camera]:
+    """Cameras looking ``pitches_deg`` down at the centre of the box ``lo``..``hi`` from ``azimuths``
+    directions, at ``distance`` (default: 0.6 × the box's horizontal diagonal)."""
+    c = (np.asarray(lo, np.float64) + np.asarray(hi, np.float64)) / 2.0
+    d = distance or 0.6 * float(np.hypot(hi[0] - lo[0], hi[1] - lo[1]))
+    cams = []
+    for pitch in pitches_deg:
+        for k in range(azimuths):
+            az = 2.0 * math.pi * (k + 0.5) / azimuths
+            p = math.radians(pitch)
+            eye = (c[0] - d * math.cos(p) * math.sin(az), c[1] - d * math.cos(p) * math.cos(az),
+                   ground_z + d * math.sin(p))
+            cams.append(Camera(position=eye, focal_point=(float(c[0]), float(c[1]), ground_z), fovy_deg=fovy_deg))
+    return cams
+
+
+@dataclass
+class CoverageFrame:
+    """One camera: wall pixels, how many of them the LiDAR covers, its draw time, its picture."""
+
+    wall_px: int
+    covered_px: int
+    draw_s: float
+    rgb: npt.NDArray[np.uint8]
+
+    @property
+    def share(self) -> float:
+        return self.covered_px / self.wall_px if self.wall_px else float("nan")
+
+
+def wall_coverage(tileset: str | PathLike[str], mesh: ModelMesh, cameras: Sequence[Camera], *,
+                  size: tuple[int, int] = (960, 540), tol_m: float = 0.5, tau_px: float = 1.0,
+                  point_size_px: float = 2.0, repeats: int = 3) -> list[CoverageFrame]:
+    """Render ``tileset`` (as a user sees it: view-dependent selection at ``tau_px``) and the model from
+    each camera; count wall pixels and those the LiDAR covers within ``tol_m`` of depth."""
+    out = []
+    with OffscreenRenderer([tileset], size=size, tau_px=tau_px, point_size_px=point_size_px) as r:
+        origin = np.asarray(r.scene.origin, np.float64)
+        walls, others = _mesh_actor(mesh.walls, origin), _mesh_actor(mesh.others, origin)
+        r.renderer.AddActor(walls)
+        r.renderer.AddActor(others)
+        for cam in cameras:
+            r.prepare(cam)
+            r.draw()
+            draw_s = statistics.median(r.draw() for _ in range(repeats))
+            rgb, lidar = r.grab_rgb(), r.grab_depth()
+            shown = [(a, a.GetVisibility()) for a in r.scene.tile_actors]
+            for a, _ in shown:
+                a.VisibilityOff()
+            walls.VisibilityOn()
+            others.VisibilityOn()
+            r.renderer.ResetCameraClippingRange()
+            r.draw()
+            d_all = r.grab_depth()
+            others.VisibilityOff()
+            r.draw()
+            d_wall = r.grab_depth()
+            walls.VisibilityOff()
+            for a, v in shown:
+                a.SetVisibility(v)
+            fin = np.isfinite(d_all)
+            wall = fin & np.isfinite(d_wall) & (d_wall <= d_all + 1e-3 * np.where(fin, d_all, 0) + 0.01)
+            covered = wall & np.isfinite(lidar) & (np.abs(lidar - d_all) <= tol_m)
+            out.append(CoverageFrame(int(wall.sum()), int(covered.sum()), draw_s, rgb))
+    return out
+
+
+def wall_distances(points: F64, wall_tris: F64) -> F64:
+    """Exact distance from each point to the nearest wall triangle (VTK's ``vtkImplicitPolyDataDistance``
+    over the triangles, evaluated for all points in one call; unsigned)."""
+    org = wall_tris.reshape(-1, 3).mean(axis=0)
+    data = _vtk.vtkPolyData()
+    vp = _vtk.vtkPoints()
+    vp.SetData(_vtk.numpy_to_vtk(np.ascontiguousarray(wall_tris.reshape(-1, 3) - org), deep=True))
+    data.SetPoints(vp)
+    n = len(wall_tris)
+    conn = np.column_stack([np.full(n, 3), np.arange(3 * n).reshape(n, 3)]).reshape(-1)
+    cells = _vtk.vtkCellArray()
+    cells.SetCells(n, _vtk.numpy_to_vtkIdTypeArray(conn.astype(np.int64), deep=True))
+    data.SetPolys(cells)
+    dist = _vtk.vtkImplicitPolyDataDistance()
+    dist.SetInput(data)
+    src = _vtk.numpy_to_vtk(np.ascontiguousarray(np.asarray(points, np.float64) - org), deep=True)
+    out = _vtk.vtkDoubleArray()
+    dist.FunctionValue(src, out)
+    return np.abs(_vtk.vtk_to_numpy(out).astype(np.float64))
+
+
+def _timed_build(files: Sequence[Path], out: Path, complete: Any) -> tuple[float, Any]:
+    from citylod.lod.build.points import build_points
+
+    t0 = time.perf_counter()
+    rep = build_points(files, out, crs="EPSG:28992", progress=False, complete=complete)
+    return time.perf_counter() - t0, rep
+
+
+def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int] = (960, 540)) -> dict[str, Any]:
+    """The whole measurement on Delft; returns the report (also written as ``complete.json``)."""
+    from citylod.lod.build.complete import KIND_WALL, CompleteOptions, augment
+    from citylod.io.las import read_metadata
+
+    files = [data_dir / "ahn3_cropped_1.laz", data_dir / "ahn3_cropped_2.laz"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    work = out_dir / "tilesets"
+    variants = {"plain": None, "walls-points": CompleteOptions(walls="points"),
+                "walls-quads": CompleteOptions(walls="quads")}
+    times: dict[str, list[float]] = {k: [] for k in variants}
+    reports: dict[str, Any] = {}
+    for _ in range(repeats):  # interleaved, so load on the machine hits every variant alike
+        for name, opts in variants.items():
+            s, rep = _timed_build(files, work / name, opts)
+            times[name].append(s)
+            reports[name] = rep
+    model = read_city_model(data_dir / "testarea.city.json", lod=1)
+    mesh = model_mesh(model)
+    blo = mesh.walls.reshape(-1, 3).min(axis=0)
+    bhi = mesh.walls.reshape(-1, 3).max(axis=0)
+    cams = oblique_cameras(blo, bhi, ground_z=float(np.percentile(mesh.walls[..., 2], 5)))
+    result: dict[str, Any] = {"cameras": [c.to_dict() for c in cams], "size": list(size), "variants": {}}
+    for name in variants:
+        frames = wall_coverage(work / name, mesh, cams, size=size)
+        wall_px = sum(f.wall_px for f in frames)
+        cov = sum(f.covered_px for f in frames)
+        result["variants"][name] = {
+            "build_s_median": statistics.median(times[name]), "build_s": times[name],
+            "wall_px": wall_px, "covered_px": cov, "coverage": cov / wall_px if wall_px else None,
+            "coverage_per_camera": [f.share for f in frames],
+            "draw_s_median": statistics.median(f.draw_s for f in frames),
+            "summary": reports[name].summary(),
+        }
+        save_png(out_dir / f"delft_{name}.png", frames[0].rgb)
+    plain = result["variants"]["plain"]
+    for name in ("walls-points", "walls-quads"):
+        v = result["variants"][name]
+        v["build_overhead"] = v["build_s_median"] / plain["build_s_median"] - 1.0
+        v["frame_ratio"] = v["draw_s_median"] / plain["draw_s_median"]
+    meta = read_metadata(files, "EPSG:28992")
+    aug = augment(files, CompleteOptions(walls="points"), lo=meta.lo, hi=meta.hi)
+    wall_pts = aug.xyz[aug.kind == KIND_WALL]
+    d = wall_distances(wall_pts, mesh.walls)
+    # Walls of buildings the model has: points within 5 m of one of its walls (class-6 points of
+    # buildings outside the model's extent have no wall to compare with).
+    near = d <= 5.0
+    result["wall_points"] = {
+        "count": len(wall_pts), "near_model": int(near.sum()),
+        "p50_m": float(np.percentile(d[near], 50)), "p95_m": float(np.percentile(d[near], 95)),
+        "share_within_0.5m": float(np.mean(d[near] <= 0.5)),
+    }
+    (out_dir / "complete.json").write_text(json.dumps(result, indent=1, default=float))
+    shutil.rmtree(work, ignore_errors=True)
+    return result
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--data", type=Path, required=True, help="the Delft folder of ../shared/data")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args(argv)
+    res = run(args.data, args.out, repeats=args.repeats)
+    for name, v in res["variants"].items():
+        print(f"{name:13s} coverage {v['coverage']:.3f}  build {v['build_s_median']:.2f} s"
+              f"{'  +%.0f %%' % (100 * v['build_overhead']) if 'build_overhead' in v else ''}"
+              f"  frame {1e3 * v['draw_s_median']:.1f} ms"
+              f"{'  x%.2f' % v['frame_ratio'] if 'frame_ratio' in v else ''}")
+    w = res["wall_points"]
+    print(f"wall points  {w['count']:,}, {w['near_model']:,} within 5 m of a model wall: p50 {w['p50_m']:.2f} m, "
+          f"p95 {w['p95_m']:.2f} m, {100 * w['share_within_0.5m']:.1f} % within 0.5 m")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
