@@ -168,8 +168,10 @@ def test_ground_fills_under_the_canopy_only(cloud: tuple[Path, np.ndarray]) -> N
 def test_build_flags_added_points_and_keeps_input(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
     path, pts = cloud
     out = tmp_path / "ts"
-    rep = build_points([path], out, crs="EPSG:28992", progress=False, workers=0,
+    # workers=0 and small chunks: the out-of-core path (parked segments, several chunks), in this process.
+    rep = build_points([path], out, crs="EPSG:28992", progress=False, workers=0, max_chunk_points=5_000,
                        complete=CompleteOptions(walls="points"))
+    assert rep.chunks > 1
     aug = augment([path])
     assert "complete" in (rep.complete or "")
     ts = open_tileset(out)

@@ -39,7 +39,7 @@ from citylod.render.offscreen import OffscreenRenderer, save_png
 
 F64 = npt.NDArray[np.float64]
 
-__all__ = ["ModelMesh", "model_mesh", "oblique_cameras", "wall_coverage", "wall_distances"]
+__all__ = ["ModelMesh", "RoofGrid", "model_mesh", "oblique_cameras", "wall_coverage", "wall_distances"]
 
 
 @dataclass(frozen=True)
@@ -140,6 +140,13 @@ class CoverageFrame:
     tree_px: int
     draw_s: float
     rgb: npt.NDArray[np.uint8]
+    scanned_px: int = 0
+    scanned_covered_px: int = 0
+
+    @property
+    def share_scanned(self) -> float:
+        """Covered share of the wall pixels no tree hides that stand below a roof the scan saw there."""
+        return self.scanned_covered_px / self.scanned_px if self.scanned_px else float("nan")
 
     @property
     def share(self) -> float:
@@ -153,16 +160,59 @@ class CoverageFrame:
         return self.covered_px / self.wall_px if self.wall_px else float("nan")
 
 
+@dataclass(frozen=True)
+class RoofGrid:
+    """Highest building return per ``cell`` (m) square, (ny, nx) float64 (-inf: none), from ``lo`` (2,)."""
+
+    lo: F64
+    cell: float
+    zmax: F64
+
+    @staticmethod
+    def from_las(files: Sequence[Path], cell: float = 0.5, building: int = 6) -> RoofGrid:
+        import laspy
+
+        xyz = []
+        for f in files:
+            las = laspy.read(str(f))
+            sel = np.asarray(las.classification) == building
+            xyz.append(np.column_stack([np.asarray(las.x)[sel], np.asarray(las.y)[sel], np.asarray(las.z)[sel]]))
+        p = np.concatenate(xyz)
+        lo = p[:, :2].min(axis=0)
+        ij = ((p[:, :2] - lo) / cell).astype(np.int64)
+        z = np.full(tuple(ij.max(axis=0)[::-1] + 1), -np.inf)
+        np.maximum.at(z, (ij[:, 1], ij[:, 0]), p[:, 2])
+        return RoofGrid(lo, cell, z)
+
+    def local_max(self, xy: F64, radius_cells: int = 2) -> F64:
+        """Highest building return within ``radius_cells`` cells of each point (x, y)."""
+        from scipy import ndimage
+
+        z = ndimage.maximum_filter(self.zmax, size=2 * radius_cells + 1, mode="constant", cval=-np.inf)
+        ij = np.floor((np.asarray(xy)[:, :2] - self.lo) / self.cell).astype(np.int64)
+        ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < z.shape[1]) & (ij[:, 1] < z.shape[0])
+        out = np.full(len(ij), -np.inf)
+        out[ok] = z[ij[ok, 1], ij[ok, 0]]
+        return out
+
+
 def wall_coverage(tileset: str | PathLike[str], mesh: ModelMesh, cameras: Sequence[Camera], *,
                   size: tuple[int, int] = (960, 540), tol_m: float = 0.5, tau_px: float = 1.0,
-                  point_size_px: float = 2.0, repeats: int = 3) -> list[CoverageFrame]:
+                  point_size_px: float = 2.0, repeats: int = 3, roofs: RoofGrid | None = None
+                  ) -> list[CoverageFrame]:
     """Render ``tileset`` (as a user sees it: view-dependent selection at ``tau_px``) and the model from
     each camera; count wall pixels and those the LiDAR covers within ``tol_m`` of depth.
 
     Points are coloured by class (unlit, so a pixel's colour is its point's class): a wall pixel whose
     LiDAR surface lies more than ``tol_m`` in front of the wall in the colour of vegetation (class 1,
-    where AHN puts trees, or 3-5) is counted as hidden by a tree."""
+    where AHN puts trees, or 3-5) is counted as hidden by a tree.
+
+    With ``roofs`` (the input's building returns), a wall pixel is also *scanned* when a building return
+    within 1 m (horizontally) stands at least as high as the wall point: an LOD1 block's wall goes up to
+    one height per building, above the eaves of a pitched roof, where the real building has roof, not
+    wall."""
     from citylod.render.colors import classification_rgb
+    from citylod.render.depth import points_from_distance
 
     veg = classification_rgb(np.array([1, 3, 4, 5])).astype(np.int16)
     out = []
@@ -198,7 +248,15 @@ def wall_coverage(tileset: str | PathLike[str], mesh: ModelMesh, cameras: Sequen
             covered = wall & (np.abs(gap) <= tol_m)
             is_veg = np.any(np.all(rgb[:, :, None, :].astype(np.int16) == veg[None, None], axis=-1), axis=-1)
             tree = wall & (gap < -tol_m) & is_veg
-            out.append(CoverageFrame(int(wall.sum()), int(covered.sum()), int(tree.sum()), draw_s, rgb))
+            frame = CoverageFrame(int(wall.sum()), int(covered.sum()), int(tree.sum()), draw_s, rgb)
+            if roofs is not None:
+                pts = points_from_distance(np.where(wall, d_all, 0.0), cam, relative=False)[wall]
+                ok = np.zeros_like(wall)
+                ok[wall] = roofs.local_max(pts[:, :2]) >= pts[:, 2] - tol_m
+                scanned = ok & ~tree
+                frame.scanned_px = int(scanned.sum())
+                frame.scanned_covered_px = int((scanned & covered).sum())
+            out.append(frame)
     return out
 
 
@@ -233,8 +291,8 @@ def _timed_build(files: Sequence[Path], out: Path, complete: Any) -> tuple[float
 
 def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int] = (960, 540)) -> dict[str, Any]:
     """The whole measurement on Delft; returns the report (also written as ``complete.json``)."""
-    from citylod.lod.build.complete import KIND_WALL, CompleteOptions, augment
     from citylod.io.las import read_metadata
+    from citylod.lod.build.complete import KIND_WALL, CompleteOptions, augment
 
     files = [data_dir / "ahn3_cropped_1.laz", data_dir / "ahn3_cropped_2.laz"]
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -254,8 +312,9 @@ def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int
     bhi = mesh.walls.reshape(-1, 3).max(axis=0)
     cams = oblique_cameras(blo, bhi, ground_z=float(np.percentile(mesh.walls[..., 2], 5)))
     result: dict[str, Any] = {"cameras": [c.to_dict() for c in cams], "size": list(size), "variants": {}}
+    roofs = RoofGrid.from_las(files)
     for name in variants:
-        frames = wall_coverage(work / name, mesh, cams, size=size)
+        frames = wall_coverage(work / name, mesh, cams, size=size, roofs=roofs)
         wall_px = sum(f.wall_px for f in frames)
         tree_px = sum(f.tree_px for f in frames)
         cov = sum(f.covered_px for f in frames)
@@ -264,6 +323,9 @@ def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int
             "wall_px": wall_px, "tree_px": tree_px, "covered_px": cov,
             "coverage": cov / (wall_px - tree_px) if wall_px > tree_px else None,
             "coverage_all": cov / wall_px if wall_px else None,
+            "scanned_px": sum(f.scanned_px for f in frames),
+            "coverage_scanned": (sum(f.scanned_covered_px for f in frames)
+                                 / max(1, sum(f.scanned_px for f in frames))),
             "coverage_per_camera": [f.share for f in frames],
             "draw_s_median": statistics.median(f.draw_s for f in frames),
             "summary": reports[name].summary(),
@@ -299,10 +361,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     res = run(args.data, args.out, repeats=args.repeats)
     for name, v in res["variants"].items():
-        print(f"{name:13s} coverage {v['coverage']:.3f} (trees counted: {v['coverage_all']:.3f})  build {v['build_s_median']:.2f} s"
-              f"{'  +%.0f %%' % (100 * v['build_overhead']) if 'build_overhead' in v else ''}"
-              f"  frame {1e3 * v['draw_s_median']:.1f} ms"
-              f"{'  x%.2f' % v['frame_ratio'] if 'frame_ratio' in v else ''}")
+        extra = ""
+        if "build_overhead" in v:
+            extra = f"  (+{100 * v['build_overhead']:.0f} %, frame x{v['frame_ratio']:.2f})"
+        print(f"{name:13s} coverage {v['coverage_all']:.3f}, trees apart {v['coverage']:.3f}, "
+              f"below scanned roofs {v['coverage_scanned']:.3f}  "
+              f"build {v['build_s_median']:.2f} s  frame {1e3 * v['draw_s_median']:.1f} ms{extra}")
     w = res["wall_points"]
     print(f"wall points  {w['count']:,}, {w['near_model']:,} within 5 m of a model wall: p50 {w['p50_m']:.2f} m, "
           f"p95 {w['p95_m']:.2f} m, {100 * w['share_within_0.5m']:.1f} % within 0.5 m")
