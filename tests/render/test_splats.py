@@ -34,7 +34,7 @@ def _surface_actor(n: int = 200) -> object:
     tris = np.concatenate([np.stack([a, a + 1, a + n + 1], 1), np.stack([a, a + n + 1, a + n], 1)])
     conn = np.column_stack([np.full(len(tris), 3), tris]).reshape(-1)
     cells = _vtk.vtkCellArray()
-    cells.SetCells(len(tris), _vtk.numpy_to_vtkIdTypeArray(conn.astype(np.int64), deep=True))
+    cells.ImportLegacyFormat(_vtk.numpy_to_vtkIdTypeArray(conn.astype(np.int64), deep=True))
     data.SetPolys(cells)
     mapper = _vtk.vtkPolyDataMapper()
     mapper.SetInputData(data)
@@ -50,7 +50,7 @@ def _points_actor(xyz: np.ndarray, size_px: float) -> object:
     data.SetPoints(vp)
     n = len(xyz)
     cells = _vtk.vtkCellArray()
-    cells.SetCells(n, _vtk.numpy_to_vtkIdTypeArray(np.column_stack([np.ones(n, np.int64), np.arange(n)]).reshape(-1),
+    cells.ImportLegacyFormat(_vtk.numpy_to_vtkIdTypeArray(np.column_stack([np.ones(n, np.int64), np.arange(n)]).reshape(-1),
                                                    deep=True))
     data.SetVerts(cells)
     mapper = _vtk.vtkPolyDataMapper()
