@@ -45,7 +45,7 @@ class Splats:
 
 
 def estimate_splats(xyz: npt.ArrayLike, *, k: int = 8, normals: npt.ArrayLike | None = None,
-                    radius_factor: float = 1.0) -> Splats:
+                    radius_factor: float = 1.0, max_radius_factor: float = 3.0) -> Splats:
     """Normals and radii of disks that cover the surface sampled by ``xyz``.
 
     The normal is the direction of least variance of the point and its ``k`` nearest neighbours (the
@@ -53,6 +53,8 @@ def estimate_splats(xyz: npt.ArrayLike, *, k: int = 8, normals: npt.ArrayLike | 
     added walls). The radius is the distance to the ``k``-th neighbour times ``radius_factor``: around a
     point of a surface sampled with spacing h its k = 8 nearest neighbours reach about 1.5 h, so disks of
     that radius overlap their neighbours' and leave no gap where the sampling has none wider than that.
+    Radii are capped at ``max_radius_factor`` times the median: isolated returns (a tree's crown, a bird)
+    would otherwise become disks metres wide.
 
     Examples
     --------
@@ -74,6 +76,7 @@ def estimate_splats(xyz: npt.ArrayLike, *, k: int = 8, normals: npt.ArrayLike | 
     dist = dist.reshape(n, kk)
     idx = idx.reshape(n, kk)
     radius = dist[:, -1] * radius_factor
+    radius = np.minimum(radius, max_radius_factor * float(np.median(radius)))
     if normals is None:
         nb = local[idx]  # (n, kk, 3)
         nb = nb - nb.mean(axis=1, keepdims=True)
