@@ -15,6 +15,7 @@ MODULES = [
     "citylod.lod.runtime.loader",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
+    "citylod.render.splats",
 ]
 
 

@@ -263,9 +263,8 @@ def terrain(grid: CellGrid) -> F64:
     Pull-push (Gortler et al., "The Lumigraph", 1996): the ground cells are averaged into coarser and
     coarser grids until every coarse cell has ground, and each gap takes the bilinear upsampling of the
     next coarser level, so a gap is filled from the ground around it, smoothly, at a cost linear in the
-    cells. ``scipy.interpolate.griddata`` over the cells bordering the gaps did the same job in 6.7 s on
-    the Delft grid (243 k cells; qhull is slow on grid-aligned, co-circular points), pull-push in
-    milliseconds.
+    cells. Written here rather than ``scipy.interpolate.griddata`` over the cells bordering the gaps:
+    qhull is slow on grid-aligned, co-circular points (docs/PERFORMANCE_LOG.md).
     """
     from scipy import ndimage
 
