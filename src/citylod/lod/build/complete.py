@@ -617,26 +617,22 @@ def wall_mesh(aug: Augmentation, center: F64, rgb: tuple[int, int, int] = (214, 
 
 
 # ---------------------------------------------------------------------------------- the build's hooks
-def complete_inputs(paths: Sequence[Path], meta: Any, out: Path, opts: CompleteOptions, crs: Any = None
+def complete_inputs(paths: Sequence[Path], meta: Any, target: Path, opts: CompleteOptions, crs: Any = None
                     ) -> tuple[Augmentation, list[Path], Any]:
-    """The point build's pre-pass: scan ``paths``, write the added points as one more LAS file beside the
-    output (``<out>.complete.las``, removed by :func:`finish`), and return the augmentation with the file
-    list and metadata the build then reads (input files first, unchanged)."""
+    """The point build's pre-pass: scan ``paths``, write the added points to ``target`` (a LAS file in the
+    build's scratch folder), and return the augmentation with the file list and metadata the build then
+    reads (input files first, unchanged)."""
     from citylod.io.las import read_metadata
 
     aug = augment(paths, opts, lo=meta.lo, hi=meta.hi)
     if len(aug.xyz) == 0:
         return aug, list(paths), meta
     t0 = time.perf_counter()
-    extra = write_las(aug, synthetic_path(out), paths[0])
+    target.parent.mkdir(parents=True, exist_ok=True)
+    extra = write_las(aug, target, paths[0])
     aug.seconds["write"] = time.perf_counter() - t0
     files = [*paths, extra]
     return aug, files, read_metadata(files, crs if crs is not None else meta.crs)
-
-
-def synthetic_path(out: Path) -> Path:
-    """Where :func:`complete_inputs` parks the added points during a build."""
-    return out.with_name(out.name + ".complete.las")
 
 
 def add_wall_tiles(out_dir: str | PathLike[str], root: Any, aug: Augmentation, block_m: float = 128.0) -> Any:
@@ -672,11 +668,6 @@ def add_wall_tiles(out_dir: str | PathLike[str], root: Any, aug: Augmentation, b
                     children=children, extras={"points": 0, "triangles": 0, "quads": 0})
 
 
-def finish(out: Path) -> None:
-    """Remove what :func:`complete_inputs` parked."""
-    synthetic_path(out).unlink(missing_ok=True)
-
-
 __all__ = ["KIND_GROUND", "KIND_STEP", "KIND_WALL", "WALL_MODES", "Augmentation", "CellGrid", "CompleteOptions", "add_wall_tiles",
-           "augment", "augment_grid", "building_mask", "complete_inputs", "finish", "scan_grid", "synthetic_path",
+           "augment", "augment_grid", "building_mask", "complete_inputs", "scan_grid",
            "terrain", "wall_edges", "wall_mesh", "write_las"]

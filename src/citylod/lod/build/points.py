@@ -65,7 +65,6 @@ from citylod.io.tiles3d import (
     write_tileset,
 )
 from citylod.lod.build.complete import CompleteOptions, add_wall_tiles, complete_inputs
-from citylod.lod.build.complete import finish as finish_complete
 from citylod.lod.build.executor import Completions, make_executor, progress_bar, run_tasks
 from citylod.lod.build.planes import find_planes, quad_mesh_arrays, splat_colors
 from citylod.lod.kernels.octree import (
@@ -762,8 +761,6 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         t_start = time.perf_counter()
     out = Path(out_dir)
     inputs, aug = paths, None
-    if complete is not None:
-        aug, paths, meta = complete_inputs(paths, meta, out, complete, crs)
     # Small clouds are built in this process, on threads (the kernels release the GIL), with the
     # intermediates in memory: worker processes and parked files cost more than they save there.
     # Such a build is redone whole when interrupted (seconds); large builds resume from their files.
@@ -777,6 +774,10 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
     _prepare_partial(partial, _fingerprint(inputs, crs=meta.crs.to_wkt(), hybrid=hybrid, phi=phi,
                                            max_leaf=max_leaf_points, max_chunk=max_chunk_points,
                                            segment=segment_points, complete=complete))
+    if complete is not None:
+        # The added points join the input as one more LAS file in the build's scratch folder (removed
+        # with it); the same options write the same points, so a resumed build reads the same file.
+        aug, paths, meta = complete_inputs(paths, meta, tmp / "complete.las", complete, crs)
     extent = float(np.max(meta.hi - meta.lo))
     cube_size = extent * (1.0 + 1e-9) + 1e-6 if extent > 0 else 1.0
     cube_lo = (meta.lo + meta.hi) / 2.0 - cube_size / 2.0
@@ -841,8 +842,6 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         "has_rgb": meta.has_rgb, "max_leaf_points": max_leaf_points, "cluster_grid": 1 << CLUSTER_BITS,
         **({} if aug is None else {"complete": aug.counts})}})
     _finish(partial, out)
-    if aug is not None:
-        finish_complete(out)
     seconds = time.perf_counter() - t_start
     return PointBuildReport(
         output=out, points=meta.point_count, nodes=stats.nodes, leaves=stats.leaves, levels=stats.max_level + 1,
