@@ -247,3 +247,21 @@ def test_cli_complete(cloud: tuple[Path, np.ndarray], tmp_path: Path, capsys: py
     assert rc == 0
     text = capsys.readouterr().out
     assert "complete" in text and "0 ground points" in text
+
+
+def test_degrees_are_not_completed(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    # The same file read as degrees: a 0.5-"unit" grid would be half a degree; nothing is added, and
+    # the warning says why.
+    path, pts = cloud
+    with pytest.warns(UserWarning, match="degrees"):
+        rep = build_points([path], tmp_path / "ts", crs="EPSG:4326", progress=False, workers=0,
+                           complete=CompleteOptions())
+    assert rep.points == len(pts) and "degrees" in (rep.complete or "")
+
+
+def test_an_area_too_large_for_the_grid_is_refused(tmp_path: Path) -> None:
+    from citylod.core.errors import InputError
+    from citylod.lod.build.complete import scan_grid
+
+    with pytest.raises(InputError, match="cells"):
+        scan_grid([tmp_path / "x.las"], np.array([0.0, 0.0]), np.array([100_000.0, 100_000.0]), 0.5)

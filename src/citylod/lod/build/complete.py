@@ -60,6 +60,9 @@ KIND_GROUND, KIND_WALL, KIND_STEP = 1, 2, 3
 
 WALL_MODES = ("points", "quads", "none")
 
+#: Most cells a completion grid may have (5.6 GB of accumulators; 12.5 km² at 0.5 m).
+MAX_CELLS = 50_000_000
+
 # Accumulator planes of the scan grid (float64, one per quantity, (ny, nx) each).
 _G_N, _G_Z, _B_N, _B_Z, _B_ZMAX, _B_XLO, _B_XHI, _B_YLO, _B_YHI, _V_N, _U_N, _U_ZMAX, _W_N, _A_N = range(14)
 _PLANES = 14
@@ -246,6 +249,10 @@ def scan_grid(files: Sequence[str | PathLike[str]], lo: F64, hi: F64, cell_m: fl
     hi2 = np.asarray(hi, np.float64)[:2]
     nx = max(1, int(np.ceil((hi2[0] - lo2[0]) / cell_m)) + 1)
     ny = max(1, int(np.ceil((hi2[1] - lo2[1]) / cell_m)) + 1)
+    if nx * ny > MAX_CELLS:
+        raise InputError(f"completing {hi2[0] - lo2[0]:.0f} × {hi2[1] - lo2[1]:.0f} m at {cell_m} m cells needs "
+                         f"{nx * ny:,} cells ({nx * ny * _PLANES * 8 / 1e9:.1f} GB), over the {MAX_CELLS:,} "
+                         "allowed; complete the area in tiles or use larger cells", files[0] if files else None)
     planes = np.zeros((_PLANES, ny, nx))
     class_n, class_int = np.zeros(_NCLASS), np.zeros(_NCLASS)
     for f in files:
@@ -622,8 +629,14 @@ def complete_inputs(paths: Sequence[Path], meta: Any, target: Path, opts: Comple
     """The point build's pre-pass: scan ``paths``, write the added points to ``target`` (a LAS file in the
     build's scratch folder), and return the augmentation with the file list and metadata the build then
     reads (input files first, unchanged)."""
+    from citylod.io.crs import is_geographic
     from citylod.io.las import read_metadata
 
+    if is_geographic(meta.crs):
+        msg = (f"the points are in degrees ({meta.crs.name}): completion needs metric coordinates; "
+               "reproject the files (e.g. to UTM) to complete them")
+        warnings.warn(msg, stacklevel=2)
+        return _empty(msg), list(paths), meta
     aug = augment(paths, opts, lo=meta.lo, hi=meta.hi)
     if len(aug.xyz) == 0:
         return aug, list(paths), meta
@@ -668,6 +681,6 @@ def add_wall_tiles(out_dir: str | PathLike[str], root: Any, aug: Augmentation, b
                     children=children, extras={"points": 0, "triangles": 0, "quads": 0})
 
 
-__all__ = ["KIND_GROUND", "KIND_STEP", "KIND_WALL", "WALL_MODES", "Augmentation", "CellGrid", "CompleteOptions", "add_wall_tiles",
+__all__ = ["KIND_GROUND", "KIND_STEP", "KIND_WALL", "MAX_CELLS", "WALL_MODES", "Augmentation", "CellGrid", "CompleteOptions", "add_wall_tiles",
            "augment", "augment_grid", "building_mask", "complete_inputs", "scan_grid",
            "terrain", "wall_edges", "wall_mesh", "write_las"]
