@@ -94,16 +94,22 @@ def model_mesh(model: CityModel) -> ModelMesh:
     return ModelMesh(_triangulate(walls), _triangulate(others))
 
 
-def _mesh_actor(tris: F64, origin: F64) -> Any:
+def _tri_polydata(tris: F64, origin: F64, dtype: type = np.float32) -> Any:
+    """(T, 3, 3) triangles, shifted by ``origin``, as a vtkPolyData of unshared vertices."""
     data = _vtk.vtkPolyData()
     vp = _vtk.vtkPoints()
-    vp.SetData(_vtk.numpy_to_vtk(np.ascontiguousarray((tris.reshape(-1, 3) - origin).astype(np.float32)), deep=True))
+    vp.SetData(_vtk.numpy_to_vtk(np.ascontiguousarray((tris.reshape(-1, 3) - origin).astype(dtype)), deep=True))
     data.SetPoints(vp)
     n = len(tris)
     conn = np.column_stack([np.full(n, 3), np.arange(3 * n).reshape(n, 3)]).reshape(-1)
     cells = _vtk.vtkCellArray()
     cells.ImportLegacyFormat(_vtk.numpy_to_vtkIdTypeArray(conn.astype(np.int64), deep=True))
     data.SetPolys(cells)
+    return data
+
+
+def _mesh_actor(tris: F64, origin: F64) -> Any:
+    data = _tri_polydata(tris, origin)
     mapper = _vtk.vtkPolyDataMapper()
     mapper.SetInputData(data)
     actor = _vtk.vtkActor()
@@ -213,7 +219,6 @@ def wall_coverage(tileset: str | PathLike[str], mesh: ModelMesh, cameras: Sequen
     one height per building, above the eaves of a pitched roof, where the real building has roof, not
     wall."""
     from citylod.render.colors import classification_rgb
-    from citylod.render.depth import points_from_distance
 
     veg = classification_rgb(np.array([1, 3, 4, 5])).astype(np.int16)
     out = []
@@ -242,23 +247,32 @@ def wall_coverage(tileset: str | PathLike[str], mesh: ModelMesh, cameras: Sequen
             walls.VisibilityOff()
             for a, v in shown:
                 a.SetVisibility(v)
-            fin = np.isfinite(d_all)
-            wall = fin & np.isfinite(d_wall) & (d_wall <= d_all + 1e-3 * np.where(fin, d_all, 0) + 0.01)
-            hit = np.isfinite(lidar)
-            gap = np.where(hit & fin, lidar - np.where(fin, d_all, 0.0), np.inf)
-            covered = wall & (np.abs(gap) <= tol_m)
             is_veg = np.any(np.all(rgb[:, :, None, :].astype(np.int16) == veg[None, None], axis=-1), axis=-1)
-            tree = wall & (gap < -tol_m) & is_veg
-            frame = CoverageFrame(int(wall.sum()), int(covered.sum()), int(tree.sum()), draw_s, rgb)
-            if roofs is not None:
-                pts = points_from_distance(np.where(wall, d_all, 0.0), cam, relative=False)[wall]
-                ok = np.zeros_like(wall)
-                ok[wall] = roofs.local_max(pts[:, :2]) >= pts[:, 2] - tol_m
-                scanned = ok & ~tree
-                frame.scanned_px = int(scanned.sum())
-                frame.scanned_covered_px = int((scanned & covered).sum())
-            out.append(frame)
+            out.append(_frame(cam, lidar, d_all, d_wall, is_veg, draw_s, rgb, tol_m, roofs))
     return out
+
+
+def _frame(cam: Camera, lidar: npt.NDArray[np.float32], d_all: npt.NDArray[np.float32],
+           d_wall: npt.NDArray[np.float32], is_veg: npt.NDArray[np.bool_], draw_s: float,
+           rgb: npt.NDArray[np.uint8], tol_m: float, roofs: RoofGrid | None) -> CoverageFrame:
+    """Classify one camera's wall pixels from the LiDAR depth, the model's (all, walls only) and where the
+    LiDAR's nearest surface is vegetation."""
+    from citylod.render.depth import points_from_distance
+
+    fin = np.isfinite(d_all)
+    wall = fin & np.isfinite(d_wall) & (d_wall <= d_all + 1e-3 * np.where(fin, d_all, 0) + 0.01)
+    gap = np.where(np.isfinite(lidar) & fin, lidar - np.where(fin, d_all, 0.0), np.inf)
+    covered = wall & (np.abs(gap) <= tol_m)
+    tree = wall & (gap < -tol_m) & is_veg
+    frame = CoverageFrame(int(wall.sum()), int(covered.sum()), int(tree.sum()), draw_s, rgb)
+    if roofs is not None:
+        pts = points_from_distance(np.where(wall, d_all, 0.0), cam, relative=False)[wall]
+        ok = np.zeros_like(wall)
+        ok[wall] = roofs.local_max(pts[:, :2]) >= pts[:, 2] - tol_m
+        scanned = ok & ~tree
+        frame.scanned_px = int(scanned.sum())
+        frame.scanned_covered_px = int((scanned & covered).sum())
+    return frame
 
 
 def _grab_depth(window: Any, renderer: Any, size: tuple[int, int]) -> npt.NDArray[np.float32]:
@@ -282,7 +296,6 @@ def splat_coverage(xyz: F64, classification: npt.NDArray[np.uint8], normals: npt
     of its own, so a pixel whose nearest splat is vegetation is known without reading colours.
     """
     from citylod.render.colors import classification_rgb
-    from citylod.render.depth import points_from_distance
     from citylod.render.splats import Splats, estimate_splats, splat_actor
     from citylod.render.tileset_actor import camera_to_vtk
 
@@ -328,21 +341,8 @@ def splat_coverage(xyz: F64, classification: npt.NDArray[np.uint8], normals: npt
             d_veg = depth(veg)
             d_all = depth(walls, others)
             d_wall = depth(walls)
-            fin = np.isfinite(d_all)
-            wall = fin & np.isfinite(d_wall) & (d_wall <= d_all + 1e-3 * np.where(fin, d_all, 0) + 0.01)
-            gap = np.where(np.isfinite(lidar) & fin, lidar - np.where(fin, d_all, 0.0), np.inf)
-            covered = wall & (np.abs(gap) <= tol_m)
             is_veg = np.isfinite(d_veg) & (d_veg <= lidar + 1e-3 * np.where(np.isfinite(lidar), lidar, 0) + 0.01)
-            tree = wall & (gap < -tol_m) & is_veg
-            frame = CoverageFrame(int(wall.sum()), int(covered.sum()), int(tree.sum()), draw_s, img)
-            if roofs is not None:
-                pts = points_from_distance(np.where(wall, d_all, 0.0), cam, relative=False)[wall]
-                ok = np.zeros_like(wall)
-                ok[wall] = roofs.local_max(pts[:, :2]) >= pts[:, 2] - tol_m
-                scanned = ok & ~tree
-                frame.scanned_px = int(scanned.sum())
-                frame.scanned_covered_px = int((scanned & covered).sum())
-            out.append(frame)
+            out.append(_frame(cam, lidar, d_all, d_wall, is_veg, draw_s, img, tol_m, roofs))
     finally:
         window.Finalize()
     return out
@@ -352,15 +352,7 @@ def wall_distances(points: F64, wall_tris: F64) -> F64:
     """Exact distance from each point to the nearest wall triangle (VTK's ``vtkImplicitPolyDataDistance``
     over the triangles, evaluated for all points in one call; unsigned)."""
     org = wall_tris.reshape(-1, 3).mean(axis=0)
-    data = _vtk.vtkPolyData()
-    vp = _vtk.vtkPoints()
-    vp.SetData(_vtk.numpy_to_vtk(np.ascontiguousarray(wall_tris.reshape(-1, 3) - org), deep=True))
-    data.SetPoints(vp)
-    n = len(wall_tris)
-    conn = np.column_stack([np.full(n, 3), np.arange(3 * n).reshape(n, 3)]).reshape(-1)
-    cells = _vtk.vtkCellArray()
-    cells.ImportLegacyFormat(_vtk.numpy_to_vtkIdTypeArray(conn.astype(np.int64), deep=True))
-    data.SetPolys(cells)
+    data = _tri_polydata(wall_tris, org, np.float64)
     dist = _vtk.vtkImplicitPolyDataDistance()
     dist.SetInput(data)
     src = _vtk.numpy_to_vtk(np.ascontiguousarray(np.asarray(points, np.float64) - org), deep=True)
@@ -392,6 +384,23 @@ def _timed_build(files: Sequence[Path], out: Path, complete: Any) -> tuple[float
     return time.perf_counter() - t0, rep
 
 
+def _totals(frames: Sequence[CoverageFrame]) -> dict[str, Any]:
+    """The report entry of one variant: pixel counts and shares over all cameras, median frame time."""
+    wall_px = sum(f.wall_px for f in frames)
+    tree_px = sum(f.tree_px for f in frames)
+    cov = sum(f.covered_px for f in frames)
+    scanned = sum(f.scanned_px for f in frames)
+    return {
+        "wall_px": wall_px, "tree_px": tree_px, "covered_px": cov,
+        "coverage": cov / (wall_px - tree_px) if wall_px > tree_px else None,
+        "coverage_all": cov / wall_px if wall_px else None,
+        "scanned_px": scanned,
+        "coverage_scanned": sum(f.scanned_covered_px for f in frames) / scanned if scanned else None,
+        "coverage_per_camera": [f.share for f in frames],
+        "draw_s_median": statistics.median(f.draw_s for f in frames),
+    }
+
+
 def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int] = (960, 540)) -> dict[str, Any]:
     """The whole measurement on Delft; returns the report (also written as ``complete.json``)."""
     from citylod.io.las import read_metadata
@@ -418,19 +427,8 @@ def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int
     roofs = RoofGrid.from_las(files)
     for name in variants:
         frames = wall_coverage(work / name, mesh, cams, size=size, roofs=roofs)
-        wall_px = sum(f.wall_px for f in frames)
-        tree_px = sum(f.tree_px for f in frames)
-        cov = sum(f.covered_px for f in frames)
         result["variants"][name] = {
-            "build_s_median": statistics.median(times[name]), "build_s": times[name],
-            "wall_px": wall_px, "tree_px": tree_px, "covered_px": cov,
-            "coverage": cov / (wall_px - tree_px) if wall_px > tree_px else None,
-            "coverage_all": cov / wall_px if wall_px else None,
-            "scanned_px": sum(f.scanned_px for f in frames),
-            "coverage_scanned": (sum(f.scanned_covered_px for f in frames)
-                                 / max(1, sum(f.scanned_px for f in frames))),
-            "coverage_per_camera": [f.share for f in frames],
-            "draw_s_median": statistics.median(f.draw_s for f in frames),
+            **_totals(frames), "build_s_median": statistics.median(times[name]), "build_s": times[name],
             "summary": reports[name].summary(),
         }
         save_png(out_dir / f"delft_{name}.png", frames[0].rgb)
@@ -455,18 +453,7 @@ def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int
                                 np.concatenate([np.zeros((len(xyz), 3), np.float32), aug.normals])),
     }.items():
         frames = splat_coverage(px, pc, pn, mesh, cams, size=size, roofs=roofs)
-        wall_px = sum(f.wall_px for f in frames)
-        tree_px = sum(f.tree_px for f in frames)
-        cov = sum(f.covered_px for f in frames)
-        result["variants"][name] = {
-            "wall_px": wall_px, "tree_px": tree_px, "covered_px": cov,
-            "coverage": cov / (wall_px - tree_px) if wall_px > tree_px else None,
-            "coverage_all": cov / wall_px if wall_px else None,
-            "scanned_px": sum(f.scanned_px for f in frames),
-            "coverage_scanned": (sum(f.scanned_covered_px for f in frames)
-                                 / max(1, sum(f.scanned_px for f in frames))),
-            "draw_s_median": statistics.median(f.draw_s for f in frames),
-        }
+        result["variants"][name] = _totals(frames)
         save_png(out_dir / f"delft_{name}.png", frames[0].rgb)
     wall_pts = aug.xyz[aug.kind == KIND_WALL]
     d = wall_distances(wall_pts, mesh.walls)
