@@ -18,6 +18,7 @@ MODULES = [
     "citylod.lod.build.model",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
+    "citylod.render.splats",
     "citylod.analysis.flood",
     "citylod.analysis.polygons",
     "citylod.lod.runtime.budget",

@@ -25,6 +25,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pt.add_argument("-o", "--output", type=Path, required=True)
     pt.add_argument("--crs", help="CRS when the LAS header has none, e.g. EPSG:28992")
     pt.add_argument("--no-hybrid", action="store_true", help="points only, no plane quads")
+    pt.add_argument("--complete", nargs="?", const="points", choices=("points", "quads"),
+                    help="add walls (as points, the default, or as quads) and ground under canopy from the "
+                         "ASPRS classes (2 ground, 6 building, 3-5 vegetation); added points are flagged "
+                         "synthetic. Unclassified input gets a warning and nothing added")
+    pt.add_argument("--no-ground-fill", action="store_true", help="with --complete: walls only")
     pt.add_argument("--workers", type=int)
     pt.add_argument("--scheduler")
     m = bsub.add_parser("model", help="DSM raster to a simplified city mesh (3D Tiles) and buildings (CityJSON)")
@@ -54,11 +59,14 @@ def run(args: argparse.Namespace, progress: bool) -> int:
             workers=args.workers, scheduler=args.scheduler, progress=progress, certify_leaves=args.certify_leaves,
         )
     elif args.kind == "points":
+        from citylod.lod.build.complete import CompleteOptions
         from citylod.lod.build.points import build_points
 
+        complete = (None if args.complete is None
+                    else CompleteOptions(walls=args.complete, ground=not args.no_ground_fill))
         report = build_points(
             args.files, args.output, crs=args.crs, hybrid=not args.no_hybrid, workers=args.workers,
-            scheduler=args.scheduler, progress=progress,
+            scheduler=args.scheduler, progress=progress, complete=complete,
         )
     elif args.kind == "model":
         from citylod.lod.build.model import build_model
