@@ -41,6 +41,7 @@ from citylod.app.models import (
     missing_crs,
     source_kind,
 )
+from citylod.app.qt_flood import FloodPanel
 from citylod.app.qt_panels import (
     AttributePanel,
     BookmarkPanel,
@@ -99,6 +100,8 @@ class MainWindow(QMainWindow):
         self.profile = ProfilePanel(self.document)
         self.points = PointPanel(self.document)
         self.clip = ClipPanel(self.document, self._focus)
+        self.flood = FloodPanel(self.document)
+        self.flood.render_requested.connect(self.view.request_render)
         self.docks: dict[str, QDockWidget] = {}
         left, right = Qt.DockWidgetArea.LeftDockWidgetArea, Qt.DockWidgetArea.RightDockWidgetArea
         for name, title, widget, area in (
@@ -106,7 +109,7 @@ class MainWindow(QMainWindow):
                 ("objects", "City objects", self.tree, left), ("attributes", "Attributes", self.inspector, right),
                 ("query", "Query", self.query, right), ("measure", "Measure", self.measure, right),
                 ("bookmarks", "Bookmarks", self.bookmarks, right),
-                ("profile", "Height profile", self.profile, right),
+                ("profile", "Height profile", self.profile, right), ("flood", "Flood", self.flood, right),
                 ("points", "Points and classes", self.points, left), ("clip", "Clipping box", self.clip, left)):
             dock = QDockWidget(title, self)
             dock.setObjectName(f"dock_{name}")

@@ -27,6 +27,7 @@ from vtkmodules.util.vtkConstants import VTK_FLOAT, VTK_OBJECT
 from vtkmodules.vtkCommonCore import (
     VTK_UNSIGNED_CHAR,
     vtkCommand,
+    vtkDoubleArray,
     vtkFloatArray,
     vtkLogger,
     vtkObject,
@@ -42,6 +43,8 @@ from vtkmodules.vtkCommonDataModel import (
     vtkPolyData,
 )
 from vtkmodules.vtkCommonMath import vtkMatrix4x4
+from vtkmodules.vtkFiltersCore import vtkImplicitPolyDataDistance, vtkTriangleFilter
+from vtkmodules.vtkFiltersSources import vtkRegularPolygonSource
 from vtkmodules.vtkIOCore import vtkMemoryResourceStream
 from vtkmodules.vtkIOImage import vtkImageReader2, vtkJPEGReader, vtkPNGReader, vtkPNGWriter
 from vtkmodules.vtkRenderingCore import (
@@ -50,6 +53,7 @@ from vtkmodules.vtkRenderingCore import (
     vtkCamera,
     vtkCompositeDataDisplayAttributes,
     vtkCompositePolyDataMapper,
+    vtkGlyph3DMapper,
     vtkLight,
     vtkPolyDataMapper,
     vtkPolyDataMapper2D,
@@ -86,10 +90,13 @@ __all__ = [
     "vtkCommand",
     "vtkCompositeDataDisplayAttributes",
     "vtkCompositePolyDataMapper",
+    "vtkDoubleArray",
     "vtkEDLShading",
     "vtkFloatArray",
+    "vtkGlyph3DMapper",
     "vtkImageData",
     "vtkImageReader2",
+    "vtkImplicitPolyDataDistance",
     "vtkJPEGReader",
     "vtkLight",
     "vtkMatrix4x4",
@@ -105,12 +112,14 @@ __all__ = [
     "vtkPolyDataMapper",
     "vtkPolyDataMapper2D",
     "vtkProperty",
+    "vtkRegularPolygonSource",
     "vtkRenderStepsPass",
     "vtkRenderWindow",
     "vtkRenderer",
     "vtkTextActor",
     "vtkTexture",
     "vtkTextureObject",
+    "vtkTriangleFilter",
     "vtkUnsignedCharArray",
     "vtkWindowToImageFilter",
     "vtk_to_numpy",
