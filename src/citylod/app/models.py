@@ -584,7 +584,8 @@ class Document:
                 from citylod.render.semantic import build_contour_map, overlay_map_args
 
                 pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="citylod-map")
-                self._semantic_future = pool.submit(build_contour_map, self.store, **overlay_map_args(self.scene))
+                self._semantic_future = pool.submit(_on_own_connection, self.store.path, build_contour_map,
+                                                    **overlay_map_args(self.scene))
                 pool.shutdown(wait=False)
             return
         try:
@@ -887,17 +888,13 @@ class Document:
     def proxy_meshes(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
         """Every object's proxy mesh stacked into one: vertices (V, 3), faces (F, 3), the store index of
         each face's object (F,). Drawn when a city store is open without a tileset to shade. Reads one
-        row per object (the store keeps one mesh per object); safe on a worker thread."""
-        from citylod.render.store_actor import stack_meshes
-
+        row per object (the store keeps one mesh per object) on a connection of its own, so it may run
+        on a worker thread while the GUI queries the store."""
         if self.store is None:
+            from citylod.render.store_actor import stack_meshes
+
             return stack_meshes([])
-        meshes = []
-        for i, oid in enumerate(self.store.ids):
-            v, f = self.store.mesh(oid)
-            if len(f):
-                meshes.append((i, v, f))
-        return stack_meshes(meshes)
+        return _on_own_connection(self.store.path, _stacked_proxy_meshes)
 
     @property
     def store_alone(self) -> bool:
@@ -934,6 +931,29 @@ class Document:
         if self.store is not None:
             self.store.close()
             self.store = None
+
+
+def _on_own_connection(path: Path, fn: Callable[..., Any], **kwargs: Any) -> Any:
+    """``fn(store, **kwargs)`` on a city store opened here, for worker threads: the store's SQLite
+    connection runs Python callbacks (the query authorizer and time limit), and two threads sharing it
+    deadlock (one holds the connection's mutex waiting for the GIL, the other holds the GIL waiting for the
+    mutex)."""
+    from citylod.semantics.store import CityStore
+
+    with CityStore.open(path) as store:
+        return fn(store, **kwargs)
+
+
+def _stacked_proxy_meshes(store: Any) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64],
+                                                 npt.NDArray[np.int64]]:
+    from citylod.render.store_actor import stack_meshes
+
+    meshes = []
+    for i, oid in enumerate(store.ids):
+        v, f = store.mesh(oid)
+        if len(f):
+            meshes.append((i, v, f))
+    return stack_meshes(meshes)
 
 
 @dataclass
