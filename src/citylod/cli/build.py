@@ -20,6 +20,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786")
     d.add_argument("--certify-leaves", action="store_true",
                    help="certify the leaves against the raster too (default: the TIN kernel's exact bound)")
+    d.add_argument("--metric", choices=("hausdorff", "vertical"), default="hausdorff",
+                   help="what geometricError bounds: the symmetric 3D Hausdorff distance to the raster (default) "
+                        "or the vertical distance (counts a façade at its full height)")
     pt = bsub.add_parser("points", help="LAS/LAZ files to a 3D Tiles octree")
     pt.add_argument("files", type=Path, nargs="+")
     pt.add_argument("-o", "--output", type=Path, required=True)
@@ -42,6 +45,7 @@ def run(args: argparse.Namespace, progress: bool) -> int:
         report = build_dsm(
             args.raster, args.output, ortho=args.ortho, max_error=args.max_error, tile_size=args.tile_size,
             workers=args.workers, scheduler=args.scheduler, progress=progress, certify_leaves=args.certify_leaves,
+            metric=args.metric,
         )
     elif args.kind == "points":
         from citylod.lod.build.points import build_points

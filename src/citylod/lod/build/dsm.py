@@ -69,6 +69,7 @@ from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_ima
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod.kernels import aot
 from citylod.lod.kernels.certify import certify, grid_error_lower_bound, skirt_strip
+from citylod.lod.kernels.hausdorff import certify_hausdorff
 from citylod.lod.kernels.octree import bounds as xyz_bounds
 
 # Coarse levels may need several passes of "force the vertices of bad cells"; after this many the
@@ -87,6 +88,21 @@ _SHORTCUT_SLACK = 1.25
 # built (2049² float64 heights + validity ≈ 38 MB); larger ones are read in cached blocks of _BLOCK cells.
 _WHOLE_FOOTPRINT_SAMPLES = 2049 * 2049
 _BLOCK = 1024
+# Hausdorff metric: rings of raster cells searched around a piece for a closer part of the surface, and the
+# TIN kernel's vertical tolerances tried on a coarse tile, as fractions of its target (the first whose
+# certificate meets the target is kept; see build_tile).
+_HAUSDORFF_REACH = 12
+_HAUSDORFF_TOLERANCES = (1.0, 0.5, 0.25)
+
+
+# What a tileset's geometricError means, written into its citylod extras.
+_METRIC_TEXT = {
+    "hausdorff": "symmetric 3D Hausdorff distance vs full-resolution grid, certified upper bound (coarse tiles: "
+                 "point-triangle distances at the vertices of the overlay pieces; leaves: exact vertical "
+                 "L-infinity), plus float32 horizontal quantisation",
+    "vertical": "vertical L-infinity vs full-resolution grid, exact (samples + edge crossings), "
+                "plus float32 horizontal quantisation; bounds the symmetric Hausdorff distance",
+}
 
 
 @dataclass(frozen=True)
@@ -110,6 +126,7 @@ class DsmJob:
     stage1: TileResult | None = None  # stage 2 only: this tile's stage-1 result
     stage1_tin: journal.Entry | None = None  # stage 2 only: where its stage-1 TIN is journalled
     certify_leaves: bool = False  # certify leaves against the raster too (see finish_tile)
+    metric: str = "hausdorff"  # what geometricError bounds: "hausdorff" (3D, symmetric) or "vertical" (L∞)
 
 
 @dataclass
@@ -309,12 +326,32 @@ def _place(info: RasterInfo, to_metric: pyproj.Transformer | None, rpos: np.ndar
 
 
 def _certify(fp: _Footprint, vr: np.ndarray, vc: np.ndarray, zq: np.ndarray, faces: np.ndarray, cells: int,
-             stride: int, per_cell: bool = False) -> tuple[float, np.ndarray]:
-    """Exact vertical L∞ of the TIN (quantised heights) against the full-resolution footprint, and per cell
-    (zeros unless ``per_cell``)."""
+             stride: int, per_cell: bool = False, hausdorff: tuple[float, float, float, float] | None = None,
+             floor: float = 0.0) -> tuple[float, np.ndarray]:
+    """The TIN's certified error (quantised heights) against the full-resolution footprint, and per cell
+    (zeros unless ``per_cell``): exact vertical L∞, or with ``hausdorff`` (the raster's affine, see
+    `citylod.lod.kernels.hausdorff.certify_hausdorff`) a bound of the symmetric 3D Hausdorff distance, pieces
+    under ``floor`` kept at their vertical bound."""
+    if hausdorff is not None:
+        err, cell_err, _ = certify_hausdorff(fp.read_block, fp.footprint, vr, vc, zq, faces.astype(np.int64),
+                                             (cells, cells), stride, hausdorff, block=fp.block, per_cell=per_cell,
+                                             floor=floor, reach=_HAUSDORFF_REACH)
+        return err, cell_err
     err, cell_err, _ = certify(fp.read_block, fp.footprint, vr, vc, zq, faces.astype(np.int64), (cells, cells),
                                stride, block=fp.block, per_cell=per_cell)
     return err, cell_err
+
+
+def _hausdorff_affine(info: RasterInfo, job: DsmJob) -> tuple[float, float, float, float] | None:
+    """The raster's affine without offsets when ``job`` certifies the Hausdorff distance, else None.
+
+    Geographic rasters keep the vertical metric: their samples are not an affine image of rows and
+    columns in the metric CRS, and the vertical bound (plus the projection term) bounds Hausdorff too.
+    """
+    if job.metric != "hausdorff" or info.geographic:
+        return None
+    a, b, _, d, e, _ = info.transform[:6]
+    return float(a), float(b), float(d), float(e)
 
 
 def _fixed_cell(cell: tuple[int, int], vij: np.ndarray, must: np.ndarray | None, last_r: int, last_c: int) -> bool:
@@ -392,9 +429,31 @@ def build_tile(job: DsmJob) -> TileResult:
         if len(faces) == 0 or not check:
             return math.nan, vij, faces, vz, np.zeros((cells, cells))
         _, _, _, vr, vc, zq = _place(info, to_metric, rpos, cpos, vij, vz)
-        err, cell_err = _certify(fp, vr, vc, zq, faces, cells, stride, per_cell=per_cell)
+        err, cell_err = _certify(fp, vr, vc, zq, faces, cells, stride, per_cell=per_cell, hausdorff=haus,
+                                 floor=0.5 * job.target)
         return err, vij, faces, vz, cell_err
 
+    haus = _hausdorff_affine(info, job) if stride > 1 else None
+    if haus is not None:
+        # The TIN kernel simplifies the tile's grid G within a vertical tolerance; the certificate measures
+        # the TIN against the raster in 3D. H(TIN, raster) ≤ H(TIN, G) + H(G, raster) ≤ tol + H(G, raster),
+        # and H(G, raster) is what a coarse grid cannot avoid (a façade between its samples), so the coarsest
+        # tolerance whose certificate meets the target is kept; a finer one only when it lowers the
+        # certificate clearly (a façade-bound tile gains nothing from more triangles).
+        kept = None
+        for frac in _HAUSDORFF_TOLERANCES:
+            trial = attempt(frac * job.target, None, per_cell=False)
+            if len(trial[2]) == 0:
+                break
+            if kept is not None and trial[0] >= kept[0] * _REFINE_GAIN:
+                break
+            kept = trial
+            if trial[0] <= job.target:
+                break
+        if kept is None:
+            _journal_result(job.out_dir, key, res)
+            return res
+        return _stage1_done(job, res, key, kept, 1, valid, stride, last_r, last_c, t0)
     if stride > 1:
         full = grid_error_lower_bound(fp.read_block, fp.footprint, rpos, cpos, heights, valid, block=fp.block)
         if full > 2.0 * job.target:
@@ -514,6 +573,7 @@ def finish_tile(job: DsmJob) -> TileResult:
     replaced = faces[:0]
     old_center = None
     # A leaf's error is its kernel's bound (see below), not a certificate: nothing of stage 1 is re-evaluated.
+    haus = _hausdorff_affine(info, job) if stride > 1 else None
     kernel_leaf = stride == 1 and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
     if job.border_extra:
         vij2, faces2, replaced = _insert_border_vertices(vij, faces, dict(job.border_extra), last_r, last_c)
@@ -536,6 +596,12 @@ def finish_tile(job: DsmJob) -> TileResult:
         if len(replaced):
             assert fp is not None
             err = max(err, _certify(fp, vr, vc, zq, faces[n_kept:], cells, stride)[0])
+    elif haus is not None:
+        # Hausdorff pieces look for candidates among neighbouring faces, so a subset of faces certifies
+        # higher than in the whole TIN: a tile the fans changed is certified again as a whole.
+        if fp is not None or math.isnan(err):
+            err, _ = _certify(fp or _Footprint(job.source, rpos, cpos), vr, vc, zq, faces, cells, stride,
+                              hausdorff=haus, floor=0.5 * job.target)
     elif fp is not None and old_center is not None and not math.isnan(err) and np.array_equal(center, old_center):
         # Certified in stage 1, and the old vertices quantise as they did: the certificate is a maximum
         # over faces, so the fans, and where needed the faces they replaced or kept, are evaluated (exactly,
@@ -561,7 +627,8 @@ def finish_tile(job: DsmJob) -> TileResult:
         if again is not None:
             vz2 = heights[again[0][:, 0], again[0][:, 1]]
             placed = _place(info, to_metric, rpos, cpos, again[0], vz2)
-            err2, _ = _certify(fp, placed[3], placed[4], placed[5], again[1], cells, stride)
+            err2, _ = _certify(fp, placed[3], placed[4], placed[5], again[1], cells, stride, hausdorff=haus,
+                               floor=0.5 * job.target)
             if err2 < err:
                 (vij, faces), vz, err = again, vz2, err2
                 local, center, q_xy, vr, vc, zq = placed
@@ -798,7 +865,8 @@ def plan_levels(info: RasterInfo, tile_size: int) -> int:
 def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, ortho: str | os.PathLike[str] | None = None,
               max_error: float | None = None, tile_size: int = 129, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, texture_size: int | None = None,
-              certify_leaves: bool = False, _stop_after: int | None = None) -> DsmBuildReport:
+              certify_leaves: bool = False, metric: str = "hausdorff",
+              _stop_after: int | None = None) -> DsmBuildReport:
     """Build a 3D Tiles quadtree from a DSM raster. See the module docstring for the method.
 
     Parameters
@@ -823,7 +891,15 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         is the TIN kernel's own exact bound on the full-resolution grid plus the float32 rounding of its
         heights, and only the faces stage 2 changed are certified: the same guarantee, a fraction of the
         time, a bound instead of the measured maximum (at most the target).
+    metric
+        What ``geometricError`` bounds: ``"hausdorff"`` (default), the symmetric 3D Hausdorff distance between a
+        tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`), or
+        ``"vertical"``, the vertical L∞ distance (which bounds Hausdorff too, but counts a façade between two
+        coarse samples at its full height). Leaves keep the TIN kernel's vertical bound under both, and
+        geographic rasters are certified vertically under both.
     """
+    if metric not in ("hausdorff", "vertical"):
+        raise ValueError(f"metric must be 'hausdorff' or 'vertical', got {metric!r}")
     t0 = time.perf_counter()
     if tile_size < 3 or (tile_size - 1) & (tile_size - 2):
         raise ValueError(f"tile_size must be 2^k + 1 (e.g. 65, 129, 257), got {tile_size}")
@@ -864,7 +940,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
                 key = f"{d}/{i}/{j}"
                 job = DsmJob(src, str(partial), d, i, j, levels, tile_size, leaf * 2 ** (levels - d),
                              None if ortho is None else str(ortho), tex, metric_wkt,
-                             certify_leaves=certify_leaves)
+                             certify_leaves=certify_leaves, metric=metric)
                 all_jobs[key] = job
                 prev = _read_result(partial, key, idx)
                 tin = _read_stage1(key, idx)
@@ -929,8 +1005,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     write_tileset(partial, root, metric, extras={"citylod": {
         "kind": "dsm", "source": str(Path(raster).name), "source_crs": info.crs_wkt,
         "leaf_target_m": leaf, "tile_size": tile_size, "levels": levels + 1,
-        "error_metric": "vertical L-infinity vs full-resolution grid, exact (samples + edge crossings), "
-                        "plus float32 horizontal quantisation; bounds the symmetric Hausdorff distance",
+        "error_metric": _METRIC_TEXT["hausdorff" if metric == "hausdorff" and not info.geographic else "vertical"],
     }})
     _replace_dir(partial, out)
     seconds = time.perf_counter() - t0
