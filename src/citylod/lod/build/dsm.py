@@ -354,6 +354,66 @@ def _hausdorff_affine(info: RasterInfo, job: DsmJob) -> tuple[float, float, floa
     return float(a), float(b), float(d), float(e)
 
 
+def _feature_heights(fp: _Footprint, heights: np.ndarray, valid: np.ndarray, stride: int,
+                     target: float) -> np.ndarray:
+    """Grid heights for the Hausdorff metric: an interior grid vertex near a feature narrower than the stride
+    (a tree, a chimney, a one-sample trench) that the grid G misses by more than ``target`` takes that
+    feature's height.
+
+    Every full-resolution sample lies within half a stride (per axis) of a grid vertex; where the samples in
+    that window rise above (sink below) G by more than ``target``, the vertex is raised (lowered) by the
+    largest such residual, so the TIN reaches the feature within half a stride horizontally instead of
+    passing over (under) it at its full height. Border vertices keep their samples, so neighbours still
+    share their border heights. Only a better candidate surface: the certificate decides.
+    """
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    rpos, cpos = fp.rpos, fp.cpos
+    nr, nc = heights.shape
+    if nr < 3 or nc < 3:
+        return heights
+    up = np.full((nr, nc), -np.inf)
+    down = np.full((nr, nc), np.inf)
+    top = np.full((nr, nc), -np.inf)
+    bottom = np.full((nr, nc), np.inf)
+    r0, c0, r1, c1 = fp.footprint
+    size = 2 * (stride // 2) + 1
+    for br in range(r0, max(r1, r0 + 1), fp.block):
+        for bc in range(c0, max(c1, c0 + 1), fp.block):
+            bh, bw = min(fp.block + 1, r1 - br + 1), min(fp.block + 1, c1 - bc + 1)
+            f, v = fp.read_block(br, bc, bh, bw)
+            rows, cols = np.arange(br, br + bh), np.arange(bc, bc + bw)
+            a = np.clip(np.searchsorted(rpos, rows, "right") - 1, 0, nr - 2)
+            b = np.clip(np.searchsorted(cpos, cols, "right") - 1, 0, nc - 2)
+            u = ((rows - rpos[a]) / (rpos[a + 1] - rpos[a]))[:, None]
+            w = ((cols - cpos[b]) / (cpos[b + 1] - cpos[b]))[None, :]
+            z00, z01 = heights[np.ix_(a, b)], heights[np.ix_(a, b + 1)]
+            z10, z11 = heights[np.ix_(a + 1, b)], heights[np.ix_(a + 1, b + 1)]
+            g = np.where(u >= w, z00 + u * (z10 - z00) + w * (z11 - z10), z00 + w * (z01 - z00) + u * (z11 - z01))
+            ok = v & valid[np.ix_(a, b)] & valid[np.ix_(a, b + 1)] & valid[np.ix_(a + 1, b)] & valid[np.ix_(a + 1, b + 1)]
+            res = f - g
+            hi = maximum_filter(np.where(ok, res, -np.inf), size=size, mode="constant", cval=-np.inf)
+            lo = minimum_filter(np.where(ok, res, np.inf), size=size, mode="constant", cval=np.inf)
+            ri = np.flatnonzero((rpos >= br) & (rpos < br + bh))
+            ci = np.flatnonzero((cpos >= bc) & (cpos < bc + bw))
+            ix = np.ix_(ri, ci)
+            sub = np.ix_(rpos[ri] - br, cpos[ci] - bc)
+            up[ix] = np.maximum(up[ix], hi[sub])
+            down[ix] = np.minimum(down[ix], lo[sub])
+            fmax = maximum_filter(np.where(ok, f, -np.inf), size=size, mode="constant", cval=-np.inf)
+            fmin = minimum_filter(np.where(ok, f, np.inf), size=size, mode="constant", cval=np.inf)
+            top[ix] = np.maximum(top[ix], fmax[sub])
+            bottom[ix] = np.minimum(bottom[ix], fmin[sub])
+    # never beyond the heights the window holds (a vertex on a roof next to a façade stays on the roof)
+    raised = np.minimum(heights + up, top)
+    lowered = np.maximum(heights + down, bottom)
+    out = np.where(up >= -down, raised, lowered)
+    keep = ~np.isfinite(out) | (np.maximum(up, -down) <= target) | ~valid
+    keep[[0, -1], :] = True
+    keep[:, [0, -1]] = True
+    return np.where(keep, heights, out)
+
+
 def _fixed_cell(cell: tuple[int, int], vij: np.ndarray, must: np.ndarray | None, last_r: int, last_c: int) -> bool:
     """Whether the next refinement pass is sure to triangulate this level cell exactly as now.
 
@@ -435,6 +495,7 @@ def build_tile(job: DsmJob) -> TileResult:
 
     haus = _hausdorff_affine(info, job) if stride > 1 else None
     if haus is not None:
+        heights = _feature_heights(fp, heights, valid, stride, job.target)
         # The TIN kernel simplifies the tile's grid G within a vertical tolerance; the certificate measures
         # the TIN against the raster in 3D. H(TIN, raster) ≤ H(TIN, G) + H(G, raster) ≤ tol + H(G, raster),
         # and H(G, raster) is what a coarse grid cannot avoid (a façade between its samples), so the coarsest
@@ -921,7 +982,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     out = Path(out_dir)
     partial = out.with_name(out.name + ".partial")
     partial.mkdir(parents=True, exist_ok=True)
-    metric = info.metric_crs()
+    metric_crs = info.metric_crs()
     tex = texture_size or 256
     cells = tile_size - 1
     stage1: list[DsmJob] = []
@@ -930,7 +991,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     borders: dict[str, TileResult] = {}  # stage-1 results (their border vertices) of tiles with content
     jdir = _journal_dir(partial)
     idx = journal.index(jdir)  # what an interrupted build finished (empty for a new one)
-    metric_wkt = metric.to_wkt()
+    metric_wkt = metric_crs.to_wkt()
     for d in range(levels + 1):
         stride = 2 ** (levels - d)
         nr = math.ceil(max(info.height - 1, 1) / (cells * stride))
@@ -1002,7 +1063,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     root = _assemble(results, levels, info, cells)
     if root is None:
         raise InputError("no tile has valid data", raster)
-    write_tileset(partial, root, metric, extras={"citylod": {
+    write_tileset(partial, root, metric_crs, extras={"citylod": {
         "kind": "dsm", "source": str(Path(raster).name), "source_crs": info.crs_wkt,
         "leaf_target_m": leaf, "tile_size": tile_size, "levels": levels + 1,
         "error_metric": _METRIC_TEXT["hausdorff" if metric == "hausdorff" and not info.geographic else "vertical"],
