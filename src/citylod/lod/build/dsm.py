@@ -404,11 +404,19 @@ def _feature_heights(fp: _Footprint, heights: np.ndarray, valid: np.ndarray, str
             fmin = minimum_filter(np.where(ok, f, np.inf), size=size, mode="constant", cval=np.inf)
             top[ix] = np.maximum(top[ix], fmax[sub])
             bottom[ix] = np.minimum(bottom[ix], fmin[sub])
-    # never beyond the heights the window holds (a vertex on a roof next to a façade stays on the roof)
-    raised = np.minimum(heights + up, top)
-    lowered = np.maximum(heights + down, bottom)
-    out = np.where(up >= -down, raised, lowered)
-    keep = ~np.isfinite(out) | (np.maximum(up, -down) <= target) | ~valid
+    # Only features the grid misses: a vertex is raised when it and its eight grid neighbours all lie more
+    # than ``target`` below the window's top (a tree or chimney between them), lowered likewise (a trench);
+    # never beyond the heights the window holds. A vertex beside a façade has a neighbour on the other side
+    # and stays where it is (moving it would delete a building whose only grid vertex it is).
+    hv = np.where(valid, heights, np.nan)
+    nmax = maximum_filter(np.where(valid, heights, -np.inf), size=3, mode="nearest")
+    nmin = minimum_filter(np.where(valid, heights, np.inf), size=3, mode="nearest")
+    can_up = (up > target) & (nmax < top - target)
+    can_down = (-down > target) & (nmin > bottom + target)
+    raised = np.minimum(hv + up, top)
+    lowered = np.maximum(hv + down, bottom)
+    out = np.where(can_up & (~can_down | (up >= -down)), raised, np.where(can_down, lowered, hv))
+    keep = ~np.isfinite(out) | ~(can_up | can_down) | ~valid
     keep[[0, -1], :] = True
     keep[:, [0, -1]] = True
     return np.where(keep, heights, out)
