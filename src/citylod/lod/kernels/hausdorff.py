@@ -127,7 +127,7 @@ def _clip(qy, qx, n, y1, x1, y2, x2, sgn, oy, ox):  # pragma: no cover - compile
 
 
 @njit(cache=True, nogil=True)
-def hausdorff_block(F, V, r0, c0, aff, vr, vc, vz, faces, ring_start, ring_faces, cell_err, tr0, tc0, stride,
+def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_faces, cell_err, tr0, tc0, stride,
                     best, track, floor, reach):  # pragma: no cover - compiled
     """Update ``best`` = [bound, row, col] (and ``cell_err`` when ``track``) with the pieces of one block.
 
@@ -135,6 +135,9 @@ def hausdorff_block(F, V, r0, c0, aff, vr, vc, vz, faces, ring_start, ring_faces
     ----------
     F, V : (bh, bw) float64, bool
         Heights and validity of the block whose sample (0, 0) is global (r0, c0).
+    own : (4,) int64
+        The cells this call evaluates: global rows own[0]..own[1], columns own[2]..own[3] (inclusive); the
+        block's other cells (a margin around them) serve as candidates only.
     aff : (4,) float64
         Metric offsets of a sample from the footprint's first one (tr0, tc0):
         ``x = aff[0]·Δcol + aff[1]·Δrow``, ``y = aff[2]·Δcol + aff[3]·Δrow``.
@@ -186,8 +189,8 @@ def hausdorff_block(F, V, r0, c0, aff, vr, vc, vz, faces, ring_start, ring_faces
         pc = vz[a] - pa * ys0 - pb * xs0
         ymin = min(ys0, min(ys1, ys2))
         ymax = max(ys0, max(ys1, ys2))
-        i_lo = max(int(math.floor(ymin + _EPS)), r0)
-        i_hi = min(int(math.ceil(ymax - _EPS)) - 1, r0 + bh - 2)
+        i_lo = max(int(math.floor(ymin + _EPS)), r0, own[0])
+        i_hi = min(int(math.ceil(ymax - _EPS)) - 1, r0 + bh - 2, own[1])
         for i in range(i_lo, i_hi + 1):
             # the face's column range inside the strip of rows i..i+1
             lo = math.inf
@@ -207,8 +210,8 @@ def hausdorff_block(F, V, r0, c0, aff, vr, vc, vz, faces, ring_start, ring_faces
                         x = x1 + (yl - y1) * (x2 - x1) / (y2 - y1)
                         lo = min(lo, x)
                         hi = max(hi, x)
-            j_lo = max(int(math.floor(lo + _EPS)), c0)
-            j_hi = min(int(math.ceil(hi - _EPS)) - 1, c0 + bw - 2)
+            j_lo = max(int(math.floor(lo + _EPS)), c0, own[2])
+            j_hi = min(int(math.ceil(hi - _EPS)) - 1, c0 + bw - 2, own[3])
             li = i - r0
             for j in range(j_lo, j_hi + 1):
                 lj = j - c0
@@ -379,14 +382,19 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
     vr, vc, vz = (np.ascontiguousarray(a, dtype=np.float64) for a in (vr, vc, vz))
     start, around = vertex_faces(f, len(vr))
     aff = np.asarray(affine, np.float64)
+    # Each block's cells are evaluated with a margin of ``reach`` samples around them, read with the block,
+    # so that the candidate search sees across block seams.
+    halo = int(reach) + 1
     for br in range(r0, max(r1, r0 + 1), block):
         for bc in range(c0, max(c1, c0 + 1), block):
-            nr = min(block + 1, r1 - br + 1)
-            nc = min(block + 1, c1 - bc + 1)
-            heights, valid = read_block(br, bc, nr, nc)
+            own = np.array([br, min(br + block, r1) - 1, bc, min(bc + block, c1) - 1], np.int64)
+            hr, hc = max(br - halo, r0), max(bc - halo, c0)
+            nr = min(br + block + halo, r1) - hr + 1
+            nc = min(bc + block + halo, c1) - hc + 1
+            heights, valid = read_block(hr, hc, nr, nc)
             if not valid.any():
                 continue
             kernel(hausdorff_block, np.ascontiguousarray(heights, np.float64), np.ascontiguousarray(valid, np.bool_),
-                   br, bc, aff, vr, vc, vz, f, start, around, cell_err, float(r0), float(c0), float(stride), best,
-                   bool(per_cell), float(floor), int(reach))
+                   hr, hc, own, aff, vr, vc, vz, f, start, around, cell_err, float(r0), float(c0), float(stride),
+                   best, bool(per_cell), float(floor), int(reach))
     return float(best[0]), cell_err, (float(best[1]), float(best[2]))
