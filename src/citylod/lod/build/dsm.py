@@ -705,7 +705,13 @@ def finish_tile(job: DsmJob) -> TileResult:
     res.quantisation = q_xy
     res.projection = 0.0 if to_metric is None else _projection_bound(info, to_metric, rpos, cpos, vij, faces)
     res.geometric_error = err + q_xy + res.projection
-    skirt_depth = 2.0 * max(res.geometric_error, job.target)
+    # Two neighbours' borders lie on the same grid line, each within its vertical error there of the raster,
+    # so they differ by at most the sum of those errors: the skirt reaches twice this tile's. Under the
+    # Hausdorff metric the geometricError says nothing vertical (a façade on the border line), so the
+    # border's own vertical error is measured (exact along the line: both are linear between samples).
+    border_err = res.geometric_error if haus is None else max(
+        res.geometric_error, _border_vertical_error(job.source, rpos, cpos, vij, zq, last_r, last_c))
+    skirt_depth = 2.0 * max(border_err, job.target)
     out_faces = faces[:, ::-1] if info.transform[0] * info.transform[4] > 0 else faces  # south-up: mirrored
     # No skirt along the raster's own edges: no tile lies beyond them, so there is no crack to close, and a
     # skirt there only hangs a curtain of twice the tile's error under the data's outline (40 m under the
@@ -743,6 +749,31 @@ def finish_tile(job: DsmJob) -> TileResult:
     res.seconds += time.perf_counter() - t0
     _journal_result(job.out_dir, key, res)
     return res
+
+
+def _border_vertical_error(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray, vij: np.ndarray, zq: np.ndarray,
+                           last_r: int, last_c: int) -> float:
+    """max |TIN − raster| along the tile's four border lines, at every full-resolution sample on them (the
+    TIN's border is linear between its border vertices, which are samples, so that is the exact maximum)."""
+    worst = 0.0
+    for axis, fixed in ((0, 0), (0, last_r), (1, 0), (1, last_c)):
+        on = vij[:, axis] == fixed
+        if on.sum() < 2:
+            continue
+        along = vij[on, 1 - axis]
+        order = np.argsort(along)
+        pos = (cpos if axis == 0 else rpos)[along[order]].astype(np.float64)
+        zt = zq[on][order]
+        if axis == 0:
+            f, v = src.read_window(int(rpos[fixed]), int(pos[0]), 1, int(pos[-1] - pos[0]) + 1)
+        else:
+            f, v = src.read_window(int(pos[0]), int(cpos[fixed]), int(pos[-1] - pos[0]) + 1, 1)
+        f, v = f.reshape(-1), v.reshape(-1)
+        x = pos[0] + np.arange(len(f))
+        t = np.interp(x, pos, zt)
+        d = np.abs(t - f)[v]
+        worst = max(worst, float(d.max(initial=0.0)))
+    return worst
 
 
 def _projection_bound(info: RasterInfo, to_metric: pyproj.Transformer, rpos: np.ndarray, cpos: np.ndarray,
