@@ -709,9 +709,13 @@ def finish_tile(job: DsmJob) -> TileResult:
     # so they differ by at most the sum of those errors: the skirt reaches twice this tile's. Under the
     # Hausdorff metric the geometricError says nothing vertical (a façade on the border line), so the
     # border's own vertical error is measured (exact along the line: both are linear between samples).
-    border_err = res.geometric_error if haus is None else max(
-        res.geometric_error, _border_vertical_error(job.source, rpos, cpos, vij, zq, last_r, last_c))
-    skirt_depth = 2.0 * max(border_err, job.target)
+    # A neighbour of another level may lie lower by its own vertical error, which this tile does not know:
+    # the skirt also reaches the lowest raster sample on this tile's border lines (a coarse neighbour's
+    # border interpolates samples of the same line).
+    skirt_depth = 2.0 * max(res.geometric_error, job.target)
+    if haus is not None:
+        border_err, drop = _border_vertical_error(job.source, rpos, cpos, vij, zq, last_r, last_c)
+        skirt_depth = max(2.0 * max(border_err, job.target), drop + job.target)
     out_faces = faces[:, ::-1] if info.transform[0] * info.transform[4] > 0 else faces  # south-up: mirrored
     # No skirt along the raster's own edges: no tile lies beyond them, so there is no crack to close, and a
     # skirt there only hangs a curtain of twice the tile's error under the data's outline (40 m under the
@@ -752,10 +756,12 @@ def finish_tile(job: DsmJob) -> TileResult:
 
 
 def _border_vertical_error(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray, vij: np.ndarray, zq: np.ndarray,
-                           last_r: int, last_c: int) -> float:
+                           last_r: int, last_c: int) -> tuple[float, float]:
     """max |TIN − raster| along the tile's four border lines, at every full-resolution sample on them (the
-    TIN's border is linear between its border vertices, which are samples, so that is the exact maximum)."""
+    TIN's border is linear between its border vertices, which are samples, so that is the exact maximum), and
+    how far the lowest valid sample on a border line lies below the TIN's highest border vertex."""
     worst = 0.0
+    drop = 0.0
     for axis, fixed in ((0, 0), (0, last_r), (1, 0), (1, last_c)):
         on = vij[:, axis] == fixed
         if on.sum() < 2:
@@ -773,7 +779,9 @@ def _border_vertical_error(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray
         t = np.interp(x, pos, zt)
         d = np.abs(t - f)[v]
         worst = max(worst, float(d.max(initial=0.0)))
-    return worst
+        if v.any():
+            drop = max(drop, float(zt.max() - f[v].min()))
+    return worst, drop
 
 
 def _projection_bound(info: RasterInfo, to_metric: pyproj.Transformer, rpos: np.ndarray, cpos: np.ndarray,
