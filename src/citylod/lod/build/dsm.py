@@ -20,6 +20,15 @@ what the issue allows in place of Wahl's l−2 reference bookkeeping. A tile's f
 window, when it holds up to ``_WHOLE_FOOTPRINT_SAMPLES`` samples (its grid and every certification are then
 taken from memory), and in cached blocks otherwise, so memory does not grow with the raster.
 
+The metric (``metric``). By default a coarse tile's ``geometricError`` bounds the symmetric 3D Hausdorff
+distance between the tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`),
+which charges a façade between two coarse samples about the horizontal distance to it rather than its
+height. Its TIN is the TIN kernel's simplification of the tile's grid at a vertical tolerance (the coarsest of
+1, ½, ¼ × the target whose certificate meets the target), on grid heights that reach features narrower than
+the stride (`_feature_heights`); its skirts are sized from the border's measured vertical error. Leaves keep
+the kernel's vertical bound, which bounds Hausdorff too; geographic rasters are certified vertically.
+``metric="vertical"`` keeps the vertical L∞ certificate described above for every level.
+
 Borders, in two stages. Stage 1 (:func:`build_tile`) chooses every tile's TIN. Its border vertices are the
 1D simplification of the border samples (the same on both sides) plus the few the exact 2D bound or a
 no-data boundary made the kernel add, which differ between neighbours. Stage 2 (:func:`finish_tile`) gives
