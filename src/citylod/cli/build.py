@@ -35,7 +35,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("-o", "--output", type=Path, required=True)
     c.add_argument("--lod", type=int, choices=(1, 2), default=2)
     c.add_argument("--inflate", type=float, help="proxy inflation in metres")
-    c.add_argument("--crs", help="metric CRS to project geographic input to, e.g. EPSG:32632")
+    c.add_argument("--crs", help="metric CRS to project geographic input to, or the CRS of a file that names none, "
+                   "e.g. EPSG:32632")
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:

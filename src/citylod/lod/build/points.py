@@ -52,7 +52,8 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod._version import __version__
-from citylod.core.fileio import atomic_write, atomic_write_bytes, publish_dir
+from citylod.core.fileio import atomic_write, atomic_write_bytes, discard_partial_on_refusal, publish_dir
+from citylod.core.palette import ASPRS_CLASS_RGB
 from citylod.io.image import encode_png
 from citylod.io.las import POINT_DTYPE, iter_points, point_fields, read_metadata
 from citylod.io.tiles3d import (
@@ -273,8 +274,12 @@ def _columns(recs: Recs, xyz: F64, order: I64, key: str, center: F64, has_rgb: b
     """The drawn points ``order`` of a node, shuffled in runs (:func:`~citylod.lod.kernels.octree.shuffled_runs`)."""
     runs = shuffled_runs(len(order), _seed(key), _BATCH)
     pos, rgb, inten, cls, ret = point_columns(recs, np.ascontiguousarray(xyz), order, runs, _BATCH, center)
-    return PointData(positions=pos, rgb=rgb if has_rgb else None, intensity=inten, classification=cls,
-                     return_number=ret)
+    if has_rgb:
+        return PointData(positions=pos, rgb=rgb, intensity=inten, classification=cls, return_number=ret)
+    # Without RGB, the class colours of the quads (planes.splat_colors) for other clients, so a cloud looks
+    # the same at every level there too; citylod reads them back as no RGB (PointData.rgb_from_class).
+    return PointData(positions=pos, rgb=ASPRS_CLASS_RGB[cls], rgb_from_class=True, intensity=inten,
+                     classification=cls, return_number=ret)
 
 
 def _leaf(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, int, int],
@@ -697,6 +702,7 @@ def _build_chunked(ex: Executor, params: _Params, segments: list[tuple[str, int,
 
 
 # ----------------------------------------------------------------------------------------------- build
+@discard_partial_on_refusal
 def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[str], *, crs: Any = None,
                  hybrid: bool = True, workers: int | None = None, scheduler: Any = None,
                  progress: bool = True, phi: float = 8.0, max_leaf_points: int = 20_000,
