@@ -1217,7 +1217,8 @@ def _preload_kernels() -> None:
 
 def exercise_kernels() -> None:
     """Build a 40×40 raster inline, in a temporary folder: every compiled kernel a tile task calls runs
-    once, with the argument types a build passes (coarse levels, façades, no-data, border fans)."""
+    once, with the argument types a build passes (coarse levels, façades, no-data, border fans), under
+    both metrics."""
     import tempfile
 
     import rasterio
@@ -1233,7 +1234,8 @@ def exercise_kernels() -> None:
                            crs="EPSG:32632", transform=from_origin(500_000.0, 5_400_000.0, 1.0, 1.0),
                            nodata=-9999.0) as ds:
             ds.write(z, 1)
-        build_dsm(path, Path(tmp) / "tiles", tile_size=17, workers=0, progress=False)
+        for metric in ("vertical", "hausdorff"):  # each metric's certifier
+            build_dsm(path, Path(tmp) / metric, tile_size=17, workers=0, progress=False, metric=metric)
 
 
 def _assemble(results: dict[str, TileResult], levels: int, info: RasterInfo, cells: int) -> TileSpec | None:
