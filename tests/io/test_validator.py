@@ -70,3 +70,14 @@ def test_vertex_coloured_mesh_validates(validator, tmp_path) -> None:
     """Meshes with linear COLOR_0 and no texture (the colour path of other writers' content)."""
     out = make_terrain_tileset(tmp_path / "terrain", levels=2, n=9, texture_px=None, vertex_colors=True)
     assert _validate(validator, out, tmp_path) == []
+
+
+def test_city_model_mesh_validates(validator, tmp_path) -> None:
+    """The textured, shape-constrained city mesh of ``build model`` (cells as tiles under an empty root)."""
+    from citylod.lod.build.model import build_model
+    from citylod.sample import make_sample
+
+    info = make_sample(tmp_path / "s", size=65, seed=7)
+    build_model(info.files["dsm"], tmp_path / "model", ortho=info.files["ortho"], cell=32, workers=0,
+                progress=False)
+    assert _validate(validator, tmp_path / "model", tmp_path) == []

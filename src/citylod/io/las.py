@@ -30,11 +30,13 @@ from citylod.core.errors import CitylodError, EmptyInputError, GeoreferenceError
 from citylod.io.crs import parse_crs
 
 #: The one in-memory layout of a point, whatever the LAS point format: float64 coordinates in the source
-#: CRS, 8-bit RGB (0 when the format has no colour), and the attributes the renderer uses.
+#: CRS, 8-bit RGB (0 when the format has no colour), the attributes the renderer uses, and the LAS
+#: *synthetic* flag (1 for points a tool added, e.g. the walls of :mod:`citylod.lod.build.complete`).
 POINT_DTYPE = np.dtype([
     ("x", "f8"), ("y", "f8"), ("z", "f8"),
     ("intensity", "u2"), ("classification", "u1"), ("return_number", "u1"),
     ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+    ("synthetic", "u1"),
 ])
 
 _SUFFIXES = {".las", ".laz"}
@@ -290,6 +292,7 @@ def _to_records(pts: Any, has_rgb: bool) -> npt.NDArray[np.void]:
     out["intensity"] = pts.intensity
     out["classification"] = pts.classification
     out["return_number"] = pts.return_number
+    out["synthetic"] = pts.synthetic
     if has_rgb:
         # LAS stores 16-bit colour; the spec asks writers to scale 8-bit colour up, so the high byte is it.
         out["red"] = np.asarray(pts.red) >> 8
@@ -301,7 +304,7 @@ def _to_records(pts: Any, has_rgb: bool) -> npt.NDArray[np.void]:
 
 
 def point_fields(pts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                                    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The raw columns of a laspy point record behind :data:`POINT_DTYPE`, whatever the point format,
     for a caller that converts them in a compiled pass of its own (no copies: views where laspy has them).
 
@@ -318,6 +321,8 @@ def point_fields(pts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     red, green, blue
         (n,) uint16 (LAS colour is 16-bit; its high byte is the 8-bit colour), or (0,) when the format
         has none.
+    synthetic
+        (n,) uint8, 1 where the point's *synthetic* flag is set.
     """
     a = pts.array
     names = a.dtype.names or ()
@@ -325,7 +330,7 @@ def point_fields(pts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     red, green, blue = (a[c] if c in names else empty for c in ("red", "green", "blue"))
     return (a["X"], a["Y"], a["Z"], np.asarray(pts.scales, np.float64), np.asarray(pts.offsets, np.float64),
             a["intensity"], np.asarray(pts.classification, np.uint8), np.asarray(pts.return_number, np.uint8),
-            red, green, blue)
+            red, green, blue, np.asarray(pts.synthetic, np.uint8))
 
 
 def iter_points(path: str | PathLike[str], *, start: int = 0, count: int | None = None,
