@@ -20,14 +20,16 @@ what the issue allows in place of Wahl's l−2 reference bookkeeping. A tile's f
 window, when it holds up to ``_WHOLE_FOOTPRINT_SAMPLES`` samples (its grid and every certification are then
 taken from memory), and in cached blocks otherwise, so memory does not grow with the raster.
 
-The metric (``metric``). By default a coarse tile's ``geometricError`` bounds the symmetric 3D Hausdorff
+The metric (``metric``). The default, ``"vertical"``, certifies the vertical L∞ distance described above
+for every level; with ``metric="hausdorff"`` a coarse tile's ``geometricError`` bounds the symmetric 3D Hausdorff
 distance between the tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`),
 which charges a façade between two coarse samples about the horizontal distance to it rather than its
 height. Its TIN is the TIN kernel's simplification of the tile's grid at a vertical tolerance (the coarsest of
 1, ½, ¼ × the target whose certificate meets the target), on grid heights that reach features narrower than
 the stride (`_feature_heights`); its skirts are sized from the border's measured vertical error. Leaves keep
 the kernel's vertical bound, which bounds Hausdorff too; geographic rasters are certified vertically.
-``metric="vertical"`` keeps the vertical L∞ certificate described above for every level.
+Hausdorff becomes the default once its coarse levels meet their targets and its builds their time
+(docs/BENCHMARKS.md has where they stand).
 
 Borders, in two stages. Stage 1 (:func:`build_tile`) chooses every tile's TIN. Its border vertices are the
 1D simplification of the border samples (the same on both sides) plus the few the exact 2D bound or a
@@ -135,7 +137,7 @@ class DsmJob:
     stage1: TileResult | None = None  # stage 2 only: this tile's stage-1 result
     stage1_tin: journal.Entry | None = None  # stage 2 only: where its stage-1 TIN is journalled
     certify_leaves: bool = False  # certify leaves against the raster too (see finish_tile)
-    metric: str = "hausdorff"  # what geometricError bounds: "hausdorff" (3D, symmetric) or "vertical" (L∞)
+    metric: str = "vertical"  # what geometricError bounds: "hausdorff" (3D, symmetric) or "vertical" (L∞)
 
 
 @dataclass
@@ -983,7 +985,7 @@ def plan_levels(info: RasterInfo, tile_size: int) -> int:
 def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, ortho: str | os.PathLike[str] | None = None,
               max_error: float | None = None, tile_size: int = 129, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, texture_size: int | None = None,
-              certify_leaves: bool = False, metric: str = "hausdorff",
+              certify_leaves: bool = False, metric: str = "vertical",
               _stop_after: int | None = None) -> DsmBuildReport:
     """Build a 3D Tiles quadtree from a DSM raster. See the module docstring for the method.
 
@@ -1010,9 +1012,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         heights, and only the faces stage 2 changed are certified: the same guarantee, a fraction of the
         time, a bound instead of the measured maximum (at most the target).
     metric
-        What ``geometricError`` bounds: ``"hausdorff"`` (default), the symmetric 3D Hausdorff distance between a
+        What ``geometricError`` bounds: ``"hausdorff"``, the symmetric 3D Hausdorff distance between a
         tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`), or
-        ``"vertical"``, the vertical L∞ distance (which bounds Hausdorff too, but counts a façade between two
+        ``"vertical"`` (default), the vertical L∞ distance (which bounds Hausdorff too, but counts a façade between two
         coarse samples at its full height). Leaves keep the TIN kernel's vertical bound under both, and
         geographic rasters are certified vertically under both.
     """
