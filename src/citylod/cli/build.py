@@ -27,9 +27,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pt.add_argument("--no-hybrid", action="store_true", help="points only, no plane quads")
     pt.add_argument("--workers", type=int)
     pt.add_argument("--scheduler")
-    c = bsub.add_parser("city", help="CityGML / CityJSON to a GeoPackage semantic store")
+    c = bsub.add_parser("city", help="CityGML / CityJSON to a GeoPackage semantic store and a 3D Tiles tileset")
     c.add_argument("citymodel", type=Path)
     c.add_argument("-o", "--output", type=Path, required=True)
+    c.add_argument("--tiles", type=Path,
+                   help="tileset folder of the geometry (default: beside the store, city.gpkg -> city_tiles/)")
+    c.add_argument("--no-tiles", action="store_true", help="write the semantic store only")
+    c.add_argument("--leaf-triangles", type=int, default=20_000,
+                   help="largest triangle count of a leaf tile holding several objects (default 20000)")
     c.add_argument("--lod", type=int, choices=(1, 2), default=2)
     c.add_argument("--inflate", type=float, help="proxy inflation in metres")
     c.add_argument("--crs", help="metric CRS to project geographic input to, e.g. EPSG:32632")
@@ -51,9 +56,17 @@ def run(args: argparse.Namespace, progress: bool) -> int:
             scheduler=args.scheduler, progress=progress,
         )
     else:
+        from citylod.io.city import read_city_model, to_metric
         from citylod.semantics.store import build_city
 
-        report = build_city(args.citymodel, args.output, lod=args.lod, inflate=args.inflate, crs=args.crs,
-                            progress=progress)
+        # Read and project once; the store and the tileset are two products of the same model.
+        model = to_metric(read_city_model(args.citymodel, lod=args.lod), args.crs)
+        report = build_city(model, args.output, lod=args.lod, inflate=args.inflate, progress=progress)
+        if not args.no_tiles:
+            from citylod.lod.build.city import build_city_tiles, default_tiles_dir
+
+            print(report.summary())
+            report = build_city_tiles(model, args.tiles or default_tiles_dir(args.output),
+                                      leaf_triangles=args.leaf_triangles, progress=progress)
     print(report.summary())
     return 0

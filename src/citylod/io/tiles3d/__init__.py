@@ -12,6 +12,7 @@ from citylod.io.tiles3d.content import (
     encode_glb,
     glb_buffer,
 )
+from citylod.io.tiles3d.features import FeatureIdSet, PropertyTable
 from citylod.io.tiles3d.tileset import (
     Tile,
     TileMesh,
@@ -25,7 +26,7 @@ from citylod.io.tiles3d.tileset import (
 )
 
 __all__ = [
-    "MeshData", "PointData", "Tile", "TileContent", "TileMesh", "TileSpec", "Tileset", "content_path",
+    "FeatureIdSet", "MeshData", "PointData", "PropertyTable", "Tile", "TileContent", "TileMesh", "TileSpec", "Tileset", "content_path",
     "decode_content", "decode_glb", "encode_glb", "glb_buffer", "open_tileset", "safe_resolve", "write_content",
     "write_tileset",
 ]

@@ -20,6 +20,12 @@ import numpy.typing as npt
 from citylod._version import __version__
 from citylod.core.errors import InputError
 from citylod.core.geometry import F64
+from citylod.io.tiles3d.features import (
+    FeatureIdSet,
+    PropertyTable,
+    decode_property_tables,
+    encode_property_tables,
+)
 
 # glTF y-up -> 3D Tiles z-up: (x, y, z)_gltf = (x, z, -y)_zup (3D Tiles spec, "y-up to z-up").
 _Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
@@ -35,7 +41,8 @@ _POINT_ATTRS = {"_INTENSITY": "intensity", "_CLASSIFICATION": "classification", 
 class MeshData:
     """One triangle mesh of a tile. ``positions`` (N, 3) float32 relative to the tile centre, z up;
     ``faces`` (M, 3) uint32; ``skirt`` (M,) bool or None; ``uv`` (N, 2) float32 (origin top-left);
-    ``texture`` encoded JPEG/PNG bytes; ``colors`` (N, 4) uint8."""
+    ``texture`` encoded JPEG/PNG bytes; ``colors`` (N, 4) uint8; ``features`` the feature ID sets
+    (``EXT_mesh_features``), the k-th written as vertex attribute ``_FEATURE_ID_k``."""
 
     positions: npt.NDArray[np.float32]
     faces: npt.NDArray[np.uint32]
@@ -44,11 +51,12 @@ class MeshData:
     texture: bytes | None = None
     colors: npt.NDArray[np.uint8] | None = None
     name: str = "surface"
+    features: list[FeatureIdSet] = field(default_factory=list)
 
     @property
     def nbytes(self) -> int:
         n = self.positions.nbytes + self.faces.nbytes
-        for a in (self.uv, self.colors, self.skirt):
+        for a in (self.uv, self.colors, self.skirt, *(f.ids for f in self.features)):
             n += 0 if a is None else a.nbytes
         return n + (len(self.texture) if self.texture else 0)
 
@@ -74,10 +82,12 @@ class PointData:
 
 @dataclass
 class TileContent:
-    """What one content file holds: meshes (surfaces, quads) and/or points."""
+    """What one content file holds: meshes (surfaces, quads) and/or points, and the property tables
+    (``EXT_structural_metadata``) that the meshes' feature IDs index."""
 
     meshes: list[MeshData] = field(default_factory=list)
     points: PointData | None = None
+    property_tables: list[PropertyTable] = field(default_factory=list)
 
     @property
     def nbytes(self) -> int:
@@ -107,10 +117,11 @@ class _GlbBuilder:
             "buffers": [], "bufferViews": [], "accessors": [], "meshes": [], "nodes": [], "scenes": [],
         }
 
-    def view(self, data: bytes | np.ndarray, target: int | None = None, stride: int | None = None) -> int:
+    def view(self, data: bytes | np.ndarray, target: int | None = None, stride: int | None = None,
+             align: int = 4) -> int:
         raw = (np.frombuffer(data, np.uint8) if isinstance(data, bytes)
                else np.ascontiguousarray(data).reshape(-1).view(np.uint8))
-        self.size += -self.size % 4
+        self.size += -self.size % align
         bv: dict[str, Any] = {"buffer": 0, "byteOffset": self.size, "byteLength": int(raw.size)}
         if target is not None:
             bv["target"] = target
@@ -230,6 +241,7 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             unlit = True
         if mesh.colors is not None:
             attrs["COLOR_0"] = b.accessor(np.asarray(mesh.colors, dtype=np.uint8), "VEC4", normalized=True)
+        mesh_features = _feature_id_attributes(b, mesh.features, attrs)
         mat = b.add("materials", material)
         skirt = np.zeros(len(faces), bool) if mesh.skirt is None else np.asarray(mesh.skirt, bool)
         for is_skirt in (False, True):
@@ -239,6 +251,8 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             prim: dict[str, Any] = {"attributes": attrs, "mode": 4, "material": mat,
                                     "indices": b.accessor(sel.reshape(-1), "SCALAR", target=34963)}
             prim["extras"] = {"citylod_name": mesh.name, "citylod_skirt": is_skirt}
+            if mesh_features:
+                prim["extensions"] = {"EXT_mesh_features": mesh_features}
             primitives.append(prim)
     if content.points is not None and len(content.points.positions):
         attrs = _point_attributes(b, content.points)
@@ -259,9 +273,38 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
         b.gltf["nodes"] = [{"mesh": 0}]
         b.gltf["scenes"] = [{"nodes": [0]}]
         b.gltf["scene"] = 0
-    if unlit:
-        b.gltf["extensionsUsed"] = ["KHR_materials_unlit"]
+    used = ["KHR_materials_unlit"] if unlit else []
+    if any(p.get("extensions", {}).get("EXT_mesh_features") for p in primitives):
+        used.append("EXT_mesh_features")
+    if content.property_tables:
+        b.gltf.setdefault("extensions", {})["EXT_structural_metadata"] = encode_property_tables(
+            b, content.property_tables)
+        used.append("EXT_structural_metadata")
+    if used:
+        b.gltf["extensionsUsed"] = used
     return b.buffer()
+
+
+def _feature_id_attributes(b: _GlbBuilder, sets: list[FeatureIdSet], attrs: dict[str, int]) -> dict[str, Any]:
+    """Write each feature ID set as vertex attribute ``_FEATURE_ID_k`` into ``attrs``; the primitive's
+    ``EXT_mesh_features`` object (empty without sets).
+
+    glTF forbids 32-bit integer vertex attributes, so IDs are uint16 while they fit and float32 beyond
+    (exact up to 2^24, far more features than one tile holds).
+    """
+    ids_json = []
+    for k, fs in enumerate(sets):
+        ids = np.asarray(fs.ids, np.uint32)
+        count = fs.feature_count
+        stored = ids.astype(np.uint16) if count <= 65535 else ids.astype(np.float32)
+        attrs[f"_FEATURE_ID_{k}"] = b.accessor(stored, "SCALAR")
+        entry: dict[str, Any] = {"featureCount": count, "attribute": k}
+        if fs.table is not None:
+            entry["propertyTable"] = int(fs.table)
+        if fs.label:
+            entry["label"] = fs.label
+        ids_json.append(entry)
+    return {"featureIds": ids_json} if ids_json else {}
 
 
 def _point_attributes(b: _GlbBuilder, pts: PointData) -> dict[str, int]:
@@ -450,8 +493,32 @@ def decode_glb(data: bytes, source: str = "", *, rtc_center: F64 | None = None,
                 positions=pos32, faces=np.concatenate(faces_list), skirt=np.concatenate(skirt_list),
                 uv=uv, texture=texture, colors=colors,
                 name=str(group[0].get("extras", {}).get("citylod_name", "surface")),
+                features=_decode_feature_ids(gltf, binary, group[0], source),
             ))
+    ext = gltf.get("extensions", {}).get("EXT_structural_metadata")
+    if isinstance(ext, dict):
+        def view_bytes(i: int) -> bytes:
+            bv = gltf["bufferViews"][i]
+            start = int(bv.get("byteOffset", 0))
+            return binary[start:start + int(bv["byteLength"])]
+
+        content.property_tables = decode_property_tables(ext, view_bytes, source)
     return content
+
+
+def _decode_feature_ids(gltf: dict[str, Any], binary: bytes, prim: dict[str, Any], source: str) -> list[FeatureIdSet]:
+    """The attribute-based feature ID sets of a primitive (``EXT_mesh_features``); implicit and texture
+    feature IDs are not read."""
+    out = []
+    ext = prim.get("extensions", {}).get("EXT_mesh_features", {})
+    for fid in ext.get("featureIds", []) if isinstance(ext, dict) else []:
+        name = f"_FEATURE_ID_{fid.get('attribute')}"
+        if "attribute" not in fid or name not in prim.get("attributes", {}):
+            continue
+        ids = _read_accessor(gltf, binary, prim["attributes"][name], source)
+        out.append(FeatureIdSet(np.round(ids).astype(np.uint32), fid.get("propertyTable"),
+                                int(fid.get("featureCount", 0)), fid.get("label")))
+    return out
 
 
 def _triangles(idx: np.ndarray, mode: int) -> np.ndarray:
