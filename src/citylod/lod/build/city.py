@@ -252,7 +252,8 @@ def _merged_pieces(members: I64, objects: Sequence[CityObject], meshes: Sequence
             by_type.setdefault(objects[i].type, []).append(int(i))
     for ids in by_type.values():
         shapes = np.asarray([feet[i] for i in ids], dtype=object)
-        merged = shapely.union_all(shapely.buffer(shapes, distance_m, quad_segs=2)).buffer(-distance_m, quad_segs=2)
+        merged = shapely.buffer(shapely.union_all(shapely.buffer(shapes, distance_m, join_style="mitre")), -distance_m,
+                                join_style="mitre")
         merged = shapely.simplify(merged, 0.5 * distance_m, preserve_topology=True)
         parts = [g for g in shapely.get_parts(merged) if not g.is_empty and g.area > 0]
         tree = shapely.STRtree(shapes)
