@@ -36,3 +36,22 @@ def test_errors_are_one_line_with_exit_code_2(tmp_path, capsys) -> None:
     assert main(["build", "points", str(tmp_path / "bad.laz"), "-o", str(tmp_path / "p")]) == 2
     assert "bad.laz" in capsys.readouterr().err
     assert not (tmp_path / "p").exists()
+
+
+def test_build_city_writes_the_store_and_the_tileset_beside_it(sample_city, tmp_path: Path, capsys) -> None:
+    from citylod.io.tiles3d import open_tileset
+
+    out = tmp_path / "city.gpkg"
+    assert main(["-q", "build", "city", str(sample_city.files["city"]), "-o", str(out)]) == 0
+    assert out.is_file()
+    ts = open_tileset(tmp_path / "city_tiles")
+    assert ts.kind == "city" and ts.citylod["objects"] == len(sample_city.city.buildings)
+    assert "city objects in" in capsys.readouterr().out
+    assert main(["-q", "build", "city", str(sample_city.files["city"]), "-o", str(tmp_path / "b.gpkg"),
+                 "--no-tiles"]) == 0
+    assert not (tmp_path / "b_tiles").exists()
+    # a broken model: exit 2, nothing written
+    bad = tmp_path / "bad.gml"
+    bad.write_text("<CityModel><cityObjectMember><Building")
+    assert main(["-q", "build", "city", str(bad), "-o", str(tmp_path / "c.gpkg")]) == 2
+    assert not (tmp_path / "c.gpkg").exists() and not (tmp_path / "c_tiles").exists()
