@@ -114,21 +114,22 @@ def _house_surfaces(h: TexturedHouse, z0: float) -> list[tuple[str, str, npt.NDA
     corners = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
     out: list[tuple[str, str, npt.NDArray[np.float64], npt.NDArray[np.float64] | None]] = []
     out.append(("GroundSurface", "", np.array([(x, y, z0) for x, y in corners[::-1]]), None))
-    wall_uv = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)  # v = 0 at the top of the image (eaves)
+    # CityGML texture coordinates: (0, 0) is the image's lower left corner, so the eaves get v = 1.
+    wall_uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
     for k in range(4):
         (ax, ay), (bx, by) = corners[k], corners[(k + 1) % 4]
         out.append(("WallSurface", "facade", np.array([(ax, ay, z0), (bx, by, z0), (bx, by, ze), (ax, ay, ze)]),
                     wall_uv))
     if not h.gable:
         out.append(("RoofSurface", "roof", np.array([(x, y, ze) for x, y in corners]),
-                    np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)))
+                    wall_uv))
         return out
     ym = h.y  # ridge along x at the middle of the depth; gable triangles on the east and west walls
     out.append(("RoofSurface", "roof", np.array([(x0, y0, ze), (x1, y0, ze), (x1, ym, zr), (x0, ym, zr)]),
-                np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)))
+                wall_uv))
     out.append(("RoofSurface", "roof", np.array([(x1, y1, ze), (x0, y1, ze), (x0, ym, zr), (x1, ym, zr)]),
-                np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)))
-    gable_uv = np.array([[0, 1], [1, 1], [0.5, 0]], float)
+                wall_uv))
+    gable_uv = np.array([[0, 0], [1, 0], [0.5, 1]], float)
     out.append(("WallSurface", "facade", np.array([(x1, y0, ze), (x1, y1, ze), (x1, ym, zr)]), gable_uv))
     out.append(("WallSurface", "facade", np.array([(x0, y1, ze), (x0, y0, ze), (x0, ym, zr)]), gable_uv))
     return out

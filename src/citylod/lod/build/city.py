@@ -48,7 +48,9 @@ import shapely
 from citylod.core.errors import InputError
 from citylod.core.fileio import publish_dir
 from citylod.io.city import CityModel, read_city_model, to_metric
+from citylod.io.city.appearance import read_appearances
 from citylod.io.city.model import CityObject
+from citylod.io.image import encode_image
 from citylod.io.tiles3d import (
     FeatureIdSet,
     MeshData,
@@ -57,6 +59,15 @@ from citylod.io.tiles3d import (
     TileSpec,
     write_content,
     write_tileset,
+)
+from citylod.lod.build.atlas import (
+    Square,
+    atlas_uv,
+    leaf_atlas,
+    parent_atlas,
+    quadrant,
+    texel_size_m,
+    tile_uv,
 )
 from citylod.lod.build.citymesh import ObjectMesh, block_mesh, footprint, object_mesh, prism
 from citylod.lod.kernels.hausdorff import hausdorff_bound
@@ -137,15 +148,18 @@ def _split(idx: I64, centres: F64, weights: F64) -> list[I64]:
     return [q for h in halve(idx, first) for q in halve(h, 1 - first) if len(q)]
 
 
-def _build_tree(idx: I64, centres: F64, tris: F64, leaf_triangles: int) -> _Node:
+def _build_tree(idx: I64, centres: F64, cost: F64, leaf_cost: float, weights: F64 | None = None) -> _Node:
+    """Split while a node holding several objects costs more than ``leaf_cost``; parts balanced by
+    ``weights`` (default: the cost)."""
+    w = np.maximum(cost if weights is None else weights, 1e-9)
     root = _Node(idx, "0", 0)
     stack = [root]
     order: list[_Node] = []
     while stack:
         n = stack.pop()
         order.append(n)
-        if len(n.objects) > 1 and tris[n.objects].sum() > leaf_triangles:
-            for i, part in enumerate(_split(n.objects, centres, np.maximum(tris, 1.0))):
+        if len(n.objects) > 1 and cost[n.objects].sum() > leaf_cost:
+            for i, part in enumerate(_split(n.objects, centres, w)):
                 c = _Node(part, f"{n.key}-{i}", n.level + 1)
                 n.children.append(c)
                 stack.append(c)
@@ -171,6 +185,12 @@ class _Piece:
     vertices: F64
     faces: I64
     surface: list[str | None]
+    uv: F64 | None = None  # common texture coordinates (V, 2), NaN where untextured
+    rgb: F64 | None = None  # material colours (V, 3) in 0..1, NaN where none
+
+    @staticmethod
+    def of(i: int, m: ObjectMesh, uv: F64 | None = None) -> _Piece:
+        return _Piece(int(i), m.vertices, m.faces, m.surface, uv, m.rgb)
 
 
 def _text(v: Any) -> str | None:
@@ -203,9 +223,10 @@ def _object_table(objects: Sequence[CityObject]) -> PropertyTable:
 
 
 def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[CityObject],
-             centre: F64) -> tuple[TileContent, float, int]:
+             centre: F64, atlas: tuple[bytes, Square] | None = None) -> tuple[TileContent, float, int]:
     """A tile's content from its pieces: positions relative to ``centre``; the float32 rounding bound (m)
-    and the triangle count."""
+    and the triangle count. With an ``atlas`` (encoded image, the node's square), triangles whose vertices
+    all have texture coordinates form a textured mesh, the others a coloured one."""
     rows = sorted({p.obj for p in pieces} | set(extra_rows))
     row_of = {o: i for i, o in enumerate(rows)}
     verts = np.concatenate([p.vertices for p in pieces]) if pieces else np.zeros((0, 3))
@@ -220,19 +241,83 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
     surf_ids = np.array([class_row[s or ""] for s in surf], np.uint32)
     rgba = np.array([SURFACE_RGBA.get(s or "", TYPE_RGBA.get(objects[p.obj].type, _DEFAULT_RGBA))
                      for p in pieces for s in p.surface], np.uint8).reshape(-1, 4)
+    rgb = np.concatenate([np.full((len(p.vertices), 3), np.nan) if p.rgb is None else p.rgb for p in pieces]
+                         ) if pieces else np.zeros((0, 3))
+    has_rgb = np.isfinite(rgb).all(axis=1)
+    rgba[has_rgb, :3] = np.round(rgb[has_rgb] * 255).astype(np.uint8)  # the model's own materials first
     local = verts - centre
     pos = local.astype(np.float32)
     # float32 rounding of positions relative to the centre: half an ulp per coordinate, in 3D.
     rounding = float(np.abs(pos).max() * 2.0**-24 * np.sqrt(3.0)) if len(pos) else 0.0
     meshes = []
-    if len(faces):
-        meshes.append(MeshData(pos, faces.astype(np.uint32), colors=rgba, name="city", features=[
-            FeatureIdSet(obj_of_vertex, 0, len(rows), "city_object"),
-            FeatureIdSet(surf_ids, 1, len(classes), "surface"),
-        ]))
+    textured = np.zeros(len(faces), bool)
+    uv = None
+    if atlas is not None and pieces:
+        uv = np.concatenate([np.full((len(p.vertices), 2), np.nan) if p.uv is None else p.uv for p in pieces])
+        textured = np.isfinite(uv).all(axis=1)[faces].all(axis=1)
+    for tex in (False, True):
+        sel = faces[textured == tex]
+        if not len(sel):
+            continue
+        # Each mesh keeps only the vertices its faces use (glTF accessors are per primitive).
+        used, inv = np.unique(sel, return_inverse=True)
+        sets = [FeatureIdSet(obj_of_vertex[used], 0, len(rows), "city_object"),
+                FeatureIdSet(surf_ids[used], 1, len(classes), "surface")]
+        if tex:
+            assert atlas is not None and uv is not None
+            meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), uv=tile_uv(uv[used], atlas[1]),
+                                   texture=atlas[0], name="city_textured", features=sets))
+        else:
+            meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), colors=rgba[used], name="city",
+                                   features=sets))
     tables = [_object_table([objects[i] for i in rows]),
               PropertyTable("surface", {"surface_class": [c or None for c in classes]})]
     return TileContent(meshes, property_tables=tables), rounding, int(len(faces))
+
+
+def _image_pixels(path: Path) -> int:
+    """Pixels an image header declares (checked readable by :func:`check_image` already)."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()
+        return 0
+    try:
+        return int(inp.spec().width) * int(inp.spec().height)
+    finally:
+        inp.close()
+
+
+def _atlas_node(n: _Node, square: Square, meshes: Sequence[ObjectMesh], images: Sequence[Path],
+                atlases: dict[str, npt.NDArray[np.uint8]], common: dict[int, F64], atlas_px: int,
+                warnings: list[str]) -> tuple[list[_Piece], tuple[bytes, Square], float]:
+    """A node of a textured model (Buchholz): its subtree's surfaces, its atlas (a leaf packs its images, an
+    inner node shrinks its children's atlases into quadrants) and the atlas's texel size in metres."""
+    if not n.children:
+        used = sorted({int(k) for i in n.objects if meshes[i].image is not None
+                       for k in np.unique(meshes[i].image) if k >= 0})
+        pixels, placed, warns = leaf_atlas({k: images[k] for k in used}, atlas_px)
+        warnings += warns
+        for i in n.objects:
+            m = meshes[i]
+            uv = np.full((len(m.vertices), 2), np.nan)
+            if m.image is not None and m.uv is not None:
+                ok = np.array([k in placed for k in m.image]) & (m.image >= 0)
+                if ok.any():
+                    uv[ok] = atlas_uv(m.uv[ok], [placed[int(k)] for k in m.image[ok]], square, atlas_px)
+            common[int(i)] = uv
+    else:
+        pixels = parent_atlas([(k, atlases.pop(c.key)) for k, c in enumerate(n.children)], atlas_px)
+    atlases[n.key] = pixels
+    pieces = [_Piece.of(i, meshes[i], common[int(i)]) for i in n.objects]
+    err = 0.0
+    for p in pieces:
+        assert p.uv is not None
+        tex = np.isfinite(p.uv).all(axis=1)[p.faces].all(axis=1)
+        if tex.any():
+            err = max(err, texel_size_m(p.vertices, p.faces[tex], np.nan_to_num(p.uv), square, atlas_px))
+    return pieces, (encode_image(pixels, "jpg", 90), square), err
 
 
 def _merged_pieces(members: I64, objects: Sequence[CityObject], meshes: Sequence[ObjectMesh],
@@ -292,7 +377,8 @@ def _group_error(v: F64, f: I64, originals: Sequence[ObjectMesh], tol_m: float) 
 
 def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | PathLike[str], *, lod: int = 2,
                      crs: str | pyproj.CRS | None = None, leaf_triangles: int = 20_000, merge_m: float = 2.0,
-                     tol_m: float = 0.05, progress: bool = True) -> CityTilesReport:
+                     tol_m: float = 0.05, textures: bool = True, atlas_px: int = 1024,
+                     progress: bool = True) -> CityTilesReport:
     """Write the city model's geometry as a 3D Tiles 1.1 tileset with feature IDs and property tables.
 
     Parameters
@@ -311,6 +397,12 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
         Closing distance of merged blocks on the lowest merged level; it doubles per level up.
     tol_m
         Slack of the Hausdorff bounds (each certified bound is at most this above the true distance).
+    textures
+        Read the model's appearances. A textured model gets Buchholz's multiresolution atlases
+        (:mod:`citylod.lod.build.atlas`) instead of building LOD: every tile holds its subtree's surfaces
+        and one ``atlas_px``² atlas, and its ``geometricError`` is the atlas's texel size on the surface.
+    atlas_px
+        Side of every atlas in pixels (a power of two).
     progress
         Show progress bars.
 
@@ -321,15 +413,25 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
     from tqdm import tqdm
 
     t0 = time.perf_counter()
-    model = citymodel if isinstance(citymodel, CityModel) else read_city_model(citymodel, lod=lod)
-    model = to_metric(model, crs)
+    raw = citymodel if isinstance(citymodel, CityModel) else read_city_model(citymodel, lod=lod)
+    model = to_metric(raw, crs)
+    warnings = list(model.warnings)
     if model.crs is None:
         raise InputError("the city model names no CRS; a tileset must be placed on the globe (pass --crs)",
                          model.source)
     objects = model.objects
     if not objects:
         raise InputError("the city model holds no city objects", model.source)
-    meshes = [object_mesh(o) for o in tqdm(objects, desc="triangulate", unit="obj", disable=not progress)]
+    apps = None
+    if textures and Path(model.source).is_file():
+        apps = read_appearances(model.source)
+        warnings += apps.warnings
+        apps = apps if apps.surfaces else None
+    image_index: dict[Path, int] = {}
+    meshes = [object_mesh(o, apps, image_index, raw.objects[i])
+              for i, o in enumerate(tqdm(objects, desc="triangulate", unit="obj", disable=not progress))]
+    images = sorted(image_index, key=image_index.__getitem__)
+    textured = bool(images)
     has_geom = np.array([len(m.faces) > 0 for m in meshes])
     if not has_geom.any():
         raise InputError("no city object has surfaces to draw", model.source)
@@ -340,7 +442,15 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
         boxes[i, :3], boxes[i, 3:] = v.min(axis=0), v.max(axis=0)
     centres = 0.5 * (boxes[:, :3] + boxes[:, 3:])
     tris = np.array([len(m.faces) for m in meshes], np.float64)
-    root = _build_tree(geo, centres, tris, leaf_triangles)
+    if textured:
+        # Buchholz: split by balanced surface area until a leaf's images fit its atlas at full resolution.
+        px = np.array([_image_pixels(p) for p in images], np.float64)
+        demand = np.array([px[np.unique(m.image[m.image >= 0])].sum() if m.image is not None else 0.0
+                           for m in meshes])
+        areas = np.array([m.area for m in meshes])
+        root = _build_tree(geo, centres, demand, float(atlas_px) ** 2, weights=areas)
+    else:
+        root = _build_tree(geo, centres, tris, leaf_triangles)
     nodes = _walk(root)
     leaves = [n for n in nodes if not n.children]
     leaf_of = np.full(len(objects), -1, np.int64)
@@ -365,13 +475,22 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
     partial.mkdir()
     total_leaf_tris = 0
     root_tris = 0
+    squares = {root.key: Square()}
+    for n in nodes:
+        for k, c in enumerate(n.children):
+            squares[c.key] = quadrant(squares[n.key], k)
+    common: dict[int, F64] = {}  # object -> common texture coordinates of its vertices
+    atlases: dict[str, npt.NDArray[np.uint8]] = {}
     try:
         # Children before parents: a parent's error must cover its children's.
         for n in tqdm(sorted(nodes, key=lambda n: n.height), desc="tiles", unit="tile", disable=not progress):
             err = 0.0
-            if n.height == 0:
-                pieces = [_Piece(int(i), meshes[i].vertices, meshes[i].faces, meshes[i].surface)
-                          for i in n.objects]
+            atlas = None
+            if textured:
+                pieces, atlas, err = _atlas_node(n, squares[n.key], meshes, images, atlases, common, atlas_px,
+                                                 warnings)
+            elif n.height == 0:
+                pieces = [_Piece.of(i, meshes[i]) for i in n.objects]
             elif n.height == 1:
                 pieces = []
                 for i in n.objects:
@@ -388,8 +507,8 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
                 lo, hi = np.minimum(lo, p.vertices.min(axis=0)), np.maximum(hi, p.vertices.max(axis=0))
             centre = 0.5 * (lo + hi)
             rows = extra.get(n.key, []) if n.height == 0 else []
-            content, rounding, ntri = _content(pieces, rows, objects, centre)
-            n.error = max([err + rounding, *(c.error for c in n.children)]) if n.height else rounding
+            content, rounding, ntri = _content(pieces, rows, objects, centre, atlas)
+            n.error = max([err + rounding, *(c.error for c in n.children)])
             uri = write_content(partial, n.key, content, atomic=False)
             n.spec = TileSpec(key=n.key, level=n.level, center=centre, lo=lo, hi=hi, geometric_error=n.error,
                               content=uri, extras={"triangles": ntri})
@@ -402,10 +521,11 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
             n.spec.children = [c.spec for c in n.children if c.spec is not None]
         assert root.spec is not None
         write_tileset(partial, root.spec, model.crs, extras={"citylod": {
-            "kind": "city", "objects": len(objects), "source": str(model.source), "format": model.version}})
+            "kind": "city", "objects": len(objects), "source": str(model.source), "format": model.version,
+            "textured": textured, "atlas_px": atlas_px if textured else 0}})
         publish_dir(partial, out)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise
     return CityTilesReport(out, len(objects), len(nodes), root.height + 1, total_leaf_tris, root_tris,
-                           root.error, time.perf_counter() - t0, list(model.warnings))
+                           root.error, time.perf_counter() - t0, warnings)

@@ -17,6 +17,7 @@ No VTK, no Qt, no I/O.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import mapbox_earcut
 import numpy as np
@@ -24,6 +25,7 @@ import numpy.typing as npt
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from citylod.io.city.appearance import Appearances
 from citylod.io.city.model import CityObject, Polygon
 
 __all__ = ["ObjectMesh", "block_mesh", "footprint", "object_mesh", "prism", "triangulate_polygon"]
@@ -39,12 +41,17 @@ VERTICAL_NZ = 0.05
 class ObjectMesh:
     """One object's triangles: ``vertices`` (V, 3) float64, ``faces`` (F, 3) int64, ``surface`` (V,) the
     semantic class of each vertex's surface (a string per vertex, None for none), and the sum of the
-    triangle areas in m² (``area``)."""
+    triangle areas in m² (``area``). With appearances: ``image`` (V,) int64 the index of the vertex's texture
+    image (-1 none), ``uv`` (V, 2) its texture coordinates (CityGML's, v up; NaN without), ``rgb`` (V, 3) its
+    material colour in 0..1 (NaN without)."""
 
     vertices: F64
     faces: I64
     surface: list[str | None]
     area: float
+    image: npt.NDArray[np.int64] | None = None
+    uv: F64 | None = None
+    rgb: F64 | None = None
 
     @staticmethod
     def empty() -> ObjectMesh:
@@ -103,12 +110,17 @@ def triangulate_polygon(rings: Polygon) -> tuple[F64, I64]:
     return v, idx
 
 
-def object_mesh(obj: CityObject) -> ObjectMesh:
-    """All surfaces of ``obj`` triangulated (see :func:`triangulate_polygon`), with per-vertex classes."""
-    verts, faces, surf = [], [], []
+def object_mesh(obj: CityObject, appearances: Appearances | None = None,
+                image_index: dict[Path, int] | None = None, source: CityObject | None = None) -> ObjectMesh:
+    """All surfaces of ``obj`` triangulated (see :func:`triangulate_polygon`), with per-vertex classes and,
+    given ``appearances``, per-vertex texture image (numbered through ``image_index``, which grows),
+    texture coordinates and material colour. Appearances are looked up by the coordinates of ``source``,
+    the same object as read (before projection to metres; default ``obj``)."""
+    verts, faces, surf, imgs, uvs, rgbs = [], [], [], [], [], []
     off = 0
     sems = obj.semantics if len(obj.semantics) == len(obj.surfaces) else [None] * len(obj.surfaces)
-    for poly, sem in zip(obj.surfaces, sems, strict=True):
+    src_polys = (source or obj).surfaces
+    for poly, src, sem in zip(obj.surfaces, src_polys, sems, strict=True):
         v, f = triangulate_polygon(poly)
         if not len(f):
             continue
@@ -116,10 +128,26 @@ def object_mesh(obj: CityObject) -> ObjectMesh:
         faces.append(f + off)
         surf.extend([sem] * len(v))
         off += len(v)
+        if appearances is None:
+            continue
+        app = appearances.lookup(src[0])
+        src_v = np.concatenate([np.asarray(r)[:-1] for r in src if len(r) >= 4])
+        uv = app.uv_of(src_v) if app is not None and app.image is not None else None
+        if uv is not None and image_index is not None and app is not None and app.image is not None:
+            imgs.append(np.full(len(v), image_index.setdefault(app.image, len(image_index)), np.int64))
+            uvs.append(uv)
+        else:
+            imgs.append(np.full(len(v), -1, np.int64))
+            uvs.append(np.full((len(v), 2), np.nan))
+        rgb = np.nan if app is None or app.rgb is None else np.asarray(app.rgb, np.float64)
+        rgbs.append(np.broadcast_to(rgb, (len(v), 3)))
     if not faces:
         return ObjectMesh.empty()
     vv, ff = np.concatenate(verts), np.concatenate(faces)
-    return ObjectMesh(vv, ff, surf, float(triangle_areas(vv, ff).sum()))
+    mesh = ObjectMesh(vv, ff, surf, float(triangle_areas(vv, ff).sum()))
+    if appearances is not None:
+        mesh.image, mesh.uv, mesh.rgb = np.concatenate(imgs), np.concatenate(uvs), np.concatenate(rgbs)
+    return mesh
 
 
 def triangle_areas(vertices: F64, faces: I64) -> F64:
