@@ -103,8 +103,9 @@ def check_image(uri: str, model_dir: Path, *, max_pixels: int = MAX_IMAGE_PIXELS
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        oiio.geterror()
-        return None, f"texture {uri!r} cannot be read as an image; surface drawn with its material"
+        why = oiio.geterror().strip().splitlines()
+        detail = f" ({why[0]})" if why else ""
+        return None, f"texture {uri!r} cannot be read as an image{detail}; surface drawn with its material"
     try:
         spec = inp.spec()
         w, h = int(spec.width), int(spec.height)

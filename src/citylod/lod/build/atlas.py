@@ -3,7 +3,8 @@
 The tile tree is a 4-ary tree; every node owns one ``atlas_px``² atlas and a square of one common texture
 space (the root's square is [0, 1]²; child k gets quadrant (k mod 2, k div 2) of its parent's square). A leaf
 packs the images of its triangles into its atlas, each at its native resolution unless the atlas is too
-small for that (then each is shrunk to its cell): at a leaf, no image is magnified beyond its original. An
+small for that (then each is shrunk to its cell): at a leaf, no image is magnified beyond its original
+(but for the half-texel inset that keeps filtering inside an image: a w-pixel side spans w - 1 texels). An
 inner node's atlas is its children's atlases, each shrunk by 2 into its quadrant. Hence one set of texture
 coordinates, in the common space, serves every level: a tile's own coordinates are the common ones
 relative to its square (:func:`tile_uv`).
