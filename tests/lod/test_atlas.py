@@ -95,7 +95,7 @@ def test_every_level_shows_the_original_images(textured) -> None:
 
 
 def test_texel_sizes_double_per_level_and_leaves_are_native(textured) -> None:
-    city, report, ts = textured
+    city, _report, ts = textured
     for t in ts.walk():
         for c in t.children:
             assert c.geometric_error <= t.geometric_error
