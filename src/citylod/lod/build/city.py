@@ -187,10 +187,11 @@ class _Piece:
     surface: list[str | None]
     uv: F64 | None = None  # common texture coordinates (V, 2), NaN where untextured
     rgb: F64 | None = None  # material colours (V, 3) in 0..1, NaN where none
+    image: npt.NDArray[np.int64] | None = None  # original image per vertex (-1 none), for textures="original"
 
     @staticmethod
     def of(i: int, m: ObjectMesh, uv: F64 | None = None) -> _Piece:
-        return _Piece(int(i), m.vertices, m.faces, m.surface, uv, m.rgb)
+        return _Piece(int(i), m.vertices, m.faces, m.surface, uv, m.rgb, m.image)
 
 
 def _text(v: Any) -> str | None:
@@ -223,10 +224,13 @@ def _object_table(objects: Sequence[CityObject]) -> PropertyTable:
 
 
 def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[CityObject],
-             centre: F64, atlas: tuple[bytes, Square] | None = None) -> tuple[TileContent, float, int]:
+             centre: F64, atlas: tuple[bytes, Square] | None = None,
+             originals: Sequence[Path] | None = None) -> tuple[TileContent, float, int]:
     """A tile's content from its pieces: positions relative to ``centre``; the float32 rounding bound (m)
     and the triangle count. With an ``atlas`` (encoded image, the node's square), triangles whose vertices
-    all have texture coordinates form a textured mesh, the others a coloured one."""
+    all have texture coordinates form a textured mesh, the others a coloured one. With ``originals`` (the
+    image files), each image's triangles form a mesh of their own with the image as it is (the baseline
+    that atlases are measured against)."""
     rows = sorted({p.obj for p in pieces} | set(extra_rows))
     row_of = {o: i for i, o in enumerate(rows)}
     verts = np.concatenate([p.vertices for p in pieces]) if pieces else np.zeros((0, 3))
@@ -252,12 +256,26 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
     meshes = []
     textured = np.zeros(len(faces), bool)
     uv = None
-    if atlas is not None and pieces:
+    if (atlas is not None or originals is not None) and pieces:
         uv = np.concatenate([np.full((len(p.vertices), 2), np.nan) if p.uv is None else p.uv for p in pieces])
         textured = np.isfinite(uv).all(axis=1)[faces].all(axis=1)
+    if originals is not None and uv is not None:
+        image = np.concatenate([np.full(len(p.vertices), -1) if p.image is None else p.image for p in pieces])
+        face_image = np.where(textured, image[faces[:, 0]], -1)
+        for k in np.unique(face_image[face_image >= 0]):
+            sel = faces[face_image == k]
+            used, inv = np.unique(sel, return_inverse=True)
+            img_uv = np.column_stack([uv[used, 0], 1.0 - uv[used, 1]]).astype(np.float32)  # glTF: origin top left
+            meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), uv=img_uv,
+                                   texture=Path(originals[int(k)]).read_bytes(), name=f"image_{int(k)}",
+                                   features=[FeatureIdSet(obj_of_vertex[used], 0, len(rows), "city_object"),
+                                             FeatureIdSet(surf_ids[used], 1, len(classes), "surface")]))
+        textured_done = True
+    else:
+        textured_done = False
     for tex in (False, True):
         sel = faces[textured == tex]
-        if not len(sel):
+        if not len(sel) or (tex and textured_done):
             continue
         # Each mesh keeps only the vertices its faces use (glTF accessors are per primitive).
         used, inv = np.unique(sel, return_inverse=True)
@@ -377,7 +395,7 @@ def _group_error(v: F64, f: I64, originals: Sequence[ObjectMesh], tol_m: float) 
 
 def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | PathLike[str], *, lod: int = 2,
                      crs: str | pyproj.CRS | None = None, leaf_triangles: int = 20_000, merge_m: float = 2.0,
-                     tol_m: float = 0.05, textures: bool = True, atlas_px: int = 1024,
+                     tol_m: float = 0.05, textures: bool | str = True, atlas_px: int = 1024,
                      progress: bool = True) -> CityTilesReport:
     """Write the city model's geometry as a 3D Tiles 1.1 tileset with feature IDs and property tables.
 
@@ -401,6 +419,7 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
         Read the model's appearances. A textured model gets Buchholz's multiresolution atlases
         (:mod:`citylod.lod.build.atlas`) instead of building LOD: every tile holds its subtree's surfaces
         and one ``atlas_px``² atlas, and its ``geometricError`` is the atlas's texel size on the surface.
+        ``"original"`` writes one tile with every image as it is, one mesh per image (the baseline).
     atlas_px
         Side of every atlas in pixels (a power of two).
     progress
@@ -442,7 +461,9 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
         boxes[i, :3], boxes[i, 3:] = v.min(axis=0), v.max(axis=0)
     centres = 0.5 * (boxes[:, :3] + boxes[:, 3:])
     tris = np.array([len(m.faces) for m in meshes], np.float64)
-    if textured:
+    if textured and textures == "original":
+        root = _Node(geo, "0", 0)
+    elif textured:
         # Buchholz: split by balanced surface area until a leaf's images fit its atlas at full resolution.
         px = np.array([_image_pixels(p) for p in images], np.float64)
         demand = np.array([px[np.unique(m.image[m.image >= 0])].sum() if m.image is not None else 0.0
@@ -486,7 +507,9 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
         for n in tqdm(sorted(nodes, key=lambda n: n.height), desc="tiles", unit="tile", disable=not progress):
             err = 0.0
             atlas = None
-            if textured:
+            if textured and textures == "original":
+                pieces = [_Piece.of(i, meshes[i], meshes[i].uv) for i in n.objects]
+            elif textured:
                 pieces, atlas, err = _atlas_node(n, squares[n.key], meshes, images, atlases, common, atlas_px,
                                                  warnings)
             elif n.height == 0:
@@ -507,7 +530,8 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
                 lo, hi = np.minimum(lo, p.vertices.min(axis=0)), np.maximum(hi, p.vertices.max(axis=0))
             centre = 0.5 * (lo + hi)
             rows = extra.get(n.key, []) if n.height == 0 else []
-            content, rounding, ntri = _content(pieces, rows, objects, centre, atlas)
+            content, rounding, ntri = _content(pieces, rows, objects, centre, atlas,
+                                               images if textures == "original" else None)
             n.error = max([err + rounding, *(c.error for c in n.children)])
             uri = write_content(partial, n.key, content, atomic=False)
             n.spec = TileSpec(key=n.key, level=n.level, center=centre, lo=lo, hi=hi, geometric_error=n.error,
