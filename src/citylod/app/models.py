@@ -2,7 +2,7 @@
 
 The widgets in ``citylod.app.qt_*`` only hold these models and call their methods, so each action (toggle a
 layer, change τ, run a query, highlight its result, measure, bookmark a camera) can be scripted and tested
-without a window (STYLE.md, "Model, adapter, widget").
+without a window (docs/STYLE.md, "Model, adapter, widget").
 
 * :class:`Document` — what is open: the render :class:`~citylod.render.tileset_actor.Scene` (tilesets), an
   optional :class:`~citylod.semantics.store.CityStore` and its :class:`~citylod.semantics.state.FeatureState`;
@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from citylod.core.camera import Camera
+from citylod.core.camera import Camera, overview_camera
 from citylod.core.errors import CitylodError, InputError
 
 __all__ = [
@@ -79,23 +79,6 @@ def tau_from_slider(pos: int) -> float:
 
 
 # ------------------------------------------------------------------------------------------- camera maths
-def overview_camera(lo: npt.ArrayLike, hi: npt.ArrayLike, *, fovy_deg: float = 45.0, azimuth_deg: float = 200.0,
-                    elevation_deg: float = 40.0, aspect: float = 1.5) -> Camera:
-    """A camera that sees the whole box ``lo``–``hi`` (3,), from the south-south-west, looking down.
-
-    The distance makes the bounding sphere fit the narrower field of view.
-    """
-    lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    centre = (lo_a + hi_a) / 2.0
-    radius = max(float(np.linalg.norm(hi_a - lo_a)) / 2.0, 1.0)
-    half = math.radians(fovy_deg) / 2.0
-    half = min(half, math.atan(math.tan(half) * aspect))
-    dist = radius / math.sin(half) * 0.85
-    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    offset = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)]) * dist
-    return Camera(tuple(centre + offset), tuple(centre), (0.0, 0.0, 1.0), fovy_deg)  # type: ignore[arg-type]
-
-
 _FLY = {"forward": (0, 0, 1), "backward": (0, 0, -1), "left": (-1, 0, 0), "right": (1, 0, 0),
         "up": (0, 1, 0), "down": (0, -1, 0)}
 

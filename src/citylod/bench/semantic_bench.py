@@ -7,7 +7,7 @@ that they are on screen. Everything is measured in one run on one machine, so th
 picking latency is that of :meth:`SemanticOverlay.pick` (one depth read-back, one proxy test, one
 attribute row) at pixels spread over the frames.
 
-Timings go to the report (markdown + csv), never into assertions (STYLE.md).
+Timings go to the report (markdown + csv), never into assertions (docs/STYLE.md).
 
 Run: ``python -m citylod.bench.semantic_bench SAMPLE_DIR [-o OUT] [--size WxH] [--cameras N]`` where
 SAMPLE_DIR holds ``dsm/`` (or ``--tiles``), ``city.gpkg`` and ``path.json``.

@@ -193,3 +193,20 @@ def _frustum_planes(view: View) -> F64:
 
 def _unit(v: F64) -> F64:
     return v / np.linalg.norm(v)
+
+
+def overview_camera(lo: npt.ArrayLike, hi: npt.ArrayLike, *, fovy_deg: float = 45.0, azimuth_deg: float = 200.0,
+                    elevation_deg: float = 40.0, aspect: float = 1.5) -> Camera:
+    """A camera that sees the whole box ``lo``–``hi`` (3,), from the south-south-west, looking down.
+
+    The distance makes the bounding sphere fit the narrower field of view.
+    """
+    lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    centre = (lo_a + hi_a) / 2.0
+    radius = max(float(np.linalg.norm(hi_a - lo_a)) / 2.0, 1.0)
+    half = math.radians(fovy_deg) / 2.0
+    half = min(half, math.atan(math.tan(half) * aspect))
+    dist = radius / math.sin(half) * 0.85
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    offset = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)]) * dist
+    return Camera(tuple(centre + offset), tuple(centre), (0.0, 0.0, 1.0), fovy_deg)  # type: ignore[arg-type]

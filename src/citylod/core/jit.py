@@ -2,9 +2,9 @@
 
 numba loads its numpy support (``numba.np.arraymath``) when a process first compiles or loads a kernel, and
 that module probes for BLAS at import by importing ``scipy.linalg.cython_blas``. Importing it runs
-``scipy.linalg/__init__``, which imports the whole of scipy.linalg and scipy's array-API layer: ≈0.2 s of
-a fresh process here (a cached trivial kernel's first call: 0.48–0.51 s with the probe, 0.30–0.32 s
-without), a fifth of numba's start before a DSM build's first tile, and nothing citylod's kernels use.
+``scipy.linalg/__init__``, which imports the whole of scipy.linalg and scipy's array-API layer: a large
+part of numba's start in a fresh process (docs/PERFORMANCE_LOG.md has the numbers), for nothing
+citylod's kernels use.
 
 :func:`defer_blas_probe` lets numba's import of ``numba.np.arraymath`` skip the probe. The probe only sets
 whether numba registers ``np.dot`` and friends; they are registered, and numba's linear-algebra lowering

@@ -1,9 +1,9 @@
 """Append-only journals of build results, so that a build can resume without a file per task.
 
 A build records what each task finished (a tile's stage-1 TIN, a tile's result) to resume from it after an
-interruption. One small file per record costs an inode each: creating a file measured 0.4–0.9 ms of
-(serialised) kernel time on this project's ext4 disks, about 1.2 s of a 2049² DSM build's 6 s when every
-tile left two. A journal is one file per writing thread and build, appended to record by record:
+interruption. One small file per record costs an inode each, and creating files is serialised in the
+kernel: with two per tile it was a large share of a DSM build (docs/PERFORMANCE_LOG.md). A journal is one
+file per writing thread and build, appended to record by record:
 
     record = magic "CLJ1" | key length u32 | payload length u32 | crc32(key + payload) u32 | key | payload
 

@@ -3,8 +3,7 @@ calls for point content).
 
 Why compiled: a point build encodes its tiles on two threads of one process. Encoded with numpy (the axis
 turn to y-up, the padding of RGB8, uint16 and uint8 attributes to 4-byte elements, the position min/max),
-a 10 k-point tile took ≈0.6 ms, all of it holding the GIL, which kept the other build thread waiting; this
-one pass takes a few tens of microseconds without the GIL. No library writes glTF vertex buffers from
+every pass holds the GIL, which kept the other build thread waiting; this one pass runs without the GIL. No library writes glTF vertex buffers from
 numpy columns in one pass (pygltflib and trimesh assemble them with numpy as the code this replaces did).
 
 The bytes are exactly those of the numpy version: every attribute in its own buffer view, positions

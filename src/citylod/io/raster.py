@@ -251,8 +251,7 @@ def check_has_data(src: RasterSource) -> None:
     height, 64 rows at least, until one holds a valid sample)."""
     info = src.info
     # One strip of the file's blocks decompresses as much as a taller read would convert; a raster with data
-    # near its top is done after the first (the check once read 1024 rows: 60-90 ms of the 2049² city's
-    # build, on one core before the workers start).
+    # near its top is done after the first, on one core before the workers start.
     block = min(max(64, int(src._dataset().block_shapes[src.band - 1][0])), 1024)
     for r in range(0, info.height, block):
         _, v = src.read(r, 0, min(block, info.height - r), info.width)

@@ -89,5 +89,5 @@ def points_from_distance(distance: npt.ArrayLike, camera: Camera, *, relative: b
 
 
 def pixel_footprint(distance: npt.ArrayLike, height_px: int, fovy_deg: float) -> F64:
-    """Object-space size of one pixel at ``distance``: ``2 · d · tan(fovy/2) / H`` (DESIGN.md §2)."""
+    """Object-space size of one pixel at ``distance``: ``2 · d · tan(fovy/2) / H`` (docs/DESIGN.md, decision 2)."""
     return 2.0 * np.asarray(distance, np.float64) * math.tan(math.radians(fovy_deg) / 2.0) / height_px

@@ -189,6 +189,14 @@ def render_images(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[C
     list of (rgb, depth)
         ``rgb`` (H, W, 3) uint8 with row 0 at the top; ``depth`` (H, W) float32 (``inf`` = background) or
         None.
+
+    Examples
+    --------
+    >>> import citylod
+    >>> cams = citylod.load_cameras("path.json")                              # doctest: +SKIP
+    >>> frames = render_images(["TILES"], cams, size=(960, 540), tau_px=1.0)  # doctest: +SKIP
+    >>> frames[0][0].shape                                                    # doctest: +SKIP
+    (540, 960, 3)
     """
     from tqdm import tqdm
 

@@ -2,7 +2,7 @@
 
 Per pixel, both depth images give a 3D point along the same pixel ray (eye + d · ray). The measured
 error is the object-space distance between the LOD point and the full-resolution point, divided by the
-footprint of a pixel at that distance, ``2 · d · tan(fovy/2) / H`` (DESIGN.md §2): the error in pixels.
+footprint of a pixel at that distance, ``2 · d · tan(fovy/2) / H`` (docs/DESIGN.md, decision 2): the error in pixels.
 
 Two variants, both reported by the benchmark:
 
@@ -101,7 +101,7 @@ def measure_error(depth_lod: npt.ArrayLike, depth_full: npt.ArrayLike, camera: C
 @njit(cache=True, nogil=True)
 def _point_triangle_distance(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     # Distance from point p to triangle abc (Ericson, Real-Time Collision Detection, 5.1.5), on scalars:
-    # the array form allocated a temporary per vector operation and took 4 s a frame in the report.
+    # the array form allocates a temporary per vector operation, which dominated a frame's measurement.
     abx, aby, abz = bx - ax, by - ay, bz - az
     acx, acy, acz = cx - ax, cy - ay, cz - az
     apx, apy, apz = px - ax, py - ay, pz - az

@@ -171,6 +171,44 @@ class TileMesh:
     points: F64 | None
     content: TileContent
 
+    def to_pyvista(self, *, origin: npt.ArrayLike | None = None, skirts: bool = False, part: str = "auto") -> Any:
+        """The tile as a ``pyvista.PolyData`` in float64: its triangles, or its points.
+
+        ``part`` is ``"surface"`` (the triangles), ``"points"`` or ``"auto"`` (the triangles when there are
+        any, else the points); a hybrid point tile has both (points and plane quads).
+
+        ``origin`` (3,) is subtracted from every position: pass one near the data (e.g. the tileset's
+        root centre) before rendering, since GPUs draw in float32 and UTM or ECEF coordinates lose
+        centimetres there. Skirt triangles are left out unless ``skirts``. Point tiles carry their
+        ``classification``, ``intensity`` and ``rgb`` as point data where present.
+
+        pyvista is imported here, lazily, for scripted users; nothing else in io/ touches VTK.
+
+        Examples
+        --------
+        >>> mesh = tileset.root.load().to_pyvista(origin=tileset.root.box.center)  # doctest: +SKIP
+        >>> mesh.plot()                                                             # doctest: +SKIP
+        """
+        import pyvista as pv
+
+        if part not in ("auto", "surface", "points"):
+            raise ValueError(f"part must be 'auto', 'surface' or 'points', got {part!r}")
+        shift = np.zeros(3) if origin is None else np.asarray(origin, np.float64)
+        if part == "points" and self.points is None:
+            raise ValueError("this tile has no points")
+        if self.points is not None and (part == "points" or (part == "auto" and len(self.faces) == 0)):
+            cloud = pv.PolyData(self.points - shift)
+            pts = self.content.points
+            assert pts is not None
+            for name in ("classification", "intensity", "rgb"):
+                value = getattr(pts, name, None)
+                if value is not None:
+                    cloud.point_data[name] = np.asarray(value)
+            return cloud
+        faces = self.faces if skirts else self.faces[~self.skirt]
+        cells = np.column_stack([np.full(len(faces), 3, np.int64), faces]).ravel()
+        return pv.PolyData(self.vertices - shift, cells)
+
 
 class Tile:
     """One tile of an opened tileset. See docs/CONTRACTS.md."""
@@ -400,7 +438,22 @@ def _bounding_box(bv: dict[str, Any], source: str, key: str) -> Box:
 
 
 def open_tileset(path: str | os.PathLike[str]) -> Tileset:
-    """Open a 3D Tiles 1.x tileset: a ``tileset.json`` or the folder holding one."""
+    """Open a 3D Tiles 1.x tileset: a ``tileset.json`` or the folder holding one.
+
+    Only the tileset document (and external tilesets it names) is read; tile content loads on demand
+    (:meth:`Tile.load`). Coordinates come out in :attr:`Tileset.crs`: the source CRS for tilesets citylod
+    built, ECEF (EPSG:4978) for others.
+
+    Examples
+    --------
+    >>> import citylod
+    >>> ts = citylod.open_tileset("TILES")                                   # doctest: +SKIP
+    >>> ts.crs.name, ts.root.geometric_error                                  # doctest: +SKIP
+    ('WGS 84 / UTM zone 32N', 21.97)
+    >>> mesh = ts.root.load()                                                 # doctest: +SKIP
+    >>> mesh.vertices.shape[1], mesh.faces.shape[1]                           # doctest: +SKIP
+    (3, 3)
+    """
     p = Path(path)
     if p.is_dir():
         p = p / "tileset.json"

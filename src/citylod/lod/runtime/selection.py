@@ -1,7 +1,7 @@
 """View-dependent LOD selection over a tile tree: what to draw and what to load for one frame.
 
 :func:`select` is a pure function (CesiumJS ``Cesium3DTilesetTraversal.js`` split into traversal,
-cache and statistics; see STYLE.md): it reads the tree, the view, the budgets and which tiles are
+cache and statistics; see docs/STYLE.md): it reads the tree, the view, the budgets and which tiles are
 resident, and returns a :class:`Selection` (tiles to render, keys to request, statistics). It does no
 I/O, keeps no state between calls, imports neither VTK nor Qt and never recurses (an explicit heap and
 explicit stacks), so it can run in a test without a window and on trees of any depth.
@@ -11,7 +11,7 @@ small dataclasses of the tests): nothing here imports io/.
 
 Rules, in one place:
 
-* **Screen-space error.** ``sse_px = view.sse(geometric_error, box.distance(eye))`` (DESIGN.md §2);
+* **Screen-space error.** ``sse_px = view.sse(geometric_error, box.distance(eye))`` (docs/DESIGN.md, decision 2);
   a tile refines while ``sse_px > tau_px``.
 * **Culling.** Tiles whose box lies outside the frustum (``View.cull_box``) are neither drawn nor
   requested, and a culled child never blocks its parent's refinement.
@@ -345,6 +345,16 @@ def select(
     -------
     Selection
         ``render`` (resident tiles to draw), ``request`` (keys to load, most needed first) and ``stats``.
+
+    Examples
+    --------
+    >>> import citylod
+    >>> from citylod.core.camera import View
+    >>> ts = citylod.open_tileset("TILES")                                   # doctest: +SKIP
+    >>> cam = citylod.load_cameras("camera.json")[0]                          # doctest: +SKIP
+    >>> sel = select(ts.root, View(cam, 1280, 720), tau_px=1.0)               # doctest: +SKIP
+    >>> sel.request[:3], sel.stats.selected                                   # doctest: +SKIP
+    (['0/0/0'], 0)
     """
     budget = budget or UNLIMITED
     fr = _Frame(view, resident, unavailable)

@@ -1,0 +1,25 @@
+"""The Examples sections of the public modules run (doctest); those that need files on disk are skipped."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+
+import pytest
+
+MODULES = [
+    "citylod",
+    "citylod.io.image",
+    "citylod.io.tiles3d.tileset",
+    "citylod.lod.runtime.selection",
+    "citylod.lod.runtime.loader",
+    "citylod.render.offscreen",
+    "citylod.render.pyvista_layer",
+]
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_examples_run(name: str) -> None:
+    module = importlib.import_module(name)
+    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    assert result.failed == 0, f"{result.failed} of {result.attempted} examples failed in {name}"
