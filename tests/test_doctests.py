@@ -13,6 +13,9 @@ MODULES = [
     "citylod.io.tiles3d.tileset",
     "citylod.lod.runtime.selection",
     "citylod.lod.runtime.loader",
+    "citylod.lod.runtime.texture_budget",
+    "citylod.lod.build.citymesh",
+    "citylod.sample.textured",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
 ]
