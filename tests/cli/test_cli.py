@@ -57,3 +57,16 @@ def test_build_city_writes_the_store_and_the_tileset_beside_it(sample_city, tmp_
     bad.write_text("<CityModel><cityObjectMember><Building")
     assert main(["-q", "build", "city", str(bad), "-o", str(tmp_path / "c.gpkg")]) == 2
     assert not (tmp_path / "c.gpkg").exists() and not (tmp_path / "c_tiles").exists()
+
+
+def test_build_city_textured_warns_about_a_missing_image(tmp_path: Path, capsys) -> None:
+    from citylod.io.tiles3d import open_tileset
+
+    assert main(["-q", "sample", str(tmp_path / "s"), "--textured", "3", "--image-px", "32"]) == 0
+    (tmp_path / "s" / "textures" / "BLDG_T0001_roof.jpg").unlink()
+    assert main(["-q", "build", "city", str(tmp_path / "s" / "textured.gml"), "-o", str(tmp_path / "c.gpkg"),
+                 "--atlas-px", "256"]) == 0
+    out = capsys.readouterr().out
+    assert "BLDG_T0001_roof.jpg" in out and "missing" in out
+    ts = open_tileset(tmp_path / "c_tiles")
+    assert ts.citylod["textured"] and ts.citylod["atlas_px"] == 256

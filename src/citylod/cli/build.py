@@ -35,6 +35,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--no-tiles", action="store_true", help="write the semantic store only")
     c.add_argument("--leaf-triangles", type=int, default=20_000,
                    help="largest triangle count of a leaf tile holding several objects (default 20000)")
+    c.add_argument("--atlas-px", type=int, default=1024, choices=(256, 512, 1024, 2048, 4096),
+                   help="side of the texture atlas of every tile of a textured model (default 1024)")
+    c.add_argument("--no-textures", action="store_true", help="ignore the model's appearances")
     c.add_argument("--lod", type=int, choices=(1, 2), default=2)
     c.add_argument("--inflate", type=float, help="proxy inflation in metres")
     c.add_argument("--crs", help="metric CRS to project geographic input to, e.g. EPSG:32632")
@@ -59,14 +62,20 @@ def run(args: argparse.Namespace, progress: bool) -> int:
         from citylod.io.city import read_city_model, to_metric
         from citylod.semantics.store import build_city
 
-        # Read and project once; the store and the tileset are two products of the same model.
-        model = to_metric(read_city_model(args.citymodel, lod=args.lod), args.crs)
-        report = build_city(model, args.output, lod=args.lod, inflate=args.inflate, progress=progress)
+        # Read once; the store and the tileset are two products of the same model (the tileset builder
+        # projects it itself: appearances are matched in the coordinates as read).
+        raw = read_city_model(args.citymodel, lod=args.lod)
+        report = build_city(to_metric(raw, args.crs), args.output, lod=args.lod, inflate=args.inflate,
+                            progress=progress)
         if not args.no_tiles:
             from citylod.lod.build.city import build_city_tiles, default_tiles_dir
 
             print(report.summary())
-            report = build_city_tiles(model, args.tiles or default_tiles_dir(args.output),
-                                      leaf_triangles=args.leaf_triangles, progress=progress)
+            report = build_city_tiles(raw, args.tiles or default_tiles_dir(args.output), crs=args.crs,
+                                      leaf_triangles=args.leaf_triangles, atlas_px=args.atlas_px,
+                                      textures=not args.no_textures, progress=progress)
+            for w in report.warnings:
+                if "texture" in w:
+                    print(f"citylod: warning: {w}")
     print(report.summary())
     return 0
