@@ -13,6 +13,13 @@ What each tile holds (building LOD, coarse to fine, ``refine: REPLACE``):
 * higher nodes: merged blocks, footprints of neighbouring objects of the same type closed together over a
   distance that doubles per level, extruded over the group's heights.
 
+A textured model (appearances with images, :mod:`citylod.io.city.appearance`) is built the other way, after
+Buchholz (2006, ch. 4): the 4-ary tree is balanced by surface area and split until a leaf's images fit one
+atlas at their own resolution; every tile holds its subtree's full surfaces and one fixed-size atlas
+(:mod:`citylod.lod.build.atlas`), and its ``geometricError`` is that atlas's texel size on the surface, so
+that at τ px no atlas texel covers more than τ pixels. Surfaces whose image is missing or refused keep
+their material colour.
+
 A coarse tile's ``geometricError`` is a proven bound on the symmetric Hausdorff distance between its
 triangles and the original surfaces of its objects (:mod:`citylod.lod.kernels.hausdorff`; the union's
 distance is at most the largest of the groups', since every group pairs originals with their own stand-in),
