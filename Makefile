@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint sysdeps venv kernels clean
+.PHONY: demo test bench lint sysdeps venv kernels validator clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -25,7 +25,11 @@ sysdeps:
 demo: $(STAMP) sysdeps kernels
 	$(VENV)/bin/citylod demo demo_out
 
-test: $(STAMP) sysdeps kernels
+# CesiumGS's 3d-tiles-validator for tests/io/test_validator.py (node + npm); prints why and goes on without it.
+validator:
+	@./scripts/validator.sh
+
+test: $(STAMP) sysdeps kernels validator
 	xvfb-run -a -s "-screen 0 1600x1200x24" $(PY) -m pytest -n 2 --dist loadfile -q
 
 bench: $(STAMP) sysdeps kernels
@@ -37,4 +41,4 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy
 
 clean:
-	rm -rf $(VENV) demo_out bench_out
+	rm -rf $(VENV) demo_out bench_out .validator .validator.skipped

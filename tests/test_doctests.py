@@ -9,15 +9,22 @@ import pytest
 
 MODULES = [
     "citylod",
+    "citylod.io.crs",
     "citylod.io.image",
+    "citylod.io.tiles3d.colour",
     "citylod.io.tiles3d.tileset",
     "citylod.lod.runtime.selection",
     "citylod.lod.runtime.loader",
     "citylod.lod.runtime.texture_budget",
     "citylod.lod.build.citymesh",
     "citylod.sample.textured",
+    "citylod.lod.build.model",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
+    "citylod.render.splats",
+    "citylod.analysis.flood",
+    "citylod.analysis.polygons",
+    "citylod.lod.runtime.budget",
 ]
 
 

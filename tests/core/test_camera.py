@@ -52,3 +52,14 @@ def test_camera_file_roundtrip_and_errors(tmp_path) -> None:
     (tmp_path / "bad2.json").write_text('{"position": [1, 2]}')
     with pytest.raises(InputError, match="bad2.json"):
         load_cameras(tmp_path / "bad2.json")
+
+
+def test_camera_close_to_its_focal_point_at_ecef_coordinates() -> None:
+    """A camera 10 m (and 1 mm) from its focal point at ECEF magnitude is a camera, not a coincidence:
+    the closeness test is absolute, in metres, not numpy's relative tolerance."""
+    foc = np.array([3924000.0, 301000.0, 5002000.0])
+    for offset_m in (10.0, 1e-3):
+        cam = Camera(tuple(foc + [0.0, 0.0, offset_m]), tuple(foc))
+        assert np.allclose(cam.direction, [0, 0, -1])
+    with pytest.raises(ValueError, match="coincide"):
+        Camera(tuple(foc), tuple(foc))

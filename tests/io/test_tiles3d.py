@@ -120,7 +120,8 @@ def test_point_attributes_absent_or_converted() -> None:
     jlen = struct.unpack_from("<I", data, 12)[0]
     gltf = json.loads(data[20:20 + jlen])
     attrs = gltf["meshes"][0]["primitives"][0]["attributes"]
-    assert set(attrs) == {"POSITION", "_INTENSITY", "_CLASSIFICATION"}
+    assert set(attrs) == {"POSITION", "_INTENSITY", "_CLASSIFICATION", "_FEATURE_ID_0"}
+    assert attrs["_FEATURE_ID_0"] == attrs["_CLASSIFICATION"]  # the class is the feature ID, no extra bytes
     back = decode_glb(data, "x.glb").points
     assert back is not None and back.rgb is None and back.return_number is None
     np.testing.assert_array_equal(back.positions, block[:, 1:4].astype(np.float32))
@@ -230,3 +231,18 @@ def test_foreign_tileset_with_region_and_b3dm(tmp_path) -> None:
     np.testing.assert_allclose(v[1], [4_000_010.0, 600_000.0, 4_900_000.0], atol=1e-6)
     lo, hi = ts.root.bounds
     assert np.all(hi - lo > 0) and np.linalg.norm(lo) > 6e6
+
+
+def test_mipmaps_only_for_power_of_two_textures() -> None:
+    """WebGL 1 clients cannot mipmap a 131×126 plane-quad atlas: such textures get a LINEAR sampler."""
+    from citylod.io.image import encode_image
+
+    for (h, w), fmt, min_filter in (((126, 131), "png", 9729), ((64, 128), "png", 9987),
+                                    ((100, 130), "jpg", 9729), ((256, 256), "jpg", 9987)):
+        png = encode_image(np.zeros((h, w, 3), np.uint8), fmt)
+        mesh = MeshData(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32), np.array([[0, 1, 2]], np.uint32),
+                        uv=np.array([[0, 0], [1, 0], [0, 1]], np.float32), texture=png)
+        data = encode_glb(TileContent([mesh]))
+        jlen = struct.unpack_from("<I", data, 12)[0]
+        sampler = json.loads(data[20:20 + jlen])["samplers"][0]
+        assert sampler["minFilter"] == min_filter, (w, h)

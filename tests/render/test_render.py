@@ -15,6 +15,7 @@ import pytest
 
 from citylod.bench.synthetic import make_point_tileset, make_terrain_tileset
 from citylod.core.camera import Camera
+from citylod.core.errors import InputError
 from citylod.lod.runtime.selection import Budget
 from citylod.render.depth import world_rays, zbuffer_to_distance
 from citylod.render.offscreen import OffscreenRenderer, render_command, save_png
@@ -152,16 +153,16 @@ def test_corrupt_tile_is_reported_and_skipped(tmp_path: Path, capsys: pytest.Cap
     assert frame.stats.tiles == 3
     assert frame.stats.levels == {1: 3}
     assert np.isfinite(frame.depth).mean() > 0.2
-    # The command line reports the skipped tile and still writes the image.
+    # The command line refuses the picture (a hole looks plausible and is wrong): one error naming the
+    # tile file, exit 2 through main(), and no image or depth file written.
     cam_file = tmp_path / "cam.json"
     cam.save(cam_file)
     args = argparse.Namespace(sources=[ts], output=tmp_path / "out.png", camera=cam_file, tau=0.05,
                               size=(160, 120), depth=tmp_path / "d.npy", city=None, highlight=None, hide=None,
                               color_by="level")
-    assert render_command(args, progress=False) == 0
-    assert (tmp_path / "out.png").stat().st_size > 0
-    assert np.load(tmp_path / "d.npy").shape == (120, 160)
-    assert "1/0/0.glb" in capsys.readouterr().out
+    with pytest.raises(InputError, match=r"1/0/0\.glb"):
+        render_command(args, progress=False)
+    assert not (tmp_path / "out.png").exists() and not (tmp_path / "d.npy").exists()
 
 
 def _flight(n: int) -> list[Camera]:

@@ -32,6 +32,7 @@ from PySide6.QtWidgets import (
 )
 
 from citylod.app.models import SHORTCUTS, Document, build_plan, format_status, source_kind
+from citylod.app.qt_flood import FloodPanel
 from citylod.app.qt_panels import (
     AttributePanel,
     BookmarkPanel,
@@ -85,13 +86,15 @@ class MainWindow(QMainWindow):
         self.lod = LodPanel(self.document)
         self.measure = MeasurePanel(self.start_measure, self.view.clear_measure)
         self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, self.settings)
+        self.flood = FloodPanel(self.document)
+        self.flood.render_requested.connect(self.view.request_render)
         self.docks: dict[str, QDockWidget] = {}
         left, right = Qt.DockWidgetArea.LeftDockWidgetArea, Qt.DockWidgetArea.RightDockWidgetArea
         for name, title, widget, area in (
                 ("layers", "Layers", self.layers, left), ("lod", "Level of detail", self.lod, left),
                 ("objects", "City objects", self.tree, left), ("attributes", "Attributes", self.inspector, right),
                 ("query", "Query", self.query, right), ("measure", "Measure", self.measure, right),
-                ("bookmarks", "Bookmarks", self.bookmarks, right)):
+                ("bookmarks", "Bookmarks", self.bookmarks, right), ("flood", "Flood", self.flood, right)):
             dock = QDockWidget(title, self)
             dock.setObjectName(f"dock_{name}")
             dock.setWidget(widget)

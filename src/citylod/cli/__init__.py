@@ -29,6 +29,7 @@ COMMANDS: dict[str, str] = {
     "view": "view",
     "demo": "demo",
     "build-kernels": "kernels",
+    "flood": "flood",
 }
 
 

@@ -1,4 +1,4 @@
-"""``citylod build dsm|points|city``: the offline builders."""
+"""``citylod build dsm|points|city|model``: the offline builders."""
 
 from __future__ import annotations
 
@@ -25,8 +25,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pt.add_argument("-o", "--output", type=Path, required=True)
     pt.add_argument("--crs", help="CRS when the LAS header has none, e.g. EPSG:28992")
     pt.add_argument("--no-hybrid", action="store_true", help="points only, no plane quads")
+    pt.add_argument("--complete", nargs="?", const="points", choices=("points", "quads"),
+                    help="add walls (as points, the default, or as quads) and ground under canopy from the "
+                         "ASPRS classes (2 ground, 6 building, 3-5 vegetation); added points are flagged "
+                         "synthetic. Unclassified input gets a warning and nothing added")
+    pt.add_argument("--no-ground-fill", action="store_true", help="with --complete: walls only")
     pt.add_argument("--workers", type=int)
     pt.add_argument("--scheduler")
+    m = bsub.add_parser("model", help="DSM raster to a simplified city mesh (3D Tiles) and buildings (CityJSON)")
+    m.add_argument("raster", type=Path)
+    m.add_argument("-o", "--output", type=Path, required=True)
+    m.add_argument("--max-error", type=float, help="certified vertical error bound in metres (default: the spacing)")
+    m.add_argument("--cell", type=int, default=512, help="samples per out-of-core cell side (default 512)")
+    m.add_argument("--no-shapes", action="store_true", help="plain QEM collapse under the bound, no shape rules")
+    m.add_argument("--ortho", type=Path, help="orthophoto to texture the mesh with")
+    m.add_argument("--workers", type=int)
+    m.add_argument("--scheduler")
     c = bsub.add_parser("city", help="CityGML / CityJSON to a GeoPackage semantic store and a 3D Tiles tileset")
     c.add_argument("citymodel", type=Path)
     c.add_argument("-o", "--output", type=Path, required=True)
@@ -40,7 +54,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--no-textures", action="store_true", help="ignore the model's appearances")
     c.add_argument("--lod", type=int, choices=(1, 2), default=2)
     c.add_argument("--inflate", type=float, help="proxy inflation in metres")
-    c.add_argument("--crs", help="metric CRS to project geographic input to, e.g. EPSG:32632")
+    c.add_argument("--crs", help="metric CRS to project geographic input to, or the CRS of a file that names none, "
+                   "e.g. EPSG:32632")
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:
@@ -52,12 +67,21 @@ def run(args: argparse.Namespace, progress: bool) -> int:
             workers=args.workers, scheduler=args.scheduler, progress=progress, certify_leaves=args.certify_leaves,
         )
     elif args.kind == "points":
+        from citylod.lod.build.complete import CompleteOptions
         from citylod.lod.build.points import build_points
 
+        complete = (None if args.complete is None
+                    else CompleteOptions(walls=args.complete, ground=not args.no_ground_fill))
         report = build_points(
             args.files, args.output, crs=args.crs, hybrid=not args.no_hybrid, workers=args.workers,
-            scheduler=args.scheduler, progress=progress,
+            scheduler=args.scheduler, progress=progress, complete=complete,
         )
+    elif args.kind == "model":
+        from citylod.lod.build.model import build_model
+
+        report = build_model(args.raster, args.output, max_error=args.max_error, cell=args.cell,
+                             constrained=not args.no_shapes, workers=args.workers, scheduler=args.scheduler,
+                             progress=progress, ortho=args.ortho)
     else:
         from citylod.io.city import read_city_model, to_metric
         from citylod.semantics.store import build_city

@@ -15,15 +15,15 @@ def describe(source: str | os.PathLike[str]) -> str:
     p = Path(source)
     if not p.exists():
         raise InputError("not found", p)
+    suffix = p.suffix.lower()
+    if suffix in (".gml", ".xml", ".jsonl") or p.name.endswith(".city.json"):
+        return f"{p}: city model (build a store with `citylod build city {p} -o CITY.gpkg`)"
     if p.is_dir() or p.name.endswith(".json"):
         return _describe_tileset(p)
-    suffix = p.suffix.lower()
     if suffix in (".las", ".laz"):
         return _describe_las(p)
     if suffix == ".gpkg":
         return _describe_store(p)
-    if suffix in (".gml", ".xml") or p.name.endswith(".city.json"):
-        return f"{p}: city model (build a store with `citylod build city {p} -o CITY.gpkg`)"
     return _describe_raster(p)
 
 
@@ -70,6 +70,9 @@ def _describe_raster(p: Path) -> str:
 def _describe_las(p: Path) -> str:
     import laspy
 
+    from citylod.io.las import check_header
+
+    check_header(p)
     try:
         with laspy.open(p) as f:
             h = f.header
@@ -90,15 +93,18 @@ def _describe_store(p: Path) -> str:
         x0, y0, z0, x1, y1, z1 = store.bounds
         n = len(store)
         buildings = len(store.query("type IN ('Building', 'BuildingPart')"))
-        lon, lat = pyproj.Transformer.from_crs(store.crs, "EPSG:4326", always_xy=True).transform(
-            (x0 + x1) / 2, (y0 + y1) / 2)
-        epsg = store.crs.to_epsg()
-        return "\n".join([
-            f"{p}: city store (GeoPackage), {n} objects, {buildings} buildings",
-            f"  crs      {store.crs.name}" + (f" (EPSG:{epsg})" if epsg else ""),
-            f"  bounds   x {x0:.2f} … {x1:.2f}, y {y0:.2f} … {y1:.2f}, z {z0:.2f} … {z1:.2f}",
-            f"  centre   {lat:.5f}° N, {lon:.5f}° E",
-        ])
+        lines = [f"{p}: city store (GeoPackage), {n} objects, {buildings} buildings"]
+        if store.crs is None:  # stores written before a CRS was required
+            lines.append("  crs      none (the source named none; rebuild with --crs to place it)")
+        else:
+            epsg = store.crs.to_epsg()
+            lines.append(f"  crs      {store.crs.name}" + (f" (EPSG:{epsg})" if epsg else ""))
+        lines.append(f"  bounds   x {x0:.2f} … {x1:.2f}, y {y0:.2f} … {y1:.2f}, z {z0:.2f} … {z1:.2f}")
+        if store.crs is not None:
+            lon, lat = pyproj.Transformer.from_crs(store.crs, "EPSG:4326", always_xy=True).transform(
+                (x0 + x1) / 2, (y0 + y1) / 2)
+            lines.append(f"  centre   {lat:.5f}° N, {lon:.5f}° E")
+        return "\n".join(lines)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

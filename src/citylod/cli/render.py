@@ -19,6 +19,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--city", type=Path, help="city store (.gpkg) for --highlight / --hide")
     r.add_argument("--highlight", help="SQL WHERE clause of objects to highlight")
     r.add_argument("--hide", help="SQL WHERE clause of objects to hide")
+    r.add_argument("--flood", type=Path, metavar="FLOOD_DIR",
+                   help="draw the water of a `citylod flood` result (translucent, clipped to the flooded cells)")
+    r.add_argument("--flood-index", type=int, default=-1,
+                   help="which level of a flood series to draw (default: the last)")
+    r.add_argument("--flood-series", action="store_true",
+                   help="step through the flood's levels, one per frame of a camera path (the last one stays)")
+    r.add_argument("--edits", type=Path, metavar="POLYGONS",
+                   help="polygon edits applied while rendering (GeoJSON, KML or GeoPackage with actions)")
     r.add_argument("--color-by", default="auto", help="auto, rgb, classification, elevation, intensity, level")
 
 

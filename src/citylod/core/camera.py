@@ -23,6 +23,8 @@ import numpy.typing as npt
 from citylod.core.errors import InputError
 from citylod.core.geometry import F64, Box, Sphere
 
+_COINCIDE_M = 1e-6  # position and focal point closer than this (CRS units, metres) are one point
+
 
 def screen_space_error(geometric_error: float, distance: float, height_px: int, fovy_rad: float) -> float:
     """The screen-space error in pixels of a tile seen at ``distance``.
@@ -50,10 +52,16 @@ class Camera:
         foc = np.asarray(self.focal_point, dtype=np.float64)
         if pos.shape != (3,) or foc.shape != (3,) or not (np.all(np.isfinite(pos)) and np.all(np.isfinite(foc))):
             raise ValueError("camera position and focal_point must be three finite numbers each")
-        if np.allclose(pos, foc):
+        # An absolute tolerance in CRS units (metres): np.allclose's relative one called a camera 40 m from its
+        # focal point "coincident" at UTM or ECEF coordinates. A micrometre is far above float64 resolution at
+        # ECEF magnitudes (≈1 nm), so the view direction of any accepted camera is well defined.
+        if float(np.linalg.norm(pos - foc)) <= _COINCIDE_M:
             raise ValueError("camera position and focal_point coincide")
         if not 0.0 < self.fovy_deg < 180.0:
             raise ValueError(f"fovy_deg must be in (0, 180), got {self.fovy_deg}")
+        up = np.asarray(self.view_up, dtype=np.float64)
+        if up.shape != (3,) or not np.all(np.isfinite(up)) or not np.any(up):
+            raise ValueError("camera view_up must be three finite numbers, not all zero")
 
     @property
     def direction(self) -> F64:
@@ -89,8 +97,8 @@ class Camera:
                 view_up=tuple(float(v) for v in d.get("view_up", (0.0, 0.0, 1.0))),  # type: ignore[arg-type]
                 fovy_deg=float(d.get("fovy_deg", 45.0)),
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"not a camera ({exc})", source) from exc
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
+            raise InputError(f"not a camera ({str(exc)[:200]})", source) from exc
 
     def save(self, path: str | PathLike[str]) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
@@ -99,11 +107,13 @@ class Camera:
 def load_cameras(path: str | PathLike[str]) -> list[Camera]:
     """Read a camera file: one camera object, a list of them, or ``{"cameras": [...]}``."""
     try:
-        data = json.loads(Path(path).read_text())
+        data = json.loads(Path(path).read_bytes())
     except OSError as exc:
         raise InputError(f"cannot read camera file ({exc.strerror})", path) from exc
-    except json.JSONDecodeError as exc:
-        raise InputError(f"camera file is not JSON ({exc})", path) from exc
+    except RecursionError as exc:
+        raise InputError("camera file is not readable JSON (nested too deeply)", path) from exc
+    except (ValueError, UnicodeDecodeError) as exc:  # JSONDecodeError, numbers of thousands of digits
+        raise InputError(f"camera file is not JSON ({str(exc)[:200]})", path) from exc
     if isinstance(data, dict) and "cameras" in data:
         data = data["cameras"]
     items = data if isinstance(data, list) else [data]

@@ -7,12 +7,14 @@ published the same way. Standard library only.
 
 from __future__ import annotations
 
+import functools
 import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
-from citylod.core.errors import InputError
+from citylod.core.errors import CitylodError, InputError
 
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object], *, suffix: str = "") -> Path:
@@ -60,3 +62,30 @@ def publish_dir(partial: str | os.PathLike[str], out: str | os.PathLike[str], *,
     os.replace(dst, old)
     os.replace(src, dst)
     shutil.rmtree(old, ignore_errors=True)
+
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def discard_partial_on_refusal(func: _F) -> _F:
+    """Decorate a builder ``f(inputs, out_dir, ...)`` so that refused input leaves no ``out_dir.partial``.
+
+    A builder writes into ``<out_dir>.partial`` and keeps it when interrupted, to resume. When it stops on a
+    :class:`CitylodError` (bad input found part-way: a truncated file, a raster that cannot be placed), a
+    partial folder that this call created holds nothing worth resuming, so it is removed; one that existed
+    before the call (an earlier interrupted build) is left as it was.
+    """
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        out = kwargs.get("out_dir", args[1] if len(args) > 1 else None)
+        partial = None if out is None else Path(out).with_name(Path(out).name + ".partial")
+        existed = partial is None or partial.exists()
+        try:
+            return func(*args, **kwargs)
+        except CitylodError:
+            if not existed and partial is not None:
+                shutil.rmtree(partial, ignore_errors=True)
+            raise
+
+    return wrapper  # type: ignore[return-value]

@@ -10,6 +10,9 @@ origin (Earth curvature: about 2 m at 5 km). citylod never reads positions throu
 from __future__ import annotations
 
 import functools
+import os
+import re
+import warnings
 from typing import Any
 
 import numpy as np
@@ -28,6 +31,84 @@ def parse_crs(value: Any, source: str | None = None) -> pyproj.CRS:
         return pyproj.CRS.from_user_input(value)
     except (pyproj.exceptions.CRSError, TypeError) as exc:
         raise GeoreferenceError(f"not a coordinate reference system: {value!r} ({exc})", source) from exc
+
+
+# EPSG codes in the forms found in city model files: "EPSG:n", "urn:ogc:def:crs:EPSG::n", versioned
+# "urn:ogc:def:crs:EPSG:6.12:n", "http(s)://www.opengis.net/def/crs/EPSG/0/n", ".../epsg.xml#n"; the version
+# group must be consumed whole, or "EPSG:6.12:25833" reads as EPSG:6.
+_EPSG_CODE = re.compile(r"EPSG(?::[0-9.]*:|/[0-9.]+/|\.xml#|:)([0-9]{1,6})(?![0-9.])", re.IGNORECASE)
+_CRS84 = re.compile(r"(?:OGC:[0-9.]*:|OGC/[0-9.]+/)CRS84\b", re.IGNORECASE)
+
+# AdV (German surveying authorities) CRS names used in ALKIS/CityGML: "urn:adv:crs:HORIZONTAL*VERTICAL[*...]".
+_ADV_HORIZONTAL: dict[str, int] = {
+    "ETRS89_UTM31": 25831, "ETRS89_UTM32": 25832, "ETRS89_UTM33": 25833,
+    "DE_DHDN_3GK2": 31466, "DE_DHDN_3GK3": 31467, "DE_DHDN_3GK4": 31468, "DE_DHDN_3GK5": 31469,
+    "ETRS89_LAT-LON": 4258, "DE_DHDN_LAT-LON": 4314,
+}
+_ADV_VERTICAL: dict[str, int] = {
+    "DE_DHHN2016_NH": 7837, "DE_DHHN92_NH": 5783, "DE_DHHN85_NOH": 5784, "DE_SNN76_NH": 5785,
+}
+
+
+def _adv_codes(name: str) -> list[int] | None:
+    """EPSG codes (horizontal, then vertical if known) of an AdV URN; None when ``name`` is not one."""
+    m = re.match(r"\s*urn:adv:crs:([^\s]+)", name, re.IGNORECASE)
+    if m is None:
+        return None
+    parts = m.group(1).upper().split("*")
+    # Regional variants carry a suffix ("DE_DHDN_3GK3_BW100", "ETRS89_UTM32_HE"): match the longest known prefix.
+    horiz = next((code for key, code in sorted(_ADV_HORIZONTAL.items(), key=lambda kv: -len(kv[0]))
+                  if parts[0].startswith(key)), None)
+    if horiz is None:
+        return []
+    vert = _ADV_VERTICAL.get(parts[1]) if len(parts) > 1 else None
+    return [horiz] if vert is None else [horiz, vert]
+
+
+def crs_from_srs_name(name: Any, source: str | None = None) -> pyproj.CRS:
+    """The CRS named by a city model file (CityGML ``srsName``, CityJSON ``referenceSystem``).
+
+    Understands EPSG codes in all the URN and URL spellings found in published files, versioned or not
+    (``urn:ogc:def:crs:EPSG:6.12:25833``), compound URNs and URLs (``urn:ogc:def:crs,crs:EPSG::28992,crs:EPSG::5709``
+    is the compound RD New + NAP height, not its last part), OGC CRS84 and the AdV names of German
+    surveying data (``urn:adv:crs:ETRS89_UTM32*DE_DHHN2016_NH`` is EPSG:25832 + EPSG:7837). Other names go
+    to pyproj as they are.
+
+    Raises
+    ------
+    GeoreferenceError
+        The name is not a CRS pyproj knows, or it names only a vertical CRS (positions could not be placed).
+
+    Examples
+    --------
+    >>> crs_from_srs_name("urn:ogc:def:crs:EPSG:6.12:25833").to_epsg()
+    25833
+    >>> crs_from_srs_name("urn:adv:crs:ETRS89_UTM32*DE_DHHN2016_NH").name
+    'ETRS89 / UTM zone 32N + DHHN2016 height'
+    """
+    text = str(name).strip()
+    if len(text) > 4096:
+        raise GeoreferenceError(f"not a coordinate reference system name ({len(text)} characters)", source)
+    adv = _adv_codes(text)
+    if adv is not None:
+        if not adv:
+            raise GeoreferenceError(f"unknown AdV coordinate reference system {text!r}", source)
+        codes = [str(c) for c in adv]
+    else:
+        codes = _EPSG_CODE.findall(text)
+    if len(codes) > 2:
+        raise GeoreferenceError(f"{text!r} names {len(codes)} coordinate reference systems, expected at most 2",
+                                source)
+    if codes:
+        crs = parse_crs("EPSG:" + "+".join(codes), source)
+    elif _CRS84.search(text):
+        crs = pyproj.CRS.from_user_input("OGC:CRS84")
+    else:
+        crs = parse_crs(text, source)
+    if crs.is_vertical and not crs.is_compound:
+        raise GeoreferenceError(f"{text!r} names only a vertical CRS ({crs.name}); positions need a horizontal "
+                                "one", source)
+    return crs
 
 
 def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
@@ -59,11 +140,66 @@ def _to_wgs84(wkt: str) -> pyproj.Transformer:
     return pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(wkt), "EPSG:4326", always_xy=True)
 
 
+#: Folders searched for PROJ grids installed by packages (Debian's proj-data; pyproj's own data folder).
+#: PROJ's network access stays off: nothing is downloaded at run time.
+_GRID_DIRS = ("/usr/share/proj", "/usr/local/share/proj")
+_GLOBAL_GEOID = "egm96_15.gtx"  # EGM96 geoid heights on a 15' grid, in Debian's proj-data
+
+
+def _grid_path(name: str) -> str | None:
+    for folder in (pyproj.datadir.get_data_dir(), *_GRID_DIRS):
+        path = os.path.join(folder, name)
+        if os.path.isfile(path):
+            return path
+    return None
+
+
+@functools.lru_cache(maxsize=64)
+def _height_offset(wkt: str, x: float, y: float, z: float, lon: float, lat: float) -> tuple[float, str | None]:
+    crs = pyproj.CRS.from_wkt(wkt)
+    vertical = next((c for c in crs.sub_crs_list if c.is_vertical), None) if crs.is_compound else None
+    if vertical is None:
+        return 0.0, None  # ellipsoidal heights already, or no vertical datum stated: taken as ellipsoidal
+    with warnings.catch_warnings():  # pyproj's warning names the missing grid; the message below does too
+        warnings.simplefilter("ignore")
+        group = pyproj.transformer.TransformerGroup(crs, "EPSG:4979", always_xy=True)
+    missing = sorted({g.short_name for op in group.unavailable_operations for g in op.grids if not g.available})
+    exact = [t for t in group.transformers if "ballpark vertical" not in t.description.lower()]
+    if exact:
+        return float(exact[0].transform(x, y, z)[2]) - z, None
+    needs = f" (it needs the PROJ grid {', '.join(missing)})" if missing else ""
+    geoid = _grid_path(_GLOBAL_GEOID)
+    if geoid is not None:
+        # A geoid model in place of the datum's own: EGM96 differs from national height datums by decimetres.
+        n = float(pyproj.Transformer.from_pipeline(f"+proj=vgridshift +grids={geoid} +multiplier=1")
+                  .transform(lon, lat, 0.0)[2])
+        return n, (f"heights in {vertical.name} raised to the WGS84 ellipsoid with the EGM96 geoid "
+                   f"({n:+.2f} m here), not the datum's own model{needs}: within about a metre")
+    return 0.0, (f"heights in {vertical.name} written as WGS84 ellipsoidal heights: no geoid model is installed"
+                 f"{needs}, so on a globe the data sits tens of metres off; install Debian's proj-data package "
+                 f"(EGM96) or the datum's grid into {pyproj.datadir.get_data_dir()}")
+
+
+def height_to_ellipsoid(crs: pyproj.CRS, x: float, y: float, z: float, lon: float, lat: float) -> float:
+    """Metres to add to a height of ``crs`` at (x, y, z) (lon, lat in degrees) to get a WGS84 ellipsoidal height.
+
+    A compound CRS with a vertical datum (Delft: EPSG:7415, RD New + NAP) goes through PROJ's transformation
+    to EPSG:4979 when its grid is installed; otherwise through the EGM96 geoid of Debian's proj-data, with a
+    warning that names the missing grid; otherwise 0, with a warning that the data will sit off on a globe.
+    Grids come only from installed packages: PROJ's network access stays off.
+    """
+    offset, warning = _height_offset(crs.to_wkt(), float(x), float(y), float(z), float(lon), float(lat))
+    if warning:
+        warnings.warn(warning, stacklevel=3)
+    return offset
+
+
 def ecef_from_local(crs: pyproj.CRS, origin: F64) -> F64:
     """4×4 matrix from the local frame (source CRS coordinates minus ``origin``) to ECEF.
 
     The horizontal axes are mapped with the Jacobian of the projection at the origin (grid convergence and
-    scale factor, from a central difference of ±100 m), heights go to the local up axis. For a geographic CRS
+    scale factor, from a central difference of ±100 m), heights go to the local up axis, raised from the CRS's
+    vertical datum to the WGS84 ellipsoid at the origin (:func:`height_to_ellipsoid`). For a geographic CRS
     the local frame is already metric only after projection, so ``crs`` must be metric here.
     """
     h = horizontal_crs(crs)
@@ -72,7 +208,7 @@ def ecef_from_local(crs: pyproj.CRS, origin: F64) -> F64:
     lon0, lat0 = to_geo.transform(x0, y0)
     if not (np.isfinite(lon0) and np.isfinite(lat0)):
         raise GeoreferenceError(f"cannot place origin {origin} of {h.name} on the globe")
-    enu = enu_to_ecef_matrix(lon0, lat0, z0)
+    enu = enu_to_ecef_matrix(lon0, lat0, z0 + height_to_ellipsoid(crs, x0, y0, z0, lon0, lat0))
     # Jacobian of (x, y) -> (east, north) in metres, by central differences on the ellipsoid's tangent plane.
     d = 100.0
     pts_x = np.array([x0 - d, x0 + d, x0, x0])

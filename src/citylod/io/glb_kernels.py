@@ -2,12 +2,13 @@
 calls for point content).
 
 Why compiled: a point build encodes its tiles on two threads of one process. Encoded with numpy (the axis
-turn to y-up, the padding of RGB8, uint16 and uint8 attributes to 4-byte elements, the position min/max),
-every pass holds the GIL, which kept the other build thread waiting; this one pass runs without the GIL. No library writes glTF vertex buffers from
+turn to y-up, sRGB to linear colour, the padding of RGB16, uint16 and uint8 attributes to multiples of 4 bytes,
+the position min/max), every pass holds the GIL, which kept the other build thread waiting; this one pass runs
+without the GIL. No library writes glTF vertex buffers from
 numpy columns in one pass (pygltflib and trimesh assemble them with numpy as the code this replaces did).
 
-The bytes are exactly those of the numpy version: every attribute in its own buffer view, positions
-tightly packed float32, the others padded to a stride of 4 bytes with zeros (glTF 2.0 §3.6.2.4).
+Every attribute is in its own buffer view: positions tightly packed float32, the others padded with zeros to
+a stride that is a multiple of 4 bytes (glTF 2.0 §3.6.2.4).
 
 Imported only when point content is encoded, so reading tiles does not start numba.
 """
@@ -24,10 +25,10 @@ defer_blas_probe()  # before any kernel loads: numba starts without importing sc
 
 
 @numba.njit(cache=True, nogil=True)
-def point_vertex_columns(pos: npt.NDArray[np.float32], rgb: npt.NDArray[np.uint8],
+def point_vertex_columns(pos: npt.NDArray[np.float32], rgb: npt.NDArray[np.uint8], rgb_lut: npt.NDArray[np.uint16],
                          intensity: npt.NDArray[np.uint16], classification: npt.NDArray[np.uint8],
                          return_number: npt.NDArray[np.uint8], pos_out: npt.NDArray[np.float32],
-                         rgb_out: npt.NDArray[np.uint8], intensity_out: npt.NDArray[np.uint16],
+                         rgb_out: npt.NDArray[np.uint16], intensity_out: npt.NDArray[np.uint16],
                          classification_out: npt.NDArray[np.uint8], return_out: npt.NDArray[np.uint8],
                          lo: npt.NDArray[np.float32], hi: npt.NDArray[np.float32]) -> None:  # pragma: no cover
     """Fill the glb columns of ``n`` points in one pass.
@@ -35,7 +36,8 @@ def point_vertex_columns(pos: npt.NDArray[np.float32], rgb: npt.NDArray[np.uint8
     ``pos`` (n, 3) z-up positions become ``pos_out`` (n, 3) in glTF's y-up axes, (x, z, −y), with their
     per-axis minimum and maximum in ``lo`` / ``hi`` (3,). Each of the other inputs, when it has n rows
     (an absent attribute is passed with 0 rows and its output is not touched), is copied into its output
-    padded with zeros to 4 bytes a point: ``rgb_out`` (n, 4) uint8, ``intensity_out`` (n, 2) uint16,
+    padded with zeros to a multiple of 4 bytes a point. ``rgb`` sRGB bytes go through ``rgb_lut`` (256,) into
+    ``rgb_out`` (n, 4) uint16 (glTF colours are linear: :mod:`citylod.io.tiles3d.colour`); ``intensity_out`` (n, 2) uint16,
     ``classification_out`` and ``return_out`` (n, 4) uint8.
     """
     n = pos.shape[0]
@@ -58,9 +60,9 @@ def point_vertex_columns(pos: npt.NDArray[np.float32], rgb: npt.NDArray[np.uint8
         hi[1] = max(hi[1], y)
         hi[2] = max(hi[2], z)
         if has_rgb:
-            rgb_out[i, 0] = rgb[i, 0]
-            rgb_out[i, 1] = rgb[i, 1]
-            rgb_out[i, 2] = rgb[i, 2]
+            rgb_out[i, 0] = rgb_lut[rgb[i, 0]]
+            rgb_out[i, 1] = rgb_lut[rgb[i, 1]]
+            rgb_out[i, 2] = rgb_lut[rgb[i, 2]]
             rgb_out[i, 3] = 0
         if has_int:
             intensity_out[i, 0] = intensity[i]

@@ -14,6 +14,7 @@ or ``read_points``), import anything heavier than laspy, or touch VTK / Qt.
 from __future__ import annotations
 
 import os
+import struct
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -29,11 +30,13 @@ from citylod.core.errors import CitylodError, EmptyInputError, GeoreferenceError
 from citylod.io.crs import parse_crs
 
 #: The one in-memory layout of a point, whatever the LAS point format: float64 coordinates in the source
-#: CRS, 8-bit RGB (0 when the format has no colour), and the attributes the renderer uses.
+#: CRS, 8-bit RGB (0 when the format has no colour), the attributes the renderer uses, and the LAS
+#: *synthetic* flag (1 for points a tool added, e.g. the walls of :mod:`citylod.lod.build.complete`).
 POINT_DTYPE = np.dtype([
     ("x", "f8"), ("y", "f8"), ("z", "f8"),
     ("intensity", "u2"), ("classification", "u1"), ("return_number", "u1"),
     ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+    ("synthetic", "u1"),
 ])
 
 _SUFFIXES = {".las", ".laz"}
@@ -118,6 +121,72 @@ def supports(path: str | PathLike[str]) -> bool:
         return False
 
 
+# Public header fields (LAS 1.0-1.4, little endian) that say how much follows, read before laspy is: laspy
+# reads as many VLR headers as the count says, past the end of the file, so a 260-byte file claiming 4e9
+# VLRs keeps it busy for ever and growing. Each VLR header is 54 bytes, each extended VLR header 60.
+_HEADER_MIN = 227
+_VLR_HEADER_BYTES = 54
+_EVLR_HEADER_BYTES = 60
+
+
+def check_header(path: str | PathLike[str]) -> None:
+    """Refuse a LAS/LAZ header whose record counts cannot fit in the file, before laspy reads it.
+
+    Raises
+    ------
+    InputError
+        Missing file, no ``LASF`` signature, a header shorter than LAS 1.0's, or more (extended) variable
+        length records than the file has bytes for.
+    """
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        with open(p, "rb") as fh:
+            head = fh.read(375)
+    except FileNotFoundError:
+        raise InputError("no such file", p) from None
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror})", p) from exc
+    if head[:4] != b"LASF":
+        raise InputError("not a LAS/LAZ file (no LASF signature)", p)
+    if len(head) < _HEADER_MIN:
+        raise InputError(f"LAS header is cut short ({len(head)} bytes)", p)
+    header_size, point_offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+    if n_vlrs * _VLR_HEADER_BYTES > size or point_offset > size or header_size > size:
+        raise InputError(f"LAS header claims {n_vlrs:,} variable length records and point data at byte "
+                         f"{point_offset:,}, but the file has {size:,} bytes", p)
+    n_points = struct.unpack_from("<I", head, 107)[0]
+    if head[24:26] >= b"\x01\x04" and len(head) >= 255:
+        evlr_start, n_evlrs, n_points64 = struct.unpack_from("<QIQ", head, 235)
+        n_points = n_points64 or n_points
+        if n_evlrs and (evlr_start > size or n_evlrs * _EVLR_HEADER_BYTES > size - min(evlr_start, size)):
+            raise InputError(f"LAS header claims {n_evlrs:,} extended records at byte {evlr_start:,}, but the "
+                             f"file has {size:,} bytes", p)
+    if head[104] & 0x80 and n_points:  # LAZ: bit 7 of the point format marks compressed points
+        _check_chunk_table(p, point_offset, size, n_points)
+
+
+def _check_chunk_table(p: Path, point_offset: int, size: int, n_points: int) -> None:
+    """Refuse a LAZ chunk table that cannot be right; lazrs allocates 16 bytes per chunk the table claims
+    before reading it, and aborts the process (no exception) when that allocation fails."""
+    with open(p, "rb") as fh:
+        fh.seek(point_offset)
+        raw = fh.read(8)
+        if len(raw) < 8:
+            raise InputError("LAZ point data is cut short", p)
+        table = struct.unpack("<q", raw)[0]
+        if table == -1:  # written by a streaming writer that never came back to fill it in: no table
+            return
+        if not point_offset + 8 <= table <= size - 8:
+            raise InputError(f"LAZ chunk table offset {table:,} lies outside the file ({size:,} bytes)", p)
+        fh.seek(table)
+        version, n_chunks = struct.unpack("<II", fh.read(8))
+    # Each chunk holds at least one point and takes at least a byte of the file.
+    if version != 0 or n_chunks > min(n_points, size):
+        raise InputError(f"LAZ chunk table is corrupt (version {version}, {n_chunks:,} chunks for {n_points:,} "
+                         "points)", p)
+
+
 def _laspy_errors() -> tuple[type[BaseException], ...]:
     # laspy wraps most failures in LaspyException, but lazrs raises its own error type, and a stream that
     # ends early surfaces as ValueError / EOFError / OSError from numpy or the decompressor.
@@ -144,6 +213,7 @@ def read_info(path: str | PathLike[str]) -> LasInfo:
     import laspy
 
     p = Path(path)
+    check_header(p)
     try:
         with laspy.open(p) as reader:
             h = reader.header
@@ -222,6 +292,7 @@ def _to_records(pts: Any, has_rgb: bool) -> npt.NDArray[np.void]:
     out["intensity"] = pts.intensity
     out["classification"] = pts.classification
     out["return_number"] = pts.return_number
+    out["synthetic"] = pts.synthetic
     if has_rgb:
         # LAS stores 16-bit colour; the spec asks writers to scale 8-bit colour up, so the high byte is it.
         out["red"] = np.asarray(pts.red) >> 8
@@ -233,7 +304,7 @@ def _to_records(pts: Any, has_rgb: bool) -> npt.NDArray[np.void]:
 
 
 def point_fields(pts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                                    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The raw columns of a laspy point record behind :data:`POINT_DTYPE`, whatever the point format,
     for a caller that converts them in a compiled pass of its own (no copies: views where laspy has them).
 
@@ -250,6 +321,8 @@ def point_fields(pts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     red, green, blue
         (n,) uint16 (LAS colour is 16-bit; its high byte is the 8-bit colour), or (0,) when the format
         has none.
+    synthetic
+        (n,) uint8, 1 where the point's *synthetic* flag is set.
     """
     a = pts.array
     names = a.dtype.names or ()
@@ -257,7 +330,7 @@ def point_fields(pts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     red, green, blue = (a[c] if c in names else empty for c in ("red", "green", "blue"))
     return (a["X"], a["Y"], a["Z"], np.asarray(pts.scales, np.float64), np.asarray(pts.offsets, np.float64),
             a["intensity"], np.asarray(pts.classification, np.uint8), np.asarray(pts.return_number, np.uint8),
-            red, green, blue)
+            red, green, blue, np.asarray(pts.synthetic, np.uint8))
 
 
 def iter_points(path: str | PathLike[str], *, start: int = 0, count: int | None = None,
@@ -280,6 +353,7 @@ def iter_points(path: str | PathLike[str], *, start: int = 0, count: int | None 
     import laspy
 
     p = Path(path)
+    check_header(p)
     errors = _laspy_errors()
     got = 0
     try:

@@ -27,6 +27,7 @@ from vtkmodules.util.vtkConstants import VTK_FLOAT, VTK_OBJECT
 from vtkmodules.vtkCommonCore import (
     VTK_UNSIGNED_CHAR,
     vtkCommand,
+    vtkDoubleArray,
     vtkFloatArray,
     vtkLogger,
     vtkObject,
@@ -35,6 +36,8 @@ from vtkmodules.vtkCommonCore import (
 )
 from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkImageData, vtkMultiBlockDataSet, vtkPolyData
 from vtkmodules.vtkCommonMath import vtkMatrix4x4
+from vtkmodules.vtkFiltersCore import vtkImplicitPolyDataDistance, vtkTriangleFilter
+from vtkmodules.vtkFiltersSources import vtkRegularPolygonSource
 from vtkmodules.vtkIOCore import vtkMemoryResourceStream
 from vtkmodules.vtkIOImage import vtkImageReader2, vtkJPEGReader, vtkPNGReader, vtkPNGWriter
 from vtkmodules.vtkRenderingCore import (
@@ -42,6 +45,7 @@ from vtkmodules.vtkRenderingCore import (
     vtkCamera,
     vtkCompositeDataDisplayAttributes,
     vtkCompositePolyDataMapper,
+    vtkGlyph3DMapper,
     vtkLight,
     vtkPolyDataMapper,
     vtkProperty,
@@ -75,10 +79,13 @@ __all__ = [
     "vtkCommand",
     "vtkCompositeDataDisplayAttributes",
     "vtkCompositePolyDataMapper",
+    "vtkDoubleArray",
     "vtkEDLShading",
     "vtkFloatArray",
+    "vtkGlyph3DMapper",
     "vtkImageData",
     "vtkImageReader2",
+    "vtkImplicitPolyDataDistance",
     "vtkJPEGReader",
     "vtkLight",
     "vtkMatrix4x4",
@@ -91,11 +98,13 @@ __all__ = [
     "vtkPolyData",
     "vtkPolyDataMapper",
     "vtkProperty",
+    "vtkRegularPolygonSource",
     "vtkRenderStepsPass",
     "vtkRenderWindow",
     "vtkRenderer",
     "vtkTexture",
     "vtkTextureObject",
+    "vtkTriangleFilter",
     "vtkUnsignedCharArray",
     "vtkWindowToImageFilter",
     "vtk_to_numpy",

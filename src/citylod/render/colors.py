@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from citylod.core.palette import ASPRS_CLASS_RGB
+
 U8 = npt.NDArray[np.uint8]
 
 #: Modes accepted by ``--color-by``.
@@ -20,32 +22,8 @@ LEVEL_PALETTE = np.array(
     [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
      [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207]], dtype=np.uint8)
 
-# ASPRS LAS 1.4 standard classes (R14 table 17); colours as in common viewers (CloudCompare, Potree).
-_ASPRS = {
-    0: (180, 180, 180),  # created, never classified
-    1: (200, 200, 200),  # unclassified
-    2: (166, 118, 70),  # ground
-    3: (144, 238, 144),  # low vegetation
-    4: (60, 179, 60),  # medium vegetation
-    5: (0, 110, 0),  # high vegetation
-    6: (220, 60, 50),  # building
-    7: (255, 0, 255),  # low point (noise)
-    8: (255, 255, 0),  # model key / reserved
-    9: (40, 110, 230),  # water
-    10: (150, 90, 40),  # rail
-    11: (90, 90, 90),  # road surface
-    12: (255, 200, 0),  # overlap / reserved
-    13: (250, 250, 120),  # wire guard
-    14: (250, 220, 80),  # wire conductor
-    15: (200, 120, 250),  # transmission tower
-    16: (120, 250, 250),  # wire connector
-    17: (120, 120, 200),  # bridge deck
-    18: (255, 0, 0),  # high noise
-}
-CLASSIFICATION_PALETTE = np.full((256, 3), 255, dtype=np.uint8)
-CLASSIFICATION_PALETTE[19:] = (255, 160, 200)  # user-defined classes: one visible pink
-for _code, _rgb in _ASPRS.items():
-    CLASSIFICATION_PALETTE[_code] = _rgb
+#: ASPRS class colours: the table the point builder bakes into quad textures too (one look at every level).
+CLASSIFICATION_PALETTE = ASPRS_CLASS_RGB
 
 # A perceptually ordered ramp (viridis anchors), interpolated to 256 entries once at import.
 _VIRIDIS = np.array([[68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [33, 144, 141],

@@ -272,16 +272,30 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
                            color_by=getattr(args, "color_by", "auto") or "auto") as r:
         if hook is not None:
             hook(r.scene, city=city, highlight=highlight, hide=hide)
+        water = None
+        if getattr(args, "flood", None) is not None:
+            from citylod.render.water import WaterSurface
+
+            series = bool(getattr(args, "flood_series", False))
+            water = WaterSurface.from_flood(r.scene, args.flood, 0 if series else getattr(args, "flood_index", -1))
+        if getattr(args, "edits", None) is not None:
+            from citylod.analysis.polygons import load_polygons
+            from citylod.render.edits import PolygonEdits
+
+            PolygonEdits(r.scene, load_polygons(args.edits))
         last = None
         for i, cam in enumerate(tqdm(cameras, desc="render", unit="frame", disable=not progress or n < 2)):
+            if water is not None and series and i > 0:
+                water.load_level(args.flood, i)
             frame = r.render(cam, depth=args.depth is not None)
+            if r.scene.loader.failed:
+                # A picture with tiles missing looks plausible and is wrong: refuse it rather than warn.
+                key, msg = next(iter(r.scene.loader.failed.items()))
+                raise InputError(f"tile {key} could not be drawn: {msg}")
             save_png(frame_path(out, i, n), frame.rgb)
             if args.depth is not None and frame.depth is not None:
                 _save_npy(frame_path(Path(args.depth), i, n), frame.depth)
             last = frame.stats
-        failed = r.scene.loader.failed
-    for key, msg in failed.items():
-        print(f"citylod: warning: tile {key} skipped: {msg}")
     if last is not None:
         where = out if n == 1 else out.with_name(f"{out.stem}_NNNN{out.suffix}")
         print(f"{where}: {n} frame(s), last: {last.tiles} tiles, {last.triangles} triangles, "

@@ -19,8 +19,9 @@ import numpy as np
 import numpy.typing as npt
 import pyproj
 
-from citylod.core.errors import GeoreferenceError, InputError
+from citylod.core.errors import EmptyInputError, GeoreferenceError, InputError
 from citylod.io.crs import horizontal_crs
+from citylod.io.las import iter_points, read_info
 from citylod.semantics.store import CityStore
 
 __all__ = ["CHUNK_POINTS", "link_command", "link_file", "link_points"]
@@ -69,6 +70,10 @@ def link_file(store: CityStore, points: str | PathLike[str], output: str | PathL
     src, dst = Path(points), Path(output)
     if not src.is_file():
         raise InputError("no such point cloud", src)
+    # The header is checked first (as build points does): no points, or a header laspy cannot read, is refused
+    # before anything is written; iter_points then refuses a stream that ends before the header's count.
+    if read_info(src).point_count == 0:
+        raise EmptyInputError("the file holds no points", src)
     t0 = time.perf_counter()
     tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp{dst.suffix}")
     linked = total = 0
@@ -98,7 +103,7 @@ def link_file(store: CityStore, points: str | PathLike[str], output: str | PathL
 
                 bar = tqdm(total=header.point_count, desc=f"link {src.name}", unit="pt", unit_scale=True)
             with laspy.open(tmp, mode="w", header=out_header, do_compress=dst.suffix.lower() == ".laz") as writer:
-                for chunk in reader.chunk_iterator(chunk_points):
+                for chunk in iter_points(src, chunk_points=chunk_points, raw=True):
                     xyz = np.column_stack([np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)])
                     if tr is not None:
                         xyz[:, 0], xyz[:, 1] = tr.transform(xyz[:, 0], xyz[:, 1])

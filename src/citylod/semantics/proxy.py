@@ -37,7 +37,12 @@ F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
 
 DEFAULT_INFLATE_M = 0.5
-# A face whose normal is within ~3 degrees of horizontal is a wall: it contributes no footprint area.
+# Footprints: a face adds the area of its xy projection, |n_z| times its own area, so leaving out faces with
+# |n_z| < 1e-3 (within 0.06° of vertical) loses at most 0.1 % of their area; walls then cost no union work.
+# A bound of 0.05 (3°) dropped the steep faces of tree crowns: 81 of 126 PlantCover objects of cjio's Delft
+# sample lost area, down to 29 %.
+_FOOTPRINT_NZ = 1e-3
+# Roof planes: z = a x + b y + c needs a face that is not steep (slopes up to 20).
 _VERTICAL_NZ = 0.05
 
 __all__ = ["DEFAULT_INFLATE_M", "FootprintMap", "ProxySet", "footprint_of", "prism_mesh", "roof_planes"]
@@ -59,7 +64,7 @@ def footprint_of(obj: CityObject, grid_size: float = 1e-3) -> BaseGeometry:
     for poly in obj.surfaces:
         n = _normal(poly[0])
         norm = float(np.linalg.norm(n))
-        if norm == 0 or abs(n[2]) / norm < _VERTICAL_NZ:
+        if norm == 0 or abs(n[2]) / norm < _FOOTPRINT_NZ:
             continue
         polys.append(shapely.Polygon(poly[0][:, :2], [r[:, :2] for r in poly[1:]]))
     if not polys:

@@ -31,7 +31,7 @@ import pyproj
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from citylod.core.errors import InputError
+from citylod.core.errors import GeoreferenceError, InputError
 from citylod.io.city import CityModel, read_city_model, to_metric
 from citylod.io.crs import horizontal_crs
 from citylod.io.gpkg import (
@@ -146,6 +146,10 @@ def build_city(citymodel: str | PathLike[str] | CityModel, out_gpkg: str | PathL
     if not np.isfinite(infl) or infl < 0:
         raise InputError(f"inflate must be a non-negative number of metres, got {inflate}")
     model = citymodel if isinstance(citymodel, CityModel) else read_city_model(citymodel, lod=lod)
+    if model.crs is None and crs is None:
+        # A store without a CRS cannot be linked to point clouds or placed on a map; guessing is worse.
+        raise GeoreferenceError("the file names no coordinate reference system (no srsName / referenceSystem); "
+                                "say which with --crs, e.g. --crs EPSG:25832", model.source)
     model = to_metric(model, crs)
     out = Path(out_gpkg)
     if out.parent and not out.parent.exists():
@@ -251,7 +255,19 @@ _ALLOWED_ACTIONS = {sqlite3.SQLITE_SELECT, sqlite3.SQLITE_READ, sqlite3.SQLITE_F
                     getattr(sqlite3, "SQLITE_RECURSIVE", 33)}
 
 
-def _read_only_authorizer(action: int, *_: Any) -> int:
+#: Longest a WHERE clause may run (a recursive CTE can loop for ever) and longest value it may build.
+QUERY_TIME_LIMIT_S = 5.0
+QUERY_MAX_LENGTH = 64 << 20
+
+
+# Functions that can run for long inside one call, where the progress handler cannot stop them:
+# printf('%.*c', 2000000000, 'x') loops 2e9 times (25 s) even after the length limit made its result NULL.
+_DENIED_FUNCTIONS = {"printf", "format", "load_extension"}
+
+
+def _read_only_authorizer(action: int, arg1: Any = None, arg2: Any = None, *_: Any) -> int:
+    if action == sqlite3.SQLITE_FUNCTION and str(arg2).lower() in _DENIED_FUNCTIONS:
+        return sqlite3.SQLITE_DENY
     return sqlite3.SQLITE_OK if action in _ALLOWED_ACTIONS else sqlite3.SQLITE_DENY
 
 
@@ -270,6 +286,8 @@ class CityStore:
         self.metadata: dict[str, str] = meta
         self.crs: pyproj.CRS | None = pyproj.CRS.from_wkt(meta["crs"]) if meta.get("crs") else None
         self.inflate = float(meta.get("inflate", DEFAULT_INFLATE_M))
+        self.query_time_limit_s = QUERY_TIME_LIMIT_S
+        conn.setlimit(sqlite3.SQLITE_LIMIT_LENGTH, QUERY_MAX_LENGTH)
         self.ids: list[str] = [r[0] for r in conn.execute("SELECT object_id FROM city_objects ORDER BY fid")]
 
     @classmethod
@@ -322,12 +340,21 @@ class CityStore:
         if ";" in where_sql:
             raise InputError(f"refused SQL: ';' is not allowed in a WHERE clause: {where_sql!r}", self.path)
         sql = f"SELECT object_id FROM city_objects WHERE ({where_sql}) ORDER BY fid"
+        deadline = time.monotonic() + self.query_time_limit_s
         self._conn.set_authorizer(_read_only_authorizer)
+        # SQLite calls the handler every 10k VM steps; a non-zero return interrupts the statement.
+        self._conn.set_progress_handler(lambda: int(time.monotonic() > deadline), 10_000)
         try:
             return [r[0] for r in self._conn.execute(sql, tuple(params))]
-        except (sqlite3.Error, ValueError) as exc:
-            raise InputError(f"bad query {where_sql!r}: {exc}", self.path) from exc
+        except sqlite3.OperationalError as exc:
+            if time.monotonic() > deadline:
+                raise InputError(f"query {where_sql[:200]!r} ran longer than {self.query_time_limit_s:g} s; "
+                                 "stopped", self.path) from exc
+            raise InputError(f"bad query {where_sql[:200]!r}: {exc}", self.path) from exc
+        except (sqlite3.Error, ValueError, OverflowError, MemoryError) as exc:
+            raise InputError(f"bad query {where_sql[:200]!r}: {exc}", self.path) from exc
         finally:
+            self._conn.set_progress_handler(None, 0)
             self._conn.set_authorizer(None)
 
     def attributes(self, object_id: str) -> dict[str, Any]:
@@ -371,6 +398,21 @@ class CityStore:
         marks = ",".join("?" * len(fids))
         return [(r[0], decode_geometry(r[1])) for r in self._conn.execute(
             f"SELECT fid, footprint FROM city_objects WHERE fid IN ({marks}) ORDER BY fid", fids)]
+
+    def footprints(self, bounds: tuple[float, float, float, float] | None = None, *,
+                   types: Sequence[str] = _BUILDING_TYPES[:1]) -> list[tuple[str, BaseGeometry]]:
+        """(object id, footprint) of the objects of ``types`` whose footprint box meets ``bounds``
+        (xmin, ymin, xmax, ymax in the store's CRS; None: all), in fid order, through the R-tree.
+
+        The default is whole buildings (``Building``), not their parts, whose footprints lie inside."""
+        if bounds is None:
+            fids = [r[0] for r in self._conn.execute("SELECT fid FROM city_objects ORDER BY fid")]
+        else:
+            fids = self._candidates(*bounds)
+        wanted = set(types)
+        kinds = dict(self._conn.execute("SELECT fid, type FROM city_objects"))
+        return [(self.ids[f - 1], g) for f, g in self._footprints([f for f in fids if kinds.get(f) in wanted])
+                if g is not None and not g.is_empty]
 
     def within_polygon(self, polygon_xy: npt.ArrayLike | BaseGeometry, *, predicate: str = "intersects") -> list[str]:
         """Objects whose footprint intersects (or, with ``predicate='within'``, lies within) a polygon.

@@ -21,8 +21,16 @@ from typing import Any
 import numpy as np
 
 from citylod.core.errors import EmptyInputError, InputError
-from citylod.io.city.model import F64, CityModel, CityObject, Polygon, orient_outward, repair_polygon
-from citylod.io.crs import parse_crs
+from citylod.io.city.model import (
+    F64,
+    CityModel,
+    CityObject,
+    Polygon,
+    open_edge_count,
+    orient_outward,
+    repair_polygon,
+)
+from citylod.io.crs import crs_from_srs_name
 
 __all__ = ["read_citygml"]
 
@@ -83,6 +91,12 @@ _NOT_ATTRIBUTES = {
     "appearance", "externalReference", "generalizesTo", "relativeToTerrain", "relativeToWater",
     "lod0FootPrint", "lod0RoofEdge", "address", "genericAttribute", "groupMember", "parent",
 }
+# Children of a feature whose geometry is not the feature's outside: parts (objects of their own), rooms,
+# furniture and interior installations (LoD4 / CityGML 3.0 interiors), appearances, roof edges (lines).
+_NOT_GEOMETRY = {
+    "consistsOfBuildingPart", "buildingPart", "appearance", "lod0RoofEdge", "interiorRoom", "buildingRoom",
+    "interiorFurniture", "buildingFurniture", "roomInstallation", "interiorBuildingInstallation",
+}
 _GENERIC = {"stringAttribute", "intAttribute", "doubleAttribute", "dateAttribute", "uriAttribute",
             "measureAttribute", "StringAttribute", "IntAttribute", "DoubleAttribute", "DateAttribute",
             "UriAttribute", "MeasureAttribute", "CodeAttribute"}
@@ -117,27 +131,49 @@ def _coords(elem: Any, dim: int) -> F64:
     return arr
 
 
+_COORDS = {"posList", "pos", "coordinates"}
+
+#: A polygon as collected: its rings, semantic class, and gml:id (None without one).
+_Collected = tuple[list[F64], "str | None", "str | None"]
+
+
 @dataclass
 class _Collector:
-    """Polygons found under one object, with their semantic class and LoD, and xlink targets to resolve."""
+    """Polygons found under one object, with their semantic class and LoD, and xlink targets to resolve.
 
-    by_lod: dict[int, list[tuple[list[F64], str | None]]] = field(default_factory=dict)
+    ``walked`` maps the gml:id of every geometry element collected directly to its LoD, so that an xlink
+    to it (a Solid naming its boundary surfaces' polygons) does not count it twice. Openings (windows and
+    doors) are kept apart: they join the shell only where they close it.
+    """
+
+    by_lod: dict[int, list[_Collected]] = field(default_factory=dict)
+    opening_by_lod: dict[int, list[_Collected]] = field(default_factory=dict)
     polygon_ids: dict[str, list[F64]] = field(default_factory=dict)
-    hrefs: list[tuple[int, str, str | None]] = field(default_factory=list)
+    walked: dict[str, int] = field(default_factory=dict)
+    hrefs: list[tuple[int, str, str | None, bool]] = field(default_factory=list)
+    opening_hrefs: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     solid_lods: set[int] = field(default_factory=set)
+    saw_coords: bool = False
 
 
-def _polygons(elem: Any, dim: int, col: _Collector, lod: int, sem: str | None) -> None:
+def _polygons(elem: Any, dim: int, col: _Collector, lod: int, sem: str | None, *, opening: bool = False,
+              reverse0: bool = False) -> None:
     """Collect every polygon (Polygon, PolygonPatch, Triangle, xlinks) below a geometry property."""
-    stack: list[tuple[Any, bool]] = [(elem, False)]
+    into = col.opening_by_lod if opening else col.by_lod
+    stack: list[tuple[Any, bool]] = [(elem, reverse0)]
     while stack:
         node, reverse = stack.pop()
         name = _local(node.tag)
         href = next((v for k, v in node.attrib.items() if _local(k) == "href"), None)
         if href and len(node) == 0:
-            col.hrefs.append((lod, href.lstrip("#"), sem))
+            col.hrefs.append((lod, href.lstrip("#"), sem, reverse))
             continue
+        if name in _COORDS:
+            col.saw_coords = True
+        gid = _attr(node, "id")
+        if gid and not opening:
+            col.walked.setdefault(gid, lod)
         if name in ("Polygon", "PolygonPatch", "Triangle", "Rectangle"):
             try:
                 rings: list[F64] = []
@@ -154,10 +190,9 @@ def _polygons(elem: Any, dim: int, col: _Collector, lod: int, sem: str | None) -
                 continue
             if reverse:
                 rings = [r[::-1].copy() for r in rings]
-            col.by_lod.setdefault(lod, []).append((rings, sem))
-            pid = _attr(node, "id")
-            if pid:
-                col.polygon_ids[pid] = rings
+            into.setdefault(lod, []).append((rings, sem, gid))
+            if gid:
+                col.polygon_ids[gid] = rings
             continue
         flip = reverse
         if name == "OrientableSurface" and node.get("orientation") == "-":
@@ -167,27 +202,57 @@ def _polygons(elem: Any, dim: int, col: _Collector, lod: int, sem: str | None) -
                 stack.append((child, flip))
 
 
-def _geometry_walk(feature: Any, dim: int, col: _Collector) -> None:
-    """Geometry of one feature, not descending into its parts (BuildingParts become objects of their own)."""
-    stack: list[tuple[Any, str | None, int | None]] = [(c, None, None) for c in reversed(feature)]
+def _relief_lod(node: Any) -> int:
+    """LoD of a relief component (CityGML ``dem:lod`` element of the TINRelief or its ReliefFeature)."""
+    for owner in (node, *node.iterancestors()):
+        for child in owner:
+            if _local(child.tag) == "lod":
+                try:
+                    return min(max(int(_text(child)), 0), 4)
+                except ValueError:
+                    return 0
+    return 0
+
+
+def _geometry_walk(feature: Any, dim: int, col: _Collector, *, opening: bool = False) -> None:
+    """Geometry of one feature, not descending into its parts (BuildingParts become objects of their own).
+
+    Openings (windows, doors, inline or by xlink) go to the collector's opening lists; a relief's ``tin``
+    (gml:TriangulatedSurface / gml:Tin of Triangles) takes its LoD from the ``lod`` element beside it.
+    """
+    stack: list[tuple[Any, str | None, bool]] = [(c, None, opening) for c in reversed(feature)]
     while stack:
-        node, sem, lod = stack.pop()
+        node, sem, in_opening = stack.pop()
         if not isinstance(node.tag, str):
             continue
         name = _local(node.tag)
-        if name in ("consistsOfBuildingPart", "buildingPart", "opening", "appearance", "lod0RoofEdge"):
-            continue  # openings lie in their wall's plane: they add nothing to a proxy
-        m = _GEOM_CONTAINERS.match(name)
-        if m and lod is None:
-            level = int(m.group(1))
-            if name.endswith("Solid") or sem in ("RoofSurface", "WallSurface", "GroundSurface"):
-                col.solid_lods.add(level)  # a shell expected to close: check and orient it as a volume
-            _polygons(node, dim, col, level, sem)
+        if name in _NOT_GEOMETRY:
             continue
+        if name in ("opening", "tin"):
+            href = next((v for k, v in node.attrib.items() if _local(k) == "href"), None)
+            if href and len(node) == 0:
+                if name == "opening":
+                    col.opening_hrefs.append(href.lstrip("#"))
+                else:
+                    col.hrefs.append((_relief_lod(node.getparent()), href.lstrip("#"), None, False))
+                continue
+            if name == "tin":
+                _polygons(node, dim, col, _relief_lod(node.getparent()), None, opening=in_opening)
+                continue
+            in_opening = True
+        m = _GEOM_CONTAINERS.match(name)
+        if m:
+            level = int(m.group(1))
+            if not in_opening and (name.endswith("Solid") or sem in ("RoofSurface", "WallSurface", "GroundSurface")):
+                col.solid_lods.add(level)  # a shell expected to close: check and orient it as a volume
+            _polygons(node, dim, col, level, sem, opening=in_opening)
+            continue
+        if name in _COORDS:
+            col.saw_coords = True
         if name in _SURFACE_CLASSES:
             sem = name
         for child in reversed(node):
-            stack.append((child, sem, lod))
+            stack.append((child, sem, in_opening))
 
 
 def _text(elem: Any) -> str:
@@ -262,31 +327,91 @@ def _convert(kind: str, value: str | None) -> Any:
     return value
 
 
-def _finish_object(fid: str, ftype: str, attrs: dict[str, Any], col: _Collector, lod: int, parent: str | None,
-                   warnings: list[str]) -> CityObject:
-    """Choose the LoD, resolve xlinks, repair and orient; every note becomes a warning with the id."""
-    for target_lod, href, sem in col.hrefs:
-        rings = col.polygon_ids.get(href)
-        if rings is None:
-            col.notes.append(f"unresolved xlink #{href}")
+def _semantic_of(elem: Any) -> str | None:
+    """The semantic surface class (RoofSurface, Window, ...) an element lies in, or None."""
+    return next((_local(a.tag) for a in elem.iterancestors() if _local(a.tag) in _SURFACE_CLASSES), None)
+
+
+def _resolve_xlinks(col: _Collector, index: dict[str, Any], dim: int) -> None:
+    """Bring in the geometry xlinks point at, from anywhere in the same cityObjectMember.
+
+    Targets may be polygons or surface aggregates (CompositeSurface, MultiSurface, a Window's geometry) of
+    this object, of its parent (a BuildingPart sharing its parent's wall) or of an opening. What this
+    object already holds at the same LoD (a Solid naming its boundary surfaces) is not counted twice; an
+    ``OrientableSurface orientation="-"`` reverses what it points at. Chains of links are followed, each
+    target once (a cycle ends).
+    """
+    seen: set[tuple[str, int, bool]] = set()
+    work = list(col.hrefs)
+    while work:
+        target_lod, href, sem, reverse = work.pop()
+        if (href, target_lod, reverse) in seen:
             continue
-        # A solid that references its boundary surfaces' polygons: same polygons, count them once.
-        if not any(r is rings for r, _ in col.by_lod.get(target_lod, [])):
-            col.by_lod.setdefault(target_lod, []).append((rings, sem))
-    chosen = -1
-    if col.by_lod:
-        avail = sorted(col.by_lod)
-        lower = [v for v in avail if v <= lod]
-        chosen = max(lower) if lower else min(avail)
+        seen.add((href, target_lod, reverse))
+        if col.walked.get(href) == target_lod:
+            continue  # collected directly already
+        elem = index.get(href)
+        if elem is None:
+            col.notes.append(f"unresolved xlink #{href[:80]}")
+            continue
+        sub = _Collector()
+        _polygons(elem, dim, sub, target_lod, _semantic_of(elem) or sem, reverse0=reverse)
+        have = col.by_lod.setdefault(target_lod, [])
+        for rings, s, gid in sub.by_lod.get(target_lod, []):
+            if gid is None or col.walked.get(gid) != target_lod:
+                have.append((rings, s, gid))
+                if gid:
+                    col.walked[gid] = target_lod
+        col.notes += sub.notes
+        work += sub.hrefs
+    for href in dict.fromkeys(col.opening_hrefs):
+        elem = index.get(href)
+        if elem is None:
+            col.notes.append(f"unresolved xlink #{href[:80]}")
+            continue
+        sub = _Collector()
+        _geometry_walk(elem, dim, sub, opening=True)
+        for level, polys in sub.opening_by_lod.items():
+            have = col.opening_by_lod.setdefault(level, [])
+            known = {gid for _, _, gid in have if gid}  # the same window inline in another wall
+            have.extend((rings, s or _local(elem.tag), gid) for rings, s, gid in polys if gid is None or gid not in known)
+
+
+def _repaired(collected: list[_Collected], notes: list[str]) -> tuple[list[Polygon], list[str | None]]:
     polys: list[Polygon] = []
     sems: list[str | None] = []
-    notes = list(col.notes)
-    for rings, sem in col.by_lod.get(chosen, []):
+    for rings, sem, _ in collected:
         poly, n = repair_polygon(rings)
         notes += n
         if poly is not None:
             polys.append(poly)
             sems.append(sem)
+    return polys, sems
+
+
+def _finish_object(fid: str, ftype: str, attrs: dict[str, Any], col: _Collector, lod: int, parent: str | None,
+                   warnings: list[str], index: dict[str, Any], dim: int) -> CityObject:
+    """Choose the LoD, resolve xlinks, repair and orient; every note becomes a warning with the id."""
+    _resolve_xlinks(col, index, dim)
+    chosen = -1
+    if col.by_lod:
+        avail = sorted(col.by_lod)
+        lower = [v for v in avail if v <= lod]
+        chosen = max(lower) if lower else min(avail)
+    notes = list(col.notes)
+    polys, sems = _repaired(col.by_lod.get(chosen, []), notes)
+    # Openings a solid already names (by xlink) are in the shell; the others are candidates.
+    openings = [o for o in col.opening_by_lod.get(chosen, []) if o[2] is None or col.walked.get(o[2]) != chosen]
+    if polys and openings and chosen in col.solid_lods and open_edge_count(polys):
+        # Walls with holes for their windows close only with the windows in them; windows drawn over walls
+        # without holes would open a closed shell, so they join only where they close it.
+        o_notes: list[str] = []
+        o_polys, o_sems = _repaired(openings, o_notes)
+        if open_edge_count(polys + o_polys) < open_edge_count(polys):
+            polys, sems, notes = polys + o_polys, sems + o_sems, notes + o_notes
+    if not col.by_lod and col.saw_coords:
+        notes.append("has coordinates but no surfaces citylod reads (points or lines only?); kept without "
+                     "geometry")
     if polys:
         polys, n = orient_outward(polys, sems, closed=chosen in col.solid_lods)
         notes += n
@@ -297,7 +422,7 @@ def _finish_object(fid: str, ftype: str, attrs: dict[str, Any], col: _Collector,
 
 
 def _feature_objects(feature: Any, dim: int, lod: int, warnings: list[str], counter: list[int],
-                     parent: str | None = None) -> Iterator[CityObject]:
+                     index: dict[str, Any], parent: str | None = None) -> Iterator[CityObject]:
     ftype = _local(feature.tag)
     fid = _attr(feature, "id")
     if not fid:
@@ -306,12 +431,12 @@ def _feature_objects(feature: Any, dim: int, lod: int, warnings: list[str], coun
     attrs = _attributes(feature)
     col = _Collector()
     _geometry_walk(feature, dim, col)
-    yield _finish_object(fid, ftype, attrs, col, lod, parent, warnings)
+    yield _finish_object(fid, ftype, attrs, col, lod, parent, warnings, index, dim)
     for child in feature:
         if _local(child.tag) in ("consistsOfBuildingPart", "buildingPart"):
             for part in child:
                 if isinstance(part.tag, str):
-                    yield from _feature_objects(part, dim, lod, warnings, counter, parent=fid)
+                    yield from _feature_objects(part, dim, lod, warnings, counter, index, parent=fid)
 
 
 def _version_of(nsmap: dict[Any, str]) -> str:
@@ -382,9 +507,12 @@ def read_citygml(path: str | PathLike[str], *, lod: int = 2) -> CityModel:
             depth -= 1
             name = _local(elem.tag)
             if name in ("cityObjectMember", "featureMember", "member") and depth == 1:
+                # xlinks resolve within the member: a part's link to its parent's wall, a solid's to its
+                # surfaces, a wall's to its windows.
+                index = {gid: e for e in elem.iter() if isinstance(e.tag, str) and (gid := _attr(e, "id"))}
                 for feature in elem:
                     if isinstance(feature.tag, str):
-                        objects.extend(_feature_objects(feature, default_dim, lod, warnings, counter))
+                        objects.extend(_feature_objects(feature, default_dim, lod, warnings, counter, index))
                 elem.clear(keep_tail=False)
                 # Streaming: drop the members already processed so memory stays bounded.
                 parent = elem.getparent()
@@ -398,17 +526,8 @@ def read_citygml(path: str | PathLike[str], *, lod: int = 2) -> CityModel:
         raise EmptyInputError("no city objects (no cityObjectMember)", p)
     crs = None
     if srs:
-        crs = parse_crs(_normalise_srs(srs[0]), str(p))
+        crs = crs_from_srs_name(srs[0], str(p))
         if len(srs) > 1:
             warnings.append(f"{p.name}: several srsName values {srs}; used {srs[0]}")
     return CityModel(objects, crs, str(p), warnings, version)
 
-
-def _normalise_srs(srs: str) -> str:
-    """'urn:ogc:def:crs,crs:EPSG::28992,crs:EPSG::5109' style compound URNs and http forms to 'EPSG:n[+m]'."""
-    codes = re.findall(r"EPSG(?:/\d+/|::?|/0/)(\d+)", srs, re.IGNORECASE)
-    if len(codes) == 1:
-        return f"EPSG:{codes[0]}"
-    if len(codes) == 2:
-        return f"EPSG:{codes[0]}+{codes[1]}"
-    return srs

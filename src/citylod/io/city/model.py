@@ -24,7 +24,8 @@ F64 = npt.NDArray[np.float64]
 Ring = F64  # (K, 3) float64, closed: ring[0] == ring[-1]
 Polygon = list[Ring]  # exterior ring first, then holes
 
-__all__ = ["CityModel", "CityObject", "Polygon", "Ring", "orient_outward", "repair_polygon", "to_metric"]
+__all__ = ["CityModel", "CityObject", "Polygon", "Ring", "open_edge_count", "orient_outward", "repair_polygon",
+           "to_metric"]
 
 
 @dataclass(frozen=True)
@@ -193,7 +194,7 @@ def _fan_volume(polys: list[Polygon]) -> float:
     return vol
 
 
-def _open_edge_count(polys: list[Polygon], tol: float = 1e-3) -> int:
+def open_edge_count(polys: list[Polygon], tol: float = 1e-3) -> int:
     """Number of undirected edges used once only: 0 for a closed (watertight) shell."""
     edges = []
     for poly in polys:
@@ -237,7 +238,7 @@ def orient_outward(polys: list[Polygon], semantics: list[str | None], *,
             notes.append(f"flipped an inverted {sem}")
     if not polys or not closed:
         return polys, notes
-    open_edges = _open_edge_count(polys)
+    open_edges = open_edge_count(polys)
     if open_edges:
         notes.append(f"surfaces do not close a solid ({open_edges} open edges); proxy from footprint")
         return polys, notes

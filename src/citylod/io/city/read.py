@@ -10,12 +10,16 @@ from citylod.io.city.model import CityModel
 
 
 def read_city_model(path: str | PathLike[str], *, lod: int = 2) -> CityModel:
-    """Read CityGML or CityJSON, told apart by suffix and first bytes (constant time)."""
+    """Read CityGML, CityJSON or CityJSONSeq (``.jsonl``), told apart by suffix and first bytes (constant time)."""
     p = Path(path)
     if not p.is_file():
         raise InputError("no such file", p)
     with open(p, "rb") as fh:
         head = fh.read(256).lstrip(b"\xef\xbb\xbf \t\r\n")
+    if p.suffix.lower() == ".jsonl":
+        from citylod.io.city.cityjson import read_cityjsonseq
+
+        return read_cityjsonseq(p, lod=lod)
     if p.suffix.lower() in (".json", ".cityjson") or head.startswith(b"{"):
         from citylod.io.city.cityjson import read_cityjson
 

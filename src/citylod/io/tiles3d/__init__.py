@@ -1,18 +1,13 @@
-"""OGC 3D Tiles: tile content (:mod:`.content`) and the tileset document (:mod:`.tileset`).
+"""OGC 3D Tiles: tile content (:mod:`.content` writes glb; :mod:`.gltf` and :mod:`.legacy` read glTF and the
+1.0 formats; :mod:`.colour` converts vertex colours) and the tileset document (:mod:`.tileset`).
 
 What a tile *is* lives here; what *makes* tiles lives in :mod:`citylod.lod.build`.
 """
 
-from citylod.io.tiles3d.content import (
-    MeshData,
-    PointData,
-    TileContent,
-    decode_content,
-    decode_glb,
-    encode_glb,
-    glb_buffer,
-)
+from citylod.io.tiles3d.content import MeshData, PointData, TileContent, encode_glb, glb_buffer
 from citylod.io.tiles3d.features import FeatureIdSet, PropertyTable
+from citylod.io.tiles3d.gltf import decode_glb
+from citylod.io.tiles3d.legacy import decode_content
 from citylod.io.tiles3d.tileset import (
     Tile,
     TileMesh,

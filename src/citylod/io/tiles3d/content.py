@@ -1,7 +1,9 @@
-"""glTF/glb, b3dm and pnts tile content: encoding what citylod writes and decoding what any client writes.
+"""Tile content: the in-memory model (:class:`TileContent`) and the glb citylod writes.
 
-glTF is y-up and 3D Tiles turns it z-up when it places content; this module does that turn both ways, so
-callers only see z-up coordinates. Skirt triangles are stored as a separate primitive marked
+glTF is y-up and 3D Tiles turns it z-up when it places content; the writer turns z-up positions into glTF
+axes, (x, y, z)_gltf = (x, z, −y)_zup (3D Tiles spec, "y-up to z-up"), and the readers (:mod:`.gltf`,
+:mod:`.legacy`) turn them back, so callers only see z-up coordinates. Vertex colours are sRGB in memory and
+linear on disk (:mod:`.colour`); per-point LAS attributes are described with ``EXT_structural_metadata``. Skirt triangles are stored as a separate primitive marked
 ``extras.citylod_skirt`` so standard clients draw them and citylod can tell them apart.
 
 Knows what a tile *is*, never how it was chosen (no LOD logic). No VTK and no Qt here.
@@ -11,25 +13,16 @@ from __future__ import annotations
 
 import json
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from citylod._version import __version__
-from citylod.core.errors import InputError
 from citylod.core.geometry import F64
-from citylod.io.tiles3d.features import (
-    FeatureIdSet,
-    PropertyTable,
-    decode_property_tables,
-    encode_property_tables,
-)
-
-# glTF y-up -> 3D Tiles z-up: (x, y, z)_gltf = (x, z, -y)_zup (3D Tiles spec, "y-up to z-up").
-_Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
-_Z_UP_TO_Y_UP = np.linalg.inv(_Y_UP_TO_Z_UP)
+from citylod.io.tiles3d.colour import SRGB8_TO_LINEAR8, SRGB8_TO_LINEAR16
+from citylod.io.tiles3d.features import FeatureIdSet, PropertyTable, encode_property_tables
 
 _COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
@@ -63,10 +56,15 @@ class MeshData:
 
 @dataclass
 class PointData:
-    """Points of a tile: ``positions`` (N, 3) float32 relative to the tile centre and per-point attributes."""
+    """Points of a tile: ``positions`` (N, 3) float32 relative to the tile centre and per-point attributes.
+
+    ``rgb_from_class``: ``rgb`` holds class colours for other 3D Tiles clients (a cloud without RGB), not
+    measured colour; citylod writes them and reads them back as no RGB, keeping its own colour modes.
+    """
 
     positions: npt.NDArray[np.float32]
     rgb: npt.NDArray[np.uint8] | None = None
+    rgb_from_class: bool = False
     intensity: npt.NDArray[np.uint16] | None = None
     classification: npt.NDArray[np.uint8] | None = None
     return_number: npt.NDArray[np.uint8] | None = None
@@ -83,11 +81,48 @@ class PointData:
 @dataclass
 class TileContent:
     """What one content file holds: meshes (surfaces, quads) and/or points, and the property tables
-    (``EXT_structural_metadata``) that the meshes' feature IDs index."""
+    (``EXT_structural_metadata``) that the meshes' feature IDs index.
+
+    Positions are float32 relative to ``origin`` (3,) float64, in the tile's z-up frame. A reader puts a
+    content's large offset there (``RTC_CENTER``, a far node translation) instead of adding it to float32
+    positions, which at ECEF magnitudes (≈6e6 m) would round them to half a metre.
+    """
 
     meshes: list[MeshData] = field(default_factory=list)
     points: PointData | None = None
+    origin: F64 = field(default_factory=lambda: np.zeros(3))
     property_tables: list[PropertyTable] = field(default_factory=list)
+
+    def rebased(self, origin: npt.ArrayLike) -> TileContent:
+        """This content with positions relative to ``origin`` (shifted in float64, stored float32)."""
+        new = np.asarray(origin, np.float64)
+        delta = self.origin - new
+        if not delta.any():
+            return self
+
+        def shift(p: np.ndarray) -> np.ndarray:
+            return (p.astype(np.float64) + delta).astype(np.float32)
+
+        meshes = [replace(m, positions=shift(m.positions)) for m in self.meshes]
+        points = None if self.points is None else replace(self.points, positions=shift(self.points.positions))
+        return TileContent(meshes=meshes, points=points, origin=new, property_tables=self.property_tables)
+
+    @staticmethod
+    def merged(parts: list[TileContent]) -> TileContent:
+        """One content holding every part's meshes and points, relative to the first part's origin."""
+        if len(parts) == 1:
+            return parts[0]
+        origin = parts[0].origin if parts else np.zeros(3)
+        parts = [p.rebased(origin) for p in parts]
+        out = TileContent(meshes=[m for p in parts for m in p.meshes], origin=origin)
+        pts = [p.points for p in parts if p.points is not None]
+        if pts:
+            out.points = PointData(np.concatenate([p.positions for p in pts]))
+            for attr in ("rgb", "intensity", "classification", "return_number"):
+                vals = [getattr(p, attr) for p in pts]
+                if all(v is not None for v in vals):
+                    setattr(out.points, attr, np.concatenate(vals))
+        return out
 
     @property
     def nbytes(self) -> int:
@@ -100,6 +135,19 @@ class TileContent:
     @property
     def point_count(self) -> int:
         return 0 if self.points is None else len(self.points.positions)
+
+
+def recentre(pos: np.ndarray, origin: npt.ArrayLike | None = None) -> tuple[npt.NDArray[np.float32], F64]:
+    """(float32 positions, float64 origin) of float64 positions (N, 3): ``origin`` (default zero) plus, where
+    the positions lie far from it (over 10 km), the centre of their bounding box, so float32 keeps them exact
+    to well under a millimetre."""
+    o = np.zeros(3) if origin is None else np.asarray(origin, np.float64).copy()
+    pos = np.asarray(pos, np.float64).reshape(-1, 3)
+    if len(pos) and float(np.abs(pos).max()) > 1e4:
+        mid = np.round((pos.min(axis=0) + pos.max(axis=0)) / 2.0)
+        pos = pos - mid
+        o = o + mid
+    return pos.astype(np.float32), o
 
 
 # ----------------------------------------------------------------------------------------------- glb writer
@@ -204,12 +252,6 @@ def _to_gltf_axes(p: np.ndarray) -> np.ndarray:
     return out
 
 
-def _from_gltf_axes(p: np.ndarray) -> np.ndarray:
-    out = np.empty_like(p, dtype=np.float32)
-    out[:, 0], out[:, 1], out[:, 2] = p[:, 0], -p[:, 2], p[:, 1]
-    return out
-
-
 def encode_glb(content: TileContent) -> bytes:
     """Encode ``content`` as a binary glTF 2.0 (glb) with y-up positions, as 3D Tiles expects."""
     return glb_buffer(content).tobytes()
@@ -232,7 +274,12 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             attrs["TEXCOORD_0"] = b.accessor(np.asarray(mesh.uv, dtype=np.float32), "VEC2")
             mime = "image/png" if mesh.texture[:8] == b"\x89PNG\r\n\x1a\n" else "image/jpeg"
             img = b.add("images", {"bufferView": b.view(mesh.texture), "mimeType": mime})
-            smp = b.add("samplers", {"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071})
+            # Mipmaps only for power-of-two images: WebGL 1 clients cannot mipmap others (the validator's
+            # info on plane-quad atlases); LINEAR then, which those clients sample as is.
+            w, h = _image_size(mesh.texture)
+            pot = w > 0 and h > 0 and not (w & (w - 1)) and not (h & (h - 1))
+            smp = b.add("samplers", {"magFilter": 9729, "minFilter": 9987 if pot else 9729,
+                                     "wrapS": 33071, "wrapT": 33071})
             tex = b.add("textures", {"source": img, "sampler": smp})
             material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": tex}
             if mime == "image/png":
@@ -240,7 +287,7 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             material["extensions"] = {"KHR_materials_unlit": {}}
             unlit = True
         if mesh.colors is not None:
-            attrs["COLOR_0"] = b.accessor(np.asarray(mesh.colors, dtype=np.uint8), "VEC4", normalized=True)
+            attrs["COLOR_0"] = b.accessor(_linear_rgba16(mesh.colors), "VEC4", normalized=True)
         mesh_features = _feature_id_attributes(b, mesh.features, attrs)
         mat = b.add("materials", material)
         skirt = np.zeros(len(faces), bool) if mesh.skirt is None else np.asarray(mesh.skirt, bool)
@@ -258,30 +305,44 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
         attrs = _point_attributes(b, content.points)
         pts = content.points
         dtypes = {}
+        props = {prop: _METADATA_TYPES[gl_name] for gl_name, prop in _POINT_ATTRS.items()
+                 if getattr(pts, prop) is not None}
         for name, arr in pts.extra.items():
             a = np.asarray(arr)
             dtypes[name] = a.dtype.str
             stored = a if a.dtype in (np.uint8, np.uint16, np.float32) else a.astype(np.float32)
             attrs["_" + name.upper()] = b.accessor(stored, "SCALAR")
+            props[name] = {"UINT8": "UINT8", "UINT16": "UINT16"}.get(stored.dtype.name.upper(), "FLOAT32")
         mat = b.add("materials", {"name": "points", "extensions": {"KHR_materials_unlit": {}},
                                   "pbrMetallicRoughness": {"metallicFactor": 0.0}})
         unlit = True
-        primitives.append({"attributes": attrs, "mode": 0, "material": mat,
-                           "extras": {"citylod_name": "points", "citylod_extra_dtypes": dtypes}})
+        prim = {"attributes": attrs, "mode": 0, "material": mat,
+                "extras": {"citylod_name": "points", "citylod_extra_dtypes": dtypes}}
+        if pts.rgb is not None and pts.rgb_from_class:
+            prim["extras"]["citylod_rgb_from_class"] = True
+        if props:
+            _point_metadata(b, prim, props)
+        if pts.classification is not None:
+            _class_features(b, prim, np.asarray(pts.classification))
+        primitives.append(prim)
     if primitives:
         b.gltf["meshes"] = [{"primitives": primitives}]
         b.gltf["nodes"] = [{"mesh": 0}]
         b.gltf["scenes"] = [{"nodes": [0]}]
         b.gltf["scene"] = 0
-    used = ["KHR_materials_unlit"] if unlit else []
-    if any(p.get("extensions", {}).get("EXT_mesh_features") for p in primitives):
+    used = b.gltf.setdefault("extensionsUsed", [])
+    if any("EXT_mesh_features" in p.get("extensions", {}) for p in primitives) and "EXT_mesh_features" not in used:
         used.append("EXT_mesh_features")
     if content.property_tables:
-        b.gltf.setdefault("extensions", {})["EXT_structural_metadata"] = encode_property_tables(
-            b, content.property_tables)
+        ext = b.gltf.setdefault("extensions", {})
+        if "EXT_structural_metadata" in ext:
+            raise ValueError("property tables and point attributes in one content are not supported")
+        ext["EXT_structural_metadata"] = encode_property_tables(b, content.property_tables)
         used.append("EXT_structural_metadata")
-    if used:
-        b.gltf["extensionsUsed"] = used
+    if unlit:
+        used.insert(0, "KHR_materials_unlit")
+    if not used:
+        del b.gltf["extensionsUsed"]
     return b.buffer()
 
 
@@ -307,6 +368,71 @@ def _feature_id_attributes(b: _GlbBuilder, sets: list[FeatureIdSet], attrs: dict
     return {"featureIds": ids_json} if ids_json else {}
 
 
+#: 3D Tiles metadata component type of each LAS attribute citylod writes on points.
+_METADATA_TYPES = {"_INTENSITY": "UINT16", "_CLASSIFICATION": "UINT8", "_RETURN_NUMBER": "UINT8"}
+_METADATA_DESCRIPTIONS = {
+    "classification": "ASPRS LAS point classification (2 ground, 6 building, ...)",
+    "intensity": "LAS return intensity",
+    "return_number": "LAS return number (1 = first return)",
+}
+
+
+def _point_metadata(b: _GlbBuilder, prim: dict[str, Any], props: dict[str, str]) -> None:
+    """Describe the per-point attributes with ``EXT_structural_metadata`` property attributes (3D Tiles 1.1),
+    so any client can style or pick by class, intensity or return: a schema with one class ``point`` whose
+    properties name the ``_``-prefixed vertex attributes that hold them."""
+    properties = {}
+    for name, ctype in props.items():
+        properties[name] = {"type": "SCALAR", "componentType": ctype}
+        if name in _METADATA_DESCRIPTIONS:
+            properties[name]["description"] = _METADATA_DESCRIPTIONS[name]
+    b.gltf["extensions"] = {"EXT_structural_metadata": {
+        "schema": {"id": "citylod_points", "classes": {"point": {"properties": properties}}},
+        "propertyAttributes": [{"class": "point", "properties": {
+            name: {"attribute": "_" + name.upper()} for name in props}}],
+    }}
+    prim["extensions"] = {"EXT_structural_metadata": {"propertyAttributes": [0]}}
+    b.gltf.setdefault("extensionsUsed", []).append("EXT_structural_metadata")
+
+
+def _class_features(b: _GlbBuilder, prim: dict[str, Any], classification: np.ndarray) -> None:
+    """The LAS class as an ``EXT_mesh_features`` feature ID: clients that pick or style by feature (CesiumJS's
+    ``feature.featureId``) see one feature per class. ``_FEATURE_ID_0`` names the classification accessor
+    itself, so no bytes are added."""
+    count = int(np.count_nonzero(np.bincount(classification, minlength=1)))
+    prim["attributes"]["_FEATURE_ID_0"] = prim["attributes"]["_CLASSIFICATION"]
+    prim.setdefault("extensions", {})["EXT_mesh_features"] = {
+        "featureIds": [{"featureCount": max(count, 1), "attribute": 0, "label": "classification"}]}
+    if "EXT_mesh_features" not in b.gltf.setdefault("extensionsUsed", []):
+        b.gltf["extensionsUsed"].append("EXT_mesh_features")
+
+
+def _linear_rgba16(colors: npt.ArrayLike) -> npt.NDArray[np.uint16]:
+    """(N, 4) normalized uint16 linear RGBA of (N, 3 or 4) sRGB bytes (:mod:`.colour`); alpha rescaled only."""
+    c = np.asarray(colors, np.uint8).reshape(len(np.asarray(colors)), -1)
+    out = np.empty((len(c), 4), np.uint16)
+    out[:, :3] = SRGB8_TO_LINEAR16[c[:, :3]]
+    out[:, 3] = c[:, 3].astype(np.uint16) * 257 if c.shape[1] == 4 else 65535
+    return out
+
+
+def _image_size(data: bytes) -> tuple[int, int]:
+    """(width, height) of PNG or JPEG bytes from their header; (0, 0) when neither."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24:
+        w, h = struct.unpack_from(">II", data, 16)
+        return int(w), int(h)
+    i = 2
+    while data[:2] == b"\xff\xd8" and i + 9 < len(data):
+        if data[i] != 0xFF:
+            break
+        marker, seglen = data[i + 1], struct.unpack_from(">H", data, i + 2)[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
+            h, w = struct.unpack_from(">HH", data, i + 5)
+            return int(w), int(h)
+        i += 2 + seglen
+    return 0, 0
+
+
 def _point_attributes(b: _GlbBuilder, pts: PointData) -> dict[str, int]:
     """POSITION, COLOR_0 and the LAS attributes of point content, encoded by one compiled pass
     (:mod:`citylod.io.glb_kernels`); the bytes :meth:`_GlbBuilder.accessor` would write for each."""
@@ -320,325 +446,24 @@ def _point_attributes(b: _GlbBuilder, pts: PointData) -> dict[str, int]:
             return np.zeros((0, ncomp) if ncomp > 1 else 0, dt)
         return np.ascontiguousarray(arr, dt).reshape((n, ncomp) if ncomp > 1 else n)
 
-    pos_out, rgb_out, ret_out = np.empty((n, 3), np.float32), np.empty((n, 4), np.uint8), np.empty((n, 4), np.uint8)
+    pos_out, rgb_out, ret_out = np.empty((n, 3), np.float32), np.empty((n, 4), np.uint16), np.empty((n, 4), np.uint8)
     int_out, cls_out = np.empty((n, 2), np.uint16), np.empty((n, 4), np.uint8)
     lo, hi = np.empty(3, np.float32), np.empty(3, np.float32)
-    point_vertex_columns(pos, column(pts.rgb, np.uint8, 3), column(pts.intensity, np.uint16, 1),
+    measured = None if pts.rgb_from_class else pts.rgb
+    point_vertex_columns(pos, column(measured, np.uint8, 3), SRGB8_TO_LINEAR16, column(pts.intensity, np.uint16, 1),
                          column(pts.classification, np.uint8, 1), column(pts.return_number, np.uint8, 1),
                          pos_out, rgb_out, int_out, cls_out, ret_out, lo, hi)
 
     attrs = {"POSITION": b.register(b.view(pos_out, 34962), 5126, n, "VEC3", lo=[float(v) for v in lo],
                                     hi=[float(v) for v in hi])}
-    if pts.rgb is not None:
-        attrs["COLOR_0"] = b.register(b.view(rgb_out, 34962, 4), 5121, n, "VEC3", normalized=True)
+    if measured is not None:
+        attrs["COLOR_0"] = b.register(b.view(rgb_out, 34962, 8), 5123, n, "VEC3", normalized=True)
+    elif pts.rgb is not None:  # class colours for other clients: 8-bit linear is enough for a palette
+        lin8 = np.zeros((n, 4), np.uint8)
+        lin8[:, :3] = SRGB8_TO_LINEAR8[np.asarray(pts.rgb, np.uint8).reshape(n, 3)]
+        attrs["COLOR_0"] = b.register(b.view(lin8, 34962, 4), 5121, n, "VEC3", normalized=True)
     outs: tuple[np.ndarray, ...] = (int_out, cls_out, ret_out)
     for (gl_name, attr), out, ctype in zip(_POINT_ATTRS.items(), outs, (5123, 5121, 5121), strict=True):
         if getattr(pts, attr) is not None:
             attrs[gl_name] = b.register(b.view(out, 34962, 4), ctype, n, "SCALAR")
     return attrs
-
-
-# ----------------------------------------------------------------------------------------------- glb reader
-def _parse_glb(data: bytes, source: str) -> tuple[dict[str, Any], bytes]:
-    if len(data) < 20:
-        raise InputError("content is truncated (shorter than a glb header)", source)
-    magic, version, length = struct.unpack_from("<4sII", data, 0)
-    if magic != b"glTF":
-        raise InputError(f"not a glb file (magic {magic!r})", source)
-    if version != 2:
-        raise InputError(f"glTF version {version} is not supported (only 2)", source)
-    if length > len(data):
-        raise InputError(f"glb is truncated ({len(data)} of {length} bytes)", source)
-    off, gltf, binary = 12, None, b""
-    while off + 8 <= length:
-        clen, ctype = struct.unpack_from("<I4s", data, off)
-        chunk = data[off + 8: off + 8 + clen]
-        if len(chunk) != clen:
-            raise InputError("glb chunk is truncated", source)
-        if ctype == b"JSON":
-            try:
-                gltf = json.loads(chunk.decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-                raise InputError(f"glb JSON chunk is corrupt ({exc})", source) from exc
-        elif ctype == b"BIN\x00" and not binary:
-            binary = chunk
-        off += 8 + clen + (-clen % 4)
-    if not isinstance(gltf, dict):
-        raise InputError("glb has no JSON chunk", source)
-    return gltf, binary
-
-
-def _read_accessor(gltf: dict[str, Any], binary: bytes, index: int, source: str) -> np.ndarray:
-    try:
-        acc = gltf["accessors"][index]
-        dtype = np.dtype(_COMPONENT[acc["componentType"]])
-        ncomp = _NCOMP[acc["type"]]
-        count = int(acc["count"])
-        if "sparse" in acc:
-            raise InputError("sparse accessors are not supported", source)
-        if "bufferView" not in acc:
-            return np.zeros((count, ncomp), dtype).squeeze()
-        bv = gltf["bufferViews"][acc["bufferView"]]
-        if bv.get("buffer", 0) != 0:
-            raise InputError("external glTF buffers are not supported", source)
-        start = int(bv.get("byteOffset", 0)) + int(acc.get("byteOffset", 0))
-        stride = int(bv.get("byteStride", 0)) or dtype.itemsize * ncomp
-        end = start + stride * (count - 1) + dtype.itemsize * ncomp if count else start
-        if end > len(binary) or start < 0:
-            raise InputError("accessor reaches past the end of the binary chunk", source)
-        raw = np.frombuffer(binary, np.uint8, count=end - start, offset=start)
-        if stride == dtype.itemsize * ncomp:
-            arr = raw.view(dtype).reshape(count, ncomp)
-        else:
-            rows = np.lib.stride_tricks.as_strided(raw, (count, dtype.itemsize * ncomp), (stride, 1))
-            arr = np.ascontiguousarray(rows).view(dtype).reshape(count, ncomp)
-        if acc.get("normalized") and dtype.kind in "ui" and acc["type"] != "SCALAR" and dtype != np.uint8:
-            arr = arr.astype(np.float32) / float(np.iinfo(dtype.type).max)  # type: ignore[type-var]
-        return arr[:, 0] if ncomp == 1 else arr
-    except (KeyError, IndexError, TypeError, ValueError) as exc:
-        raise InputError(f"glTF accessor {index} is invalid ({exc})", source) from exc
-
-
-def _node_matrices(gltf: dict[str, Any]) -> list[tuple[int, F64]]:
-    """(mesh index, 4×4 node-to-scene matrix in glTF axes) for every mesh instance of the default scene."""
-    nodes = gltf.get("nodes", [])
-    scenes = gltf.get("scenes") or [{"nodes": list(range(len(nodes)))}]
-    roots = scenes[gltf.get("scene", 0)].get("nodes", [])
-    out: list[tuple[int, F64]] = []
-    stack = [(int(i), np.eye(4)) for i in roots]
-    seen = 0
-    while stack:
-        i, parent = stack.pop()
-        seen += 1
-        if seen > 100000:
-            break
-        node = nodes[i]
-        m = np.eye(4)
-        if "matrix" in node:
-            m = np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T
-        else:
-            t = np.asarray(node.get("translation", [0, 0, 0]), float)
-            x, y, z, w = node.get("rotation", [0, 0, 0, 1])
-            r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                          [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                          [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-            s = np.asarray(node.get("scale", [1, 1, 1]), float)
-            m[:3, :3] = r * s
-            m[:3, 3] = t
-        world = parent @ m
-        if "mesh" in node:
-            out.append((int(node["mesh"]), world))
-        stack.extend((int(c), world) for c in node.get("children", []))
-    return out
-
-
-def decode_glb(data: bytes, source: str = "", *, rtc_center: F64 | None = None,
-               y_up: bool = True) -> TileContent:
-    """Decode a glb into :class:`TileContent` with z-up positions relative to the content's origin.
-
-    Node transforms are applied. Draco or meshopt compressed content is refused with a clear error.
-    """
-    gltf, binary = _parse_glb(data, source)
-    required = set(gltf.get("extensionsRequired", []))
-    unsupported = required & {"KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_mesh_quantization"}
-    if unsupported:
-        raise InputError(f"glTF extension {sorted(unsupported)} is not supported", source)
-    if rtc_center is None and "CESIUM_RTC" in gltf.get("extensions", {}):
-        rtc_center = np.asarray(gltf["extensions"]["CESIUM_RTC"]["center"], float)
-    content = TileContent()
-    images = _images(gltf, binary)
-    for mesh_index, node_m in _node_matrices(gltf):
-        try:
-            prims = gltf["meshes"][mesh_index]["primitives"]
-        except (KeyError, IndexError) as exc:
-            raise InputError(f"glTF mesh {mesh_index} is missing", source) from exc
-        # Group primitives sharing a POSITION accessor (our surface + skirt pair) into one MeshData.
-        groups: dict[tuple[int, int], list[dict[str, Any]]] = {}
-        for prim in prims:
-            if "POSITION" not in prim.get("attributes", {}):
-                continue
-            groups.setdefault((prim["attributes"]["POSITION"], prim.get("mode", 4)), []).append(prim)
-        for (pos_idx, mode), group in groups.items():
-            pos = _read_accessor(gltf, binary, pos_idx, source).astype(np.float64)
-            pos = pos @ node_m[:3, :3].T + node_m[:3, 3]
-            if rtc_center is not None:
-                pos = pos + (_Z_UP_TO_Y_UP[:3, :3] @ rtc_center if y_up else rtc_center)
-            pos32 = _from_gltf_axes(pos) if y_up else pos.astype(np.float32)
-            attrs = group[0]["attributes"]
-            if mode == 0:
-                content.points = _decode_points(gltf, binary, attrs, group[0], pos32, source)
-                continue
-            if mode not in (4, 5, 6):
-                continue  # lines are not drawn by citylod
-            faces_list, skirt_list = [], []
-            for prim in group:
-                if "indices" in prim:
-                    idx = _read_accessor(gltf, binary, prim["indices"], source).astype(np.uint32)
-                else:
-                    idx = np.arange(len(pos32), dtype=np.uint32)
-                tri = _triangles(idx, prim.get("mode", 4))
-                if len(tri) and int(tri.max()) >= len(pos32):
-                    raise InputError("triangle indices point past the vertices", source)
-                faces_list.append(tri)
-                skirt_list.append(np.full(len(tri), bool(prim.get("extras", {}).get("citylod_skirt", False))))
-            uv = texture = colors = None
-            if "TEXCOORD_0" in attrs:
-                uv = _read_accessor(gltf, binary, attrs["TEXCOORD_0"], source).astype(np.float32)
-                texture = _material_texture(gltf, group[0], images)
-                if texture is None:
-                    uv = None
-            if "COLOR_0" in attrs:
-                colors = _colors_rgba(_read_accessor(gltf, binary, attrs["COLOR_0"], source))
-            content.meshes.append(MeshData(
-                positions=pos32, faces=np.concatenate(faces_list), skirt=np.concatenate(skirt_list),
-                uv=uv, texture=texture, colors=colors,
-                name=str(group[0].get("extras", {}).get("citylod_name", "surface")),
-                features=_decode_feature_ids(gltf, binary, group[0], source),
-            ))
-    ext = gltf.get("extensions", {}).get("EXT_structural_metadata")
-    if isinstance(ext, dict):
-        def view_bytes(i: int) -> bytes:
-            bv = gltf["bufferViews"][i]
-            start = int(bv.get("byteOffset", 0))
-            return binary[start:start + int(bv["byteLength"])]
-
-        content.property_tables = decode_property_tables(ext, view_bytes, source)
-    return content
-
-
-def _decode_feature_ids(gltf: dict[str, Any], binary: bytes, prim: dict[str, Any], source: str) -> list[FeatureIdSet]:
-    """The attribute-based feature ID sets of a primitive (``EXT_mesh_features``); implicit and texture
-    feature IDs are not read."""
-    out = []
-    ext = prim.get("extensions", {}).get("EXT_mesh_features", {})
-    for fid in ext.get("featureIds", []) if isinstance(ext, dict) else []:
-        name = f"_FEATURE_ID_{fid.get('attribute')}"
-        if "attribute" not in fid or name not in prim.get("attributes", {}):
-            continue
-        ids = _read_accessor(gltf, binary, prim["attributes"][name], source)
-        out.append(FeatureIdSet(np.round(ids).astype(np.uint32), fid.get("propertyTable"),
-                                int(fid.get("featureCount", 0)), fid.get("label")))
-    return out
-
-
-def _triangles(idx: np.ndarray, mode: int) -> np.ndarray:
-    if mode == 4:
-        return idx[: len(idx) // 3 * 3].reshape(-1, 3)
-    n = len(idx) - 2
-    if n <= 0:
-        return np.zeros((0, 3), np.uint32)
-    k = np.arange(n)
-    if mode == 5:  # strip: alternate winding
-        a, b = np.where(k % 2 == 0, idx[k], idx[k + 1]), np.where(k % 2 == 0, idx[k + 1], idx[k])
-        return np.stack([a, b, idx[k + 2]], axis=1)
-    return np.stack([np.full(n, idx[0]), idx[k + 1], idx[k + 2]], axis=1)  # fan
-
-
-def _colors_rgba(c: np.ndarray) -> np.ndarray:
-    c = np.asarray(c)
-    if c.dtype.kind == "f":
-        c = np.clip(np.round(c * 255), 0, 255).astype(np.uint8)
-    elif c.dtype == np.uint16:
-        c = (c >> 8).astype(np.uint8)
-    if c.ndim == 1:
-        c = c[:, None].repeat(3, axis=1)
-    if c.shape[1] == 3:
-        c = np.concatenate([c, np.full((len(c), 1), 255, np.uint8)], axis=1)
-    return c.astype(np.uint8)
-
-
-def _images(gltf: dict[str, Any], binary: bytes) -> list[bytes | None]:
-    out: list[bytes | None] = []
-    for img in gltf.get("images", []):
-        if "bufferView" in img:
-            bv = gltf["bufferViews"][img["bufferView"]]
-            start = int(bv.get("byteOffset", 0))
-            out.append(bytes(binary[start: start + int(bv["byteLength"])]))
-        else:
-            out.append(None)  # external or data-URI images are not fetched
-    return out
-
-
-def _material_texture(gltf: dict[str, Any], prim: dict[str, Any], images: list[bytes | None]) -> bytes | None:
-    try:
-        mat = gltf["materials"][prim["material"]]
-        tex = gltf["textures"][mat["pbrMetallicRoughness"]["baseColorTexture"]["index"]]
-        return images[tex["source"]]
-    except (KeyError, IndexError, TypeError):
-        return None
-
-
-def _decode_points(gltf: dict[str, Any], binary: bytes, attrs: dict[str, int], prim: dict[str, Any],
-                   pos32: np.ndarray, source: str) -> PointData:
-    pts = PointData(positions=pos32)
-    if "COLOR_0" in attrs:
-        pts.rgb = _colors_rgba(_read_accessor(gltf, binary, attrs["COLOR_0"], source))[:, :3].copy()
-    for gl_name, attr in _POINT_ATTRS.items():
-        if gl_name in attrs:
-            setattr(pts, attr, _read_accessor(gltf, binary, attrs[gl_name], source).copy())
-    dtypes = prim.get("extras", {}).get("citylod_extra_dtypes", {})
-    for name, dt in dtypes.items():
-        key = "_" + name.upper()
-        if key in attrs:
-            pts.extra[name] = _read_accessor(gltf, binary, attrs[key], source).astype(np.dtype(dt))
-    return pts
-
-
-# ------------------------------------------------------------------------------------- legacy 1.0 content
-def decode_content(data: bytes, source: str, *, y_up: bool = True) -> TileContent:
-    """Decode glb, b3dm or pnts content by its magic bytes."""
-    magic = data[:4]
-    if magic == b"glTF":
-        return decode_glb(data, source, y_up=y_up)
-    if magic == b"b3dm":
-        if len(data) < 28:
-            raise InputError("b3dm header is truncated", source)
-        _, _, length, ftj, ftb, btj, btb = struct.unpack_from("<4sIIIIII", data, 0)
-        ft = _feature_json(data[28: 28 + ftj], source)
-        start = 28 + ftj + ftb + btj + btb
-        rtc = np.asarray(ft["RTC_CENTER"], float) if "RTC_CENTER" in ft else None
-        return decode_glb(data[start:length], source, rtc_center=rtc, y_up=y_up)
-    if magic == b"pnts":
-        return _decode_pnts(data, source)
-    raise InputError(f"unknown tile content (magic {magic!r}); expected glb, b3dm or pnts", source)
-
-
-def _feature_json(raw: bytes, source: str) -> dict[str, Any]:
-    try:
-        return json.loads(raw.decode("utf-8").rstrip(" \x00")) if raw.strip(b" \x00") else {}
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"feature table is corrupt ({exc})", source) from exc
-
-
-def _decode_pnts(data: bytes, source: str) -> TileContent:
-    if len(data) < 28:
-        raise InputError("pnts header is truncated", source)
-    _, _, _, ftj, ftb, _, _ = struct.unpack_from("<4sIIIIII", data, 0)
-    ft = _feature_json(data[28: 28 + ftj], source)
-    body = data[28 + ftj: 28 + ftj + ftb]
-    try:
-        n = int(ft["POINTS_LENGTH"])
-
-        def prop(name: str, dtype: Any, ncomp: int) -> np.ndarray | None:
-            if name not in ft:
-                return None
-            off = int(ft[name]["byteOffset"])
-            return np.frombuffer(body, dtype, count=n * ncomp, offset=off).reshape(n, ncomp)
-
-        pos = prop("POSITION", np.float32, 3)
-        if pos is None:
-            q = prop("POSITION_QUANTIZED", np.uint16, 3)
-            if q is None:
-                raise InputError("pnts has no POSITION", source)
-            scale = np.asarray(ft["QUANTIZED_VOLUME_SCALE"], float)
-            offset = np.asarray(ft["QUANTIZED_VOLUME_OFFSET"], float)
-            pos = (q.astype(np.float64) / 65535.0 * scale + offset).astype(np.float32)
-        rtc = np.asarray(ft.get("RTC_CENTER", [0, 0, 0]), float)
-        pos64 = pos.astype(np.float64) + rtc
-        rgb = prop("RGB", np.uint8, 3)
-        rgba = prop("RGBA", np.uint8, 4)
-    except (KeyError, ValueError, TypeError) as exc:
-        raise InputError(f"pnts feature table is invalid ({exc})", source) from exc
-    colours = rgb if rgb is not None else (rgba[:, :3] if rgba is not None else None)
-    return TileContent(points=PointData(positions=pos64.astype(np.float32),
-                                        rgb=None if colours is None else colours.copy()))

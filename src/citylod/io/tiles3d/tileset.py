@@ -6,8 +6,9 @@ in the tile ``transform`` (float64). The root transform places the data on the g
 shows it; the source CRS and the local origin are recorded in ``extras.citylod`` so citylod works in the
 source CRS.
 
-What citylod reads: any 3D Tiles 1.x tileset — glb, b3dm and pnts content, box / region / sphere bounding
-volumes, tile transforms, external tilesets. URIs that leave the tileset's folder (``../``, absolute paths,
+What citylod reads: any 3D Tiles 1.x tileset — glb, glTF, b3dm, i3dm, cmpt and pnts content (gzip or not),
+several contents per tile, implicit tiling (:mod:`.implicit`), box / region / sphere bounding volumes, tile
+transforms, external tilesets, gzip-compressed tileset JSON. URIs that leave the tileset's folder (``../``, absolute paths,
 URLs) are refused with :class:`~citylod.core.errors.UnsafePathError`.
 
 No VTK and no Qt here.
@@ -15,11 +16,13 @@ No VTK and no Qt here.
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 import os
 import urllib.parse
-from collections.abc import Iterator
+import zlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,7 +37,9 @@ from citylod.core.fileio import atomic_write_bytes, atomic_write_text
 from citylod.core.frames import geodetic_to_ecef
 from citylod.core.geometry import F64, Box, translation
 from citylod.io.crs import ecef_from_local, parse_crs
-from citylod.io.tiles3d.content import TileContent, decode_content, glb_buffer
+from citylod.io.tiles3d.content import TileContent, glb_buffer
+from citylod.io.tiles3d.implicit import expand_implicit
+from citylod.io.tiles3d.legacy import decode_content
 
 
 # --------------------------------------------------------------------------------------- atomic writing
@@ -151,6 +156,8 @@ def safe_resolve(base_dir: Path, uri: str, root_dir: Path, source: str) -> Path:
     if parsed.scheme or parsed.netloc:
         raise UnsafePathError(f"content URI {uri!r} is a URL; only files inside the tileset folder are read", source)
     rel = urllib.parse.unquote(parsed.path)
+    if "\x00" in rel:
+        raise UnsafePathError(f"content URI {uri!r} holds a NUL byte", source)
     if not rel or rel.startswith(("/", "\\")) or (len(rel) > 1 and rel[1] == ":"):
         raise UnsafePathError(f"content URI {uri!r} is an absolute path", source)
     target = (base_dir / rel).resolve()
@@ -213,22 +220,29 @@ class TileMesh:
 class Tile:
     """One tile of an opened tileset. See docs/CONTRACTS.md."""
 
-    __slots__ = ("_size", "box", "children", "content_path", "content_uri", "geometric_error", "key",
-                 "level", "matrix", "parent", "point_count", "refine", "tileset", "triangle_count")
+    __slots__ = ("_size", "box", "children", "content_path", "content_paths", "content_uri", "geometric_error",
+                 "key", "level", "matrix", "parent", "point_count", "refine", "shift", "tileset", "triangle_count")
 
     def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
-                 geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None) -> None:
+                 geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None,
+                 content_paths: list[Path] | None = None) -> None:
         self.tileset = tileset
         self.key = key
         self.level = level
         self.parent = parent
         self.children: list[Tile] = []
         self.matrix = matrix
+        # Where the content's positions are measured from in the tile's own frame (``matrix`` includes it):
+        # zero, or the bounding volume's centre when the tile frame is far from its content (ECEF tilesets).
+        self.shift = np.zeros(3)
         self.box = box
         self.geometric_error = geometric_error
         self.refine = refine
         self.content_uri = content_uri
         self.content_path = content_path
+        # Every content of the tile (3D Tiles 1.1 ``contents``): all are loaded and drawn together.
+        self.content_paths: list[Path] = content_paths if content_paths is not None else (
+            [] if content_path is None else [content_path])
         self._size: int | None = None
         # Cost hints for budgets before a tile is loaded (written by citylod builders in tile extras).
         self.triangle_count = 0
@@ -243,24 +257,46 @@ class Tile:
 
     @property
     def content_bytes(self) -> int:
-        if self.content_path is None:
-            return 0
         if self._size is None:
-            try:
-                self._size = self.content_path.stat().st_size
-            except OSError:
-                self._size = 0
+            self._size = 0
+            for p in self.content_paths:
+                try:
+                    self._size += p.stat().st_size
+                except OSError:
+                    pass
         return self._size
 
     def load_content(self) -> TileContent:
         """The content with float32 positions relative to the tile's origin (map them with ``matrix``)."""
-        if self.content_path is None:
+        if not self.content_paths:
             return TileContent()
+        # Positions relative to the tile frame's point ``shift`` (what ``matrix`` includes), in float64 first.
+        out = TileContent.merged([self._load_one(p) for p in self.content_paths]).rebased(self.shift)
+        out.origin = np.zeros(3)
+        return out
+
+    def _load_one(self, path: Path) -> TileContent:
         try:
-            data = self.content_path.read_bytes()
+            data = path.read_bytes()
         except OSError as exc:
-            raise InputError(f"cannot read tile content ({exc.strerror})", self.content_path) from exc
-        return decode_content(data, str(self.content_path), y_up=self.tileset.y_up)
+            raise InputError(f"cannot read tile content ({exc.strerror})", path) from exc
+        folder = self.tileset.folder
+
+        def resolve(uri: str) -> bytes:
+            target = safe_resolve(path.parent, uri, folder, str(path))
+            try:
+                return target.read_bytes()
+            except OSError as exc:
+                raise InputError(f"cannot read {uri!r} ({exc.strerror})", path) from exc
+
+        content = decode_content(data, str(path), y_up=self.tileset.y_up, resolve=resolve)
+        if self.tileset.up_axis == "X":  # CesiumJS's Axis.X_UP_TO_Z_UP, a −90° turn about y; RTC is z-up already
+            turn = np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]])
+            for m in content.meshes:
+                m.positions = (m.positions.astype(np.float64) @ turn.T).astype(np.float32)
+            if content.points is not None:
+                content.points.positions = (content.points.positions.astype(np.float64) @ turn.T).astype(np.float32)
+        return content
 
     def load(self) -> TileMesh:
         """The content in the tileset's CRS, float64."""
@@ -286,8 +322,23 @@ class Tile:
         )
 
 
+# Limits on what a tileset may make citylod build, so that a small hostile file cannot exhaust memory or time:
+# deep nesting, a chain of external tilesets each referenced many times (8 children pointing at the next file,
+# nine files deep, are 8^9 tiles), self references. Real tilesets stay far below them: a quadtree of 64
+# levels already resolves 1 mm on the Earth, and a file referenced from more than a few places is unusual.
+MAX_TILES = 2_000_000
+MAX_LEVELS = 64
+MAX_EXTERNAL_LOADS = 10_000
+MAX_LOADS_PER_EXTERNAL = 64
+
+
 class Tileset:
-    """An opened 3D Tiles tileset (see :func:`open_tileset`)."""
+    """An opened 3D Tiles tileset (see :func:`open_tileset`).
+
+    Opening builds every tile of the tree (external tilesets spliced in) under the limits :data:`MAX_TILES`,
+    :data:`MAX_LEVELS`, :data:`MAX_EXTERNAL_LOADS` and :data:`MAX_LOADS_PER_EXTERNAL`; a tileset that refers
+    to itself, directly or through others, is refused.
+    """
 
     def __init__(self, path: Path, doc: dict[str, Any]) -> None:
         self.path = path
@@ -295,7 +346,9 @@ class Tileset:
         self.doc = doc
         self.extras: dict[str, Any] = doc.get("extras", {}) or {}
         cl = self.extras.get("citylod", {}) if isinstance(self.extras, dict) else {}
-        self.y_up = doc.get("asset", {}).get("gltfUpAxis", "Y").upper() != "Z"
+        # 3D Tiles 1.0 ``asset.gltfUpAxis`` (Y by default; Z and X were allowed, and CesiumJS still honours them).
+        self.up_axis = str(doc.get("asset", {}).get("gltfUpAxis", "Y")).upper()
+        self.y_up = self.up_axis not in ("Z", "X")
         self.citylod: dict[str, Any] = cl if isinstance(cl, dict) else {}
         root_json = doc["root"]
         root_m = _tile_transform(root_json, str(path))
@@ -309,43 +362,70 @@ class Tileset:
             self.origin = np.zeros(3)
             self._crs_from_world = np.eye(4)
         self.kind = str(self.citylod.get("kind", "unknown"))
-        self.root = self._build(root_json, root_m, None, "0", 0, self.folder, str(path), depth=0)
+        self.root = self._build(root_json, root_m, None, "0", 0, self.folder, str(path))
 
     def _build(self, tj: dict[str, Any], world: F64, parent: Tile | None, key: str, level: int,
-               base: Path, source: str, depth: int) -> Tile:
-        # Explicit stack over the JSON tree (tilesets can be deep); external tilesets are spliced in.
+               base: Path, source: str) -> Tile:
+        # Explicit stack over the JSON tree (tilesets can be deep); external tilesets are spliced in. Each
+        # entry carries the chain of tileset files above it, to name a cycle.
         root_tile: Tile | None = None
-        stack: list[tuple[dict[str, Any], F64, Tile | None, str, int, Path, str, int]] = [
-            (tj, world, parent, key, level, base, source, depth)]
+        chain0 = (str(self.path),)
+        stack: list[tuple[dict[str, Any], F64, Tile | None, str, int, Path, str, tuple[str, ...]]] = [
+            (tj, world, parent, key, level, base, source, chain0)]
+        tiles = external_loads = 0
+        loads: dict[str, int] = {}
         while stack:
-            tj, world, parent, key, level, base, source, depth = stack.pop()
+            tj, world, parent, key, level, base, source, chain = stack.pop()
+            tiles += 1
+            if tiles > MAX_TILES:
+                raise InputError(f"more than {MAX_TILES:,} tiles; refused as a likely hostile tileset", source)
+            if level > MAX_LEVELS:
+                raise InputError(f"tiles nest deeper than {MAX_LEVELS} levels; refused", source)
             if not isinstance(tj, dict) or "boundingVolume" not in tj or "geometricError" not in tj:
-                raise InputError(f"tile {key} lacks boundingVolume or geometricError", source)
+                raise InputError(f"tile {key[:80]} lacks boundingVolume or geometricError", source)
+            if "implicitTiling" in tj or "3DTILES_implicit_tiling" in tj.get("extensions", {}):
+                tj = expand_implicit(tj, _reader(base, self.folder, source), source)
             matrix = self._crs_from_world @ world
             # A region is in ECEF whatever the tile's transform; boxes and spheres live in the tile's frame.
             in_ecef = "region" in tj["boundingVolume"]
-            box = _bounding_box(tj["boundingVolume"], source, key).transformed(
-                self._crs_from_world if in_ecef else matrix)
+            local_box = _bounding_box(tj["boundingVolume"], source, key)
+            box = local_box.transformed(self._crs_from_world if in_ecef else matrix)
+            centre = (np.linalg.inv(world) @ [*local_box.center, 1.0])[:3] if in_ecef else local_box.center
+            # Content far from its tile frame's origin (ECEF coordinates with identity transforms) is loaded
+            # relative to the volume's centre, so float32 positions keep millimetres (Tile.load_content).
+            shift = np.round(centre) if float(np.abs(centre).max()) > 1e4 else np.zeros(3)
             refine = str(tj.get("refine", parent.refine if parent else "REPLACE")).upper()
             uri = None
-            cpath = None
-            content = tj.get("content") or (tj.get("contents") or [None])[0]
-            if isinstance(content, dict):
-                uri = content.get("uri", content.get("url"))
+            cpaths: list[Path] = []
             children_json = list(tj.get("children", []))
-            if uri and uri.lower().split("?")[0].endswith(".json"):
-                ext_path = safe_resolve(base, uri, self.folder, source)
-                if depth > 32:
-                    raise InputError("external tilesets nest deeper than 32 levels", source)
-                ext = _read_json(ext_path)
-                children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
-                                                    "_external_source": str(ext_path)})
-                uri = None
-            elif uri:
-                cpath = safe_resolve(base, uri, self.folder, source)
-            if "implicitTiling" in tj:
-                raise InputError(f"tile {key} uses implicit tiling, which citylod does not read yet", source)
-            tile = Tile(self, key, level, parent, matrix, box, float(tj["geometricError"]), refine, uri, cpath)
+            for content in _contents(tj):
+                curi = content.get("uri", content.get("url")) if isinstance(content, dict) else None
+                if curi is not None and not isinstance(curi, str):
+                    raise InputError(f"tile {key[:80]} has a content URI that is not a string", source)
+                if not curi:
+                    continue
+                if curi.lower().split("?")[0].endswith(".json"):
+                    ext_path = safe_resolve(base, curi, self.folder, source)
+                    external = str(ext_path)
+                    if external in chain:
+                        raise InputError(f"tileset refers to itself through {curi!r} (a cycle of external "
+                                         f"tilesets: {' -> '.join(Path(c).name for c in chain)} -> {ext_path.name})",
+                                         source)
+                    loads[external] = loads.get(external, 0) + 1
+                    external_loads += 1
+                    if loads[external] > MAX_LOADS_PER_EXTERNAL or external_loads > MAX_EXTERNAL_LOADS:
+                        raise InputError(f"external tileset {curi!r} is referenced {loads[external]} times "
+                                         f"({external_loads} external loads in all); refused as a likely hostile "
+                                         "tileset", source)
+                    ext = _read_json(ext_path)
+                    children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
+                                                        "_external_source": external})
+                else:
+                    uri = uri or curi
+                    cpaths.append(safe_resolve(base, curi, self.folder, source))
+            tile = Tile(self, key, level, parent, matrix @ translation(shift), box, float(tj["geometricError"]),
+                        refine, uri, cpaths[0] if cpaths else None, cpaths)
+            tile.shift = shift
             hints = tj.get("extras", {})
             if isinstance(hints, dict):
                 tile.triangle_count = int(hints.get("triangles", 0) or 0)
@@ -359,7 +439,8 @@ class Tileset:
                 child_world = world @ _tile_transform(cj, source)
                 cbase = Path(cj.pop("_external_base")) if "_external_base" in cj else base
                 csource = cj.pop("_external_source", source)
-                stack.append((cj, child_world, tile, f"{key}/{ci}", level + 1, cbase, csource, depth + 1))
+                cchain = (*chain, csource) if csource != source else chain
+                stack.append((cj, child_world, tile, f"{key}/{ci}", level + 1, cbase, csource, cchain))
         assert root_tile is not None
         # children were pushed reversed and popped in order; restore document order
         for t in self.walk_from(root_tile):
@@ -388,18 +469,45 @@ class Tileset:
         return f"Tileset({str(self.path)!r}, kind={self.kind!r}, crs={self.crs.name!r})"
 
 
+def _reader(base: Path, root: Path, source: str) -> Callable[[str], bytes]:
+    """Reads URIs relative to ``base`` that stay inside ``root`` (implicit tiling's subtrees)."""
+
+    def read(uri: str) -> bytes:
+        path = safe_resolve(base, uri, root, source)
+        try:
+            return path.read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read {uri!r} ({exc.strerror})", source) from exc
+
+    return read
+
+
+def _contents(tj: dict[str, Any]) -> list[Any]:
+    """A tile's contents: ``content``, 1.1 ``contents`` and the 1.0 ``3DTILES_multiple_contents`` extension."""
+    out = [tj["content"]] if tj.get("content") else []
+    out += list(tj.get("contents") or [])
+    out += list(tj.get("extensions", {}).get("3DTILES_multiple_contents", {}).get("contents", []))
+    return out
+
+
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        raw = path.read_bytes()
+        if raw[:2] == b"\x1f\x8b":  # gzip-compressed tileset JSON, as some servers store it
+            raw = gzip.decompress(raw)
+        doc = json.loads(raw.decode("utf-8"))
     except FileNotFoundError as exc:
         raise InputError("tileset not found", path) from exc
     except OSError as exc:
-        raise InputError(f"cannot read tileset ({exc.strerror})", path) from exc
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"tileset is not valid JSON ({exc})", path) from exc
+        raise InputError(f"cannot read tileset ({exc.strerror or exc})", path) from exc
+    except RecursionError as exc:
+        raise InputError("tileset JSON nests too deeply to read", path) from exc
+    except (UnicodeDecodeError, ValueError, EOFError, zlib.error) as exc:  # JSONDecodeError, 5000-digit numbers
+        raise InputError(f"tileset is not valid JSON ({str(exc)[:200]})", path) from exc
     if not isinstance(doc, dict) or "root" not in doc:
         raise InputError("not a 3D Tiles tileset (no 'root')", path)
-    version = str(doc.get("asset", {}).get("version", ""))
+    asset = doc.get("asset")
+    version = str(asset.get("version", "") if isinstance(asset, dict) else "")[:20]
     if not version.startswith("1."):
         raise InputError(f"3D Tiles version {version!r} is not supported (1.x only)", path)
     return doc
@@ -460,5 +568,6 @@ def open_tileset(path: str | os.PathLike[str]) -> Tileset:
     doc = _read_json(p)
     try:
         return Tileset(p.resolve(), doc)
-    except (KeyError, TypeError) as exc:
-        raise InputError(f"tileset structure is invalid ({exc})", p) from exc
+    except (KeyError, TypeError, AttributeError, ValueError, OverflowError, IndexError) as exc:
+        # Any shape the schema does not allow (a string where a number belongs, a list for an object).
+        raise InputError(f"tileset structure is invalid ({type(exc).__name__}: {str(exc)[:200]})", p) from exc

@@ -63,8 +63,8 @@ import numpy as np
 import pyproj
 
 from citylod.core import journal
-from citylod.core.errors import InputError
-from citylod.core.fileio import publish_dir
+from citylod.core.errors import GeoreferenceError, InputError
+from citylod.core.fileio import discard_partial_on_refusal, publish_dir
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod.kernels import aot
@@ -795,6 +795,7 @@ def plan_levels(info: RasterInfo, tile_size: int) -> int:
     return max(0, math.ceil(math.log2(n))) if n > 1 else 0
 
 
+@discard_partial_on_refusal
 def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, ortho: str | os.PathLike[str] | None = None,
               max_error: float | None = None, tile_size: int = 129, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, texture_size: int | None = None,
@@ -829,6 +830,17 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         raise ValueError(f"tile_size must be 2^k + 1 (e.g. 65, 129, 257), got {tile_size}")
     src = RasterSource(raster)
     info = src.info
+    if info.width < 2 or info.height < 2:
+        src.close()
+        raise InputError(f"raster is {info.width}×{info.height} samples; a surface needs at least 2×2", raster)
+    if info.geographic:
+        # Corners outside ±180°/±90° are metres under a degree CRS: projecting them would place the data
+        # nowhere (and fail only when the tileset is written).
+        xs, ys = info.sample_xy([0, 0, info.height - 1, info.height - 1], [0, info.width - 1, 0, info.width - 1])
+        if np.abs(xs).max() > 180 or np.abs(ys).max() > 90:
+            src.close()
+            raise GeoreferenceError(f"the raster declares {info.crs.name} (degrees) but its corners reach "
+                                    f"({xs.max():.1f}, {ys.max():.1f}), which are not degrees; fix its CRS", raster)
     check_has_data(src)
     src.close()
     if ortho is not None:

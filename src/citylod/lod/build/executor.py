@@ -11,12 +11,15 @@ It must not import VTK or Qt, and it imports ``distributed`` only when a schedul
 from __future__ import annotations
 
 import atexit
+import ctypes
 import functools
 import multiprocessing
 import os
 import queue
+import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from contextlib import contextmanager
@@ -73,15 +76,50 @@ class InlineExecutor(Executor):
         return fut
 
 
-def _worker_init() -> None:
+def _worker_init(parent_pid: int) -> None:
     """Runs first in every local worker process.
 
     A worker that has run numba-compiled kernels takes about 0.4 s to tear its interpreter down (LLVM and
     module finalisers), and the pool waits for that at shutdown, once per build. Workers hold no state
     that needs it: every task writes its files, or flushes its journal record, before it returns. So the
     last exit handler flushes the standard streams and ends the process at once.
+
+    A worker also dies with the build that started it (:func:`_die_with_parent`): a build killed with
+    SIGKILL runs no clean-up, and its workers would otherwise live on as orphans holding their memory.
     """
     atexit.register(_exit_now)
+    _die_with_parent(parent_pid)
+
+
+# prctl(2) option: the signal the kernel sends this process when the thread that created it exits.
+_PR_SET_PDEATHSIG = 1
+_PARENT_POLL_S = 1.0
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """End this process when ``parent_pid`` dies, however it dies.
+
+    On Linux the kernel does it: ``prctl(PR_SET_PDEATHSIG, SIGKILL)``. The signal follows the *thread*
+    that created the worker; the pool creates its workers from the thread that submits (the build's), which
+    outlives them. A daemon thread that polls the parent pid every second is the fallback where prctl is
+    missing (other systems) and covers a parent that died before prctl was set. Killing is safe: every task
+    writes under temporary names and renames, so a killed task leaves nothing a rerun would trust.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the line above took effect
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent_pid,), name="citylod-parent-watch", daemon=True).start()
+
+
+def _watch_parent(parent_pid: int) -> None:
+    while os.getppid() == parent_pid:
+        time.sleep(_PARENT_POLL_S)
+    os._exit(1)
 
 
 def _exit_now() -> None:
@@ -198,7 +236,7 @@ def make_executor(workers: int | None = None, scheduler: Any = None, *, threads:
     # spawn unless asked to fork: the parent may hold threads (Dask, tqdm monitor, OpenMP) that fork
     # would copy in a locked state, and spawn behaves the same on Linux, macOS and Windows.
     pool = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork" if fork else "spawn"),
-                               initializer=_worker_init)
+                               initializer=_worker_init, initargs=(os.getpid(),))
     try:
         yield pool
     except BaseException:

@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod.core.jit import defer_blas_probe
+from citylod.core.palette import ASPRS_CLASS_RGB
 
 defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
 
@@ -26,31 +27,19 @@ F64 = npt.NDArray[np.float64]
 U8 = npt.NDArray[np.uint8]
 
 # ASPRS LAS 1.4 standard classes (and AHN's 26 bridge deck) for colouring quads of uncoloured clouds.
-_CLASS_RGB = np.full((256, 3), 180, np.uint8)
-_CLASS_RGB[2] = (176, 140, 96)     # ground
-_CLASS_RGB[3] = (150, 200, 110)    # low vegetation
-_CLASS_RGB[4] = (100, 170, 80)     # medium vegetation
-_CLASS_RGB[5] = (50, 130, 50)      # high vegetation
-_CLASS_RGB[6] = (205, 90, 70)      # building
-_CLASS_RGB[9] = (70, 130, 220)     # water
-_CLASS_RGB[17] = (150, 150, 160)   # bridge deck
-_CLASS_RGB[26] = (150, 150, 160)   # AHN: bridge deck
 
 
 def splat_colors(rgb: U8 | None, classification: U8, intensity: npt.NDArray[np.uint16],
                  intensity_scale: float) -> U8:
     """Colour of each point for texturing quads, (N, 3) uint8.
 
-    RGB when the cloud has it; otherwise the classification's colour, and intensity grey for classes 0
-    and 1 (never classified / unclassified), scaled so ``intensity_scale`` is white.
+    RGB when the cloud has it; otherwise the classification's colour from the palette the points are drawn
+    with (:data:`citylod.core.palette.ASPRS_CLASS_RGB`), so a coarse node's quads and the finer nodes' points
+    look alike. ``intensity`` and ``intensity_scale`` are kept for callers; class colours do not use them.
     """
     if rgb is not None:
         return rgb
-    out = _CLASS_RGB[classification].copy()
-    grey_sel = classification <= 1
-    g = np.clip(intensity[grey_sel] * (255.0 / max(intensity_scale, 1.0)), 0, 255).astype(np.uint8)
-    out[grey_sel] = g[:, None]
-    return out
+    return ASPRS_CLASS_RGB[classification]
 
 
 @numba.njit(cache=True, nogil=True)

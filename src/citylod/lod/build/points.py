@@ -52,7 +52,8 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod._version import __version__
-from citylod.core.fileio import atomic_write, atomic_write_bytes, publish_dir
+from citylod.core.fileio import atomic_write, atomic_write_bytes, discard_partial_on_refusal, publish_dir
+from citylod.core.palette import ASPRS_CLASS_RGB
 from citylod.io.image import encode_png
 from citylod.io.las import POINT_DTYPE, iter_points, point_fields, read_metadata
 from citylod.io.tiles3d import (
@@ -64,6 +65,7 @@ from citylod.io.tiles3d import (
     write_content,
     write_tileset,
 )
+from citylod.lod.build.complete import CompleteOptions, add_wall_tiles, complete_inputs
 from citylod.lod.build.executor import Completions, make_executor, progress_bar, run_tasks
 from citylod.lod.build.planes import find_planes, quad_mesh_arrays, splat_colors
 from citylod.lod.kernels.octree import (
@@ -133,6 +135,7 @@ class PointBuildReport:
     hybrid: bool
     root_error: float
     decode_floor_s: float | None = None
+    complete: str | None = None
 
     def summary(self) -> str:
         lines = [
@@ -147,6 +150,8 @@ class PointBuildReport:
         if self.decode_floor_s:
             lines.append(f"floor      laspy decode {self.decode_floor_s:.2f} s "
                          f"(build = {self.seconds / self.decode_floor_s:.1f}× decode)")
+        if self.complete:
+            lines.append(self.complete)
         return "\n".join(lines)
 
 
@@ -272,9 +277,16 @@ def _write(p: _Params, key: str, content: TileContent, stats: _Stats) -> str:
 def _columns(recs: Recs, xyz: F64, order: I64, key: str, center: F64, has_rgb: bool) -> PointData:
     """The drawn points ``order`` of a node, shuffled in runs (:func:`~citylod.lod.kernels.octree.shuffled_runs`)."""
     runs = shuffled_runs(len(order), _seed(key), _BATCH)
-    pos, rgb, inten, cls, ret = point_columns(recs, np.ascontiguousarray(xyz), order, runs, _BATCH, center)
-    return PointData(positions=pos, rgb=rgb if has_rgb else None, intensity=inten, classification=cls,
-                     return_number=ret)
+    pos, rgb, inten, cls, ret, syn = point_columns(recs, np.ascontiguousarray(xyz), order, runs, _BATCH, center)
+    # Added points (citylod.lod.build.complete, or another tool) are flagged; a tile without any has no flag.
+    extra = {"synthetic": syn} if syn.any() else {}
+    if has_rgb:
+        return PointData(positions=pos, rgb=rgb, intensity=inten, classification=cls, return_number=ret,
+                         extra=extra)
+    # Without RGB, the class colours of the quads (planes.splat_colors) for other clients, so a cloud looks
+    # the same at every level there too; citylod reads them back as no RGB (PointData.rgb_from_class).
+    return PointData(positions=pos, rgb=ASPRS_CLASS_RGB[cls], rgb_from_class=True, intensity=inten,
+                     classification=cls, return_number=ret, extra=extra)
 
 
 def _leaf(p: _Params, recs: Recs, q: I64, xyz: F64, level: int, idx: tuple[int, int, int],
@@ -433,7 +445,7 @@ def _set_error(spec: TileSpec, exact: float) -> None:
 @numba.njit(cache=True, nogil=True)
 def _scan_kernel(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, scales: F64, offsets: F64, inten: np.ndarray,
                  cls: np.ndarray, ret: np.ndarray, red: np.ndarray, green: np.ndarray, blue: np.ndarray,
-                 recs: Recs, xyz: F64, q: I64, cube_lo: F64, qscale: float, hist: I64,
+                 syn: np.ndarray, recs: Recs, xyz: F64, q: I64, cube_lo: F64, qscale: float, hist: I64,
                  lo: F64, hi: F64) -> None:  # pragma: no cover - compiled
     """Pass 1 over decoded LAS columns (:func:`~citylod.io.las.point_fields`) in one compiled pass,
     without the GIL: POINT_DTYPE records, positions, grid coordinates (as
@@ -452,6 +464,7 @@ def _scan_kernel(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, scales: F64, offse
         r.intensity = inten[i]
         r.classification = cls[i]
         r.return_number = ret[i]
+        r.synthetic = syn[i]
         if has_rgb:
             r.red, r.green, r.blue = red[i] >> 8, green[i] >> 8, blue[i] >> 8
         else:
@@ -487,8 +500,8 @@ def _scan_segment(cube_lo: tuple[float, float, float], cube_size: float, path: s
     got = 0
     for pts in iter_points(path, start=start, count=count, chunk_points=min(count, 1_000_000), raw=True):
         n = len(pts)
-        X, Y, Z, scales, offsets, inten, cls, ret, red, green, blue = point_fields(pts)
-        _scan_kernel(X, Y, Z, scales, offsets, inten, cls, ret, red, green, blue, recs[got:got + n],
+        X, Y, Z, scales, offsets, inten, cls, ret, red, green, blue, syn = point_fields(pts)
+        _scan_kernel(X, Y, Z, scales, offsets, inten, cls, ret, red, green, blue, syn, recs[got:got + n],
                      xyz[got:got + n], q[got:got + n], np.asarray(cube_lo, np.float64), qscale, hist, lo, hi)
         got += n
     if into is not None:
@@ -697,11 +710,12 @@ def _build_chunked(ex: Executor, params: _Params, segments: list[tuple[str, int,
 
 
 # ----------------------------------------------------------------------------------------------- build
+@discard_partial_on_refusal
 def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[str], *, crs: Any = None,
                  hybrid: bool = True, workers: int | None = None, scheduler: Any = None,
                  progress: bool = True, phi: float = 8.0, max_leaf_points: int = 20_000,
                  max_chunk_points: int = 500_000, segment_points: int = 500_000,
-                 measure_floor: bool = False) -> PointBuildReport:
+                 measure_floor: bool = False, complete: CompleteOptions | None = None) -> PointBuildReport:
     """Build a 3D Tiles point octree from LAS/LAZ files.
 
     Parameters
@@ -731,6 +745,9 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         Points decoded per scan task: bounds the memory of one scan or distribution task.
     measure_floor
         Also time plain laspy decoding the same files, for the report.
+    complete
+        Add ground under canopy and walls first (:mod:`citylod.lod.build.complete`); added points are
+        flagged ``synthetic``.
 
     Returns
     -------
@@ -750,20 +767,25 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
 
         floor = decode_seconds(paths)
         t_start = time.perf_counter()
+    out = Path(out_dir)
+    inputs, aug = paths, None
     # Small clouds are built in this process, on threads (the kernels release the GIL), with the
     # intermediates in memory: worker processes and parked files cost more than they save there.
     # Such a build is redone whole when interrupted (seconds); large builds resume from their files.
     memory = workers is None and scheduler is None and meta.point_count < INLINE_BELOW
     if memory:
         segment_points = max(segment_points, INLINE_BELOW)  # one segment per file: seeking in LAZ decodes
-    out = Path(out_dir)
     partial = out.with_name(out.name + ".partial")
     tmp = partial / ".build"
     if memory:
         shutil.rmtree(partial, ignore_errors=True)  # an interrupted in-memory build left nothing to resume
-    _prepare_partial(partial, _fingerprint(paths, crs=meta.crs.to_wkt(), hybrid=hybrid, phi=phi,
+    _prepare_partial(partial, _fingerprint(inputs, crs=meta.crs.to_wkt(), hybrid=hybrid, phi=phi,
                                            max_leaf=max_leaf_points, max_chunk=max_chunk_points,
-                                           segment=segment_points))
+                                           segment=segment_points, complete=complete))
+    if complete is not None:
+        # The added points join the input as one more LAS file in the build's scratch folder (removed
+        # with it); the same options write the same points, so a resumed build reads the same file.
+        aug, paths, meta = complete_inputs(paths, meta, tmp / "complete.las", complete, crs)
     extent = float(np.max(meta.hi - meta.lo))
     cube_size = extent * (1.0 + 1e-9) + 1e-6 if extent > 0 else 1.0
     cube_lo = (meta.lo + meta.hi) / 2.0 - cube_size / 2.0
@@ -822,16 +844,19 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
             root = _build_chunked(ex, params, segments, chunks, stats, progress)
             n_chunks = len(chunks)
     stats.max_level = max(stats.max_level, 0)
-    write_tileset(partial, root.spec, meta.crs, extras={"citylod": {
+    top = root.spec if aug is None else add_wall_tiles(partial, root.spec, aug)
+    write_tileset(partial, top, meta.crs, extras={"citylod": {
         "kind": "points", "points": meta.point_count, "hybrid": hybrid, "phi": phi, "quads": stats.quads,
-        "has_rgb": meta.has_rgb, "max_leaf_points": max_leaf_points, "cluster_grid": 1 << CLUSTER_BITS}})
+        "has_rgb": meta.has_rgb, "max_leaf_points": max_leaf_points, "cluster_grid": 1 << CLUSTER_BITS,
+        **({} if aug is None else {"complete": aug.counts})}})
     _finish(partial, out)
     seconds = time.perf_counter() - t_start
     return PointBuildReport(
         output=out, points=meta.point_count, nodes=stats.nodes, leaves=stats.leaves, levels=stats.max_level + 1,
         chunks=n_chunks, quads=stats.quads, quad_points=stats.quad_points, seconds=seconds,
         points_per_s=meta.point_count / seconds if seconds > 0 else 0.0, bytes=stats.bytes, hybrid=hybrid,
-        root_error=float(root.spec.geometric_error), decode_floor_s=floor)
+        root_error=float(root.spec.geometric_error), decode_floor_s=floor,
+        complete=None if aug is None else aug.summary())
 
 
 def _save_npy_z(path: Path, cells: I64, elem: F64) -> None:

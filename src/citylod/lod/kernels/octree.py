@@ -259,12 +259,14 @@ def _permutation(n: int, seed: int) -> I64:  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def point_columns(recs: npt.NDArray[np.void], xyz: F64, order: I64, runs: I64, batch: int, center: F64
                   ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8], npt.NDArray[np.uint16],
-                             npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:  # pragma: no cover - compiled
+                             npt.NDArray[np.uint8], npt.NDArray[np.uint8],
+                             npt.NDArray[np.uint8]]:  # pragma: no cover - compiled
     """A node's drawn columns in one compiled pass, without the GIL: the points ``order[t]`` taken in runs
     of ``batch`` whose order is ``runs`` (:func:`shuffled_runs`), split out of their records (``recs``,
     POINT_DTYPE) into contiguous arrays.
 
-    Returns positions relative to ``center`` (float32), RGB, intensity, classification and return number.
+    Returns positions relative to ``center`` (float32), RGB, intensity, classification, return number and
+    the synthetic flag.
     The per-node numpy calls it replaces held the GIL for most of a leaf's time, which kept a build's two
     threads from running nodes side by side.
     """
@@ -274,6 +276,7 @@ def point_columns(recs: npt.NDArray[np.void], xyz: F64, order: I64, runs: I64, b
     inten = np.empty(n, np.uint16)
     cls = np.empty(n, np.uint8)
     ret = np.empty(n, np.uint8)
+    syn = np.empty(n, np.uint8)
     cx, cy, cz = center[0], center[1], center[2]
     k = 0
     for r in runs:
@@ -286,9 +289,10 @@ def point_columns(recs: npt.NDArray[np.void], xyz: F64, order: I64, runs: I64, b
             inten[k] = rec.intensity
             cls[k] = rec.classification
             ret[k] = rec.return_number
+            syn[k] = rec.synthetic
             rgb[k, 0], rgb[k, 1], rgb[k, 2] = rec.red, rec.green, rec.blue
             k += 1
-    return pos, rgb, inten, cls, ret
+    return pos, rgb, inten, cls, ret, syn
 
 
 def partition(q: I64, level: int, idx: tuple[int, int, int], max_leaf_points: int, max_level: int,

@@ -1,0 +1,346 @@
+"""Ridges and eaves of the sample city against the truth: the constrained model, its ablation, pymeshlab.
+
+The sample city's roofs are known in closed form (:mod:`citylod.sample.city`), so every ridge and eave is a
+known 3D segment. A building's features are *kept* by a mesh when, on each of its ridge and eave segments,
+90 % of the points sampled every 0.25 m (0.5 m clear of the segment ends, where chimneys or trees do not
+cover them) lie within ``tol`` (0.5 m) of the mesh, distances measured in 3D to the nearest triangle.
+
+:func:`compare` runs, on one DSM grid of the city, the full grid triangulation, the shape-constrained
+simplification at a certified bound ε, the same collapse without shapes, and pymeshlab's quadric edge
+collapse (``meshing_decimation_quadric_edge_collapse``) at the constrained and at the unconstrained
+result's triangle counts, and
+reports triangles, the share of buildings whose features are kept, and the Hausdorff distance to the grid
+that pymeshlab samples (an independent check of the certified bound).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.lod.build.model import simplify_grid
+from citylod.sample.city import KIND_BUILDING, SampleCity
+
+F64 = npt.NDArray[np.float64]
+
+
+def feature_segments(city: SampleCity) -> list[list[tuple[F64, F64]]]:
+    """Per building its ridge and eave segments, each a pair of (3,) CRS points.
+
+    Gable: the ridge and the two eaves along the ridge (the gable ends are verges, not eaves); hip: the
+    ridge (when over 1 m long) and the four eaves; flat: every edge of the footprint rings at eave height.
+    """
+    out: list[list[tuple[F64, F64]]] = []
+    for b in city.buildings:
+        segs: list[tuple[F64, F64]] = []
+        if b.roof == "flat":
+            for ring in (b.footprint, *b.holes):
+                for i in range(len(ring)):
+                    p, q = ring[i], ring[(i + 1) % len(ring)]
+                    segs.append((np.array([p[0], p[1], b.eave]), np.array([q[0], q[1], b.eave])))
+        else:
+            a, h = float(b.parts[0, 2]), float(b.parts[0, 3])
+            r = a if b.roof == "gable" else a - h
+            uv = [((-r, 0.0), (r, 0.0), b.ridge)] if r > 0.5 else []
+            uv += [((-a, -h), (a, -h), b.eave), ((-a, h), (a, h), b.eave)]
+            if b.roof == "hip":
+                uv += [((-a, -h), (-a, h), b.eave), ((a, -h), (a, h), b.eave)]
+            for p, q, z in uv:
+                w = b.to_world(np.array([p, q], dtype=np.float64))
+                segs.append((np.array([w[0, 0], w[0, 1], z]), np.array([w[1, 0], w[1, 1], z])))
+        out.append(segs)
+    return out
+
+
+def _point_triangle_distance(p: F64, a: F64, b: F64, c: F64) -> F64:
+    """Distances (P, T) from points (P, 3) to triangles (T, 3) each (Ericson 2005, closest point on a
+    triangle, vectorised over the pairs)."""
+    p = p[:, None, :]
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
+    bp = p - b
+    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
+    cp = p - c
+    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v = np.where(denom != 0, vb / denom, 0.0)
+        w = np.where(denom != 0, vc / denom, 0.0)
+        q = a + ab * v[..., None] + ac * w[..., None]  # interior
+        # edge and vertex regions
+        t_ab = np.clip(d1 / np.where(d1 - d3 != 0, d1 - d3, 1.0), 0, 1)
+        t_ac = np.clip(d2 / np.where(d2 - d6 != 0, d2 - d6, 1.0), 0, 1)
+        t_bc = np.clip((d4 - d3) / np.where((d4 - d3) + (d5 - d6) != 0, (d4 - d3) + (d5 - d6), 1.0), 0, 1)
+    cand = [q, a + ab * t_ab[..., None], a + ac * t_ac[..., None], b + (c - b) * t_bc[..., None]]
+    inside = (va >= 0) & (vb >= 0) & (vc >= 0)
+    dist = [np.linalg.norm(p - x, axis=-1) for x in cand]
+    best = np.minimum(np.minimum(dist[1], dist[2]), dist[3])
+    return np.where(inside, np.minimum(dist[0], best), best)
+
+
+def kept_fraction(city: SampleCity, pos: F64, faces: npt.NDArray[np.int64], *, tol: float = 0.5,
+                  share: float = 0.9) -> tuple[float, int]:
+    """Share of the buildings (with at least one measurable segment) whose ridges and eaves the mesh
+    ``pos`` (V, 3) CRS, ``faces`` (M, 3) keeps within ``tol``; and the number of buildings measured."""
+    tri = pos[faces]
+    tlo, thi = tri.min(axis=1), tri.max(axis=1)
+    passed = measured = 0
+    for b, segs in zip(city.buildings, feature_segments(city), strict=True):
+        ok_all = True
+        any_seg = False
+        cx, cy = b.center
+        for p, q in segs:
+            length = float(np.linalg.norm(q[:2] - p[:2]))
+            if length < 1.5:
+                continue
+            t = np.arange(0.5, length - 0.5 + 1e-9, 0.25) / length
+            pts = p + (q - p) * t[:, None]
+            # measurable where the building's own roof forms the surface just inside the line
+            inward = np.array([cx, cy]) - pts[:, :2]
+            inward /= np.maximum(np.linalg.norm(inward, axis=1, keepdims=True), 1e-9)
+            probe = pts[:, :2] + 0.3 * inward
+            _, kind, idx = city.surface_with_kind(probe[:, 0], probe[:, 1])
+            valid = (kind == KIND_BUILDING) & (idx == b.index) & ~city.nodata_mask(probe[:, 0], probe[:, 1])
+            pts = pts[valid]
+            if len(pts) < 4:
+                continue
+            any_seg = True
+            lo, hi = pts.min(axis=0) - tol - 1.0, pts.max(axis=0) + tol + 1.0
+            near = np.all((thi >= lo) & (tlo <= hi), axis=1)
+            if not near.any():
+                ok_all = False
+                continue
+            tn = tri[near]
+            d = _point_triangle_distance(pts, tn[:, 0], tn[:, 1], tn[:, 2]).min(axis=1)
+            if np.mean(d <= tol) < share:
+                ok_all = False
+        if any_seg:
+            measured += 1
+            passed += int(ok_all)
+    return passed / max(measured, 1), measured
+
+
+@dataclass
+class Row:
+    """One method's result."""
+
+    method: str
+    triangles: int
+    kept: float
+    seconds: float
+    hausdorff_sampled: float
+
+
+def _pymeshlab_hausdorff(pos: F64, faces: npt.NDArray[np.int64], gpos: F64, gfaces: npt.NDArray[np.int64]) -> float:
+    """Symmetric Hausdorff distance between two meshes as pymeshlab samples it (vertices, edges, faces)."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    o = gpos.mean(axis=0)
+    ms.add_mesh(pymeshlab.Mesh(pos - o, faces.astype(np.int32)))
+    ms.add_mesh(pymeshlab.Mesh(gpos - o, gfaces.astype(np.int32)))
+    n = int(4 * len(gpos))
+    a = ms.get_hausdorff_distance(sampledmesh=0, targetmesh=1, samplevert=True, sampleedge=True, sampleface=True,
+                                  samplenum=n)["max"]
+    b = ms.get_hausdorff_distance(sampledmesh=1, targetmesh=0, samplevert=True, sampleedge=True, sampleface=True,
+                                  samplenum=n)["max"]
+    return float(max(a, b))
+
+
+def pymeshlab_decimate(pos: F64, faces: npt.NDArray[np.int64], target: int) -> tuple[F64, npt.NDArray[np.int64]]:
+    """pymeshlab's quadric edge collapse to ``target`` triangles (boundary and normals preserved, planar
+    quadrics on: its settings for surfaces with flat regions)."""
+    import pymeshlab
+
+    o = pos.mean(axis=0)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(pos - o, faces.astype(np.int32)))
+    ms.meshing_decimation_quadric_edge_collapse(targetfacenum=int(target), preserveboundary=True, preservenormal=True,
+                                                preservetopology=True, planarquadric=True, qualitythr=0.3)
+    m = ms.current_mesh()
+    return m.vertex_matrix() + o, m.face_matrix().astype(np.int64)
+
+
+def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True, share: float = 0.9) -> list[Row]:
+    """The four methods of the module docstring on the city's DSM grid (pixel centres, no-data masked)."""
+    x, y = city.pixel_centers()
+    F = city.surface_height(x, y)
+    V = ~city.nodata_mask(x, y)
+    F = np.where(V, F, 0.0)
+    _H, _W = F.shape
+    d = city.spacing
+    allpos = np.column_stack([x.reshape(-1), y.reshape(-1), F.reshape(-1)])
+
+    def mesh_of(faces: npt.NDArray[np.int64]) -> tuple[F64, npt.NDArray[np.int64]]:
+        ids, inv = np.unique(faces, return_inverse=True)
+        return allpos[ids], inv.reshape(-1, 3)
+
+    from citylod.lod.kernels.collapse import grid_triangles
+
+    gpos, gfaces = mesh_of(grid_triangles(V))
+    rows = [Row("grid (full triangulation)", len(gfaces), kept_fraction(city, gpos, gfaces, share=share)[0], 0.0, 0.0)]
+    con = simplify_grid(F, V, d, d, max_error)
+    cpos, cfaces = mesh_of(con.faces)
+    unc = simplify_grid(F, V, d, d, max_error, constrained=False)
+    upos, ufaces = mesh_of(unc.faces)
+    t = time.perf_counter()
+    ppos, pfaces = pymeshlab_decimate(gpos, gfaces, len(cfaces))
+    tp = time.perf_counter() - t
+    t = time.perf_counter()
+    qpos, qfaces = pymeshlab_decimate(gpos, gfaces, len(ufaces))
+    tq = time.perf_counter() - t
+    for name, (p, f), secs in ((f"constrained, certified ≤ {max_error:g} m", (cpos, cfaces), con.seconds),
+                               (f"unconstrained QEM, certified ≤ {max_error:g} m", (upos, ufaces), unc.seconds),
+                               ("pymeshlab QEC, constrained's triangles", (ppos, pfaces), tp),
+                               ("pymeshlab QEC, unconstrained's triangles", (qpos, qfaces), tq)):
+        hd = _pymeshlab_hausdorff(p, f, gpos, gfaces) if hausdorff else float("nan")
+        rows.append(Row(name, len(f), kept_fraction(city, p, f, share=share)[0], secs, hd))
+    return rows
+
+
+def tile_tree_leaf_triangles(dsm: str, out_dir: str, max_error: float) -> int:
+    """Triangles (skirts excluded) in the leaves of the DSM tile tree built at the same leaf bound."""
+    from citylod.io.tiles3d.tileset import open_tileset
+    from citylod.lod.build.dsm import build_dsm
+
+    build_dsm(dsm, out_dir, max_error=max_error, workers=0, progress=False)
+    ts = open_tileset(out_dir)
+    total = 0
+    stack = [ts.root]
+    while stack:
+        t = stack.pop()
+        if t.children:
+            stack.extend(t.children)
+            continue
+        if t.content_bytes:
+            for m in t.load_content().meshes:
+                total += int(len(m.faces) - (0 if m.skirt is None else m.skirt.sum()))
+    return total
+
+
+def _footprints(model: object) -> list[tuple[str, object, float | None]]:
+    """(id, shapely footprint, measuredHeight) of each Building: its GroundSurface polygons, else its
+    lowest horizontal polygon, projected to the plane."""
+    from shapely.geometry import Polygon
+    from shapely.ops import unary_union
+
+    out = []
+    for o in model.objects:  # type: ignore[attr-defined]
+        if o.type != "Building" or not o.surfaces:
+            continue
+        ground = [poly for poly, sem in zip(o.surfaces, o.semantics or [None] * len(o.surfaces), strict=False)
+                  if sem == "GroundSurface"]
+        if not ground:
+            flat = [poly for poly in o.surfaces if np.ptp(poly[0][:, 2]) < 0.01]
+            if not flat:
+                continue
+            zmin = min(float(poly[0][0, 2]) for poly in flat)
+            ground = [poly for poly in flat if abs(float(poly[0][0, 2]) - zmin) < 0.01]
+        geom = unary_union([Polygon(poly[0][:, :2], [r[:, :2] for r in poly[1:]]).buffer(0) for poly in ground])
+        h = o.attributes.get("measuredHeight")
+        if h is None:
+            pts = o.points()
+            h = float(pts[:, 2].max() - pts[:, 2].min())
+        out.append((o.id, geom, float(h)))
+    return out
+
+
+def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool = False) -> dict[str, float]:
+    """Rasterise the two AHN3 tiles at ``spacing``, build the model, and compare the derived buildings'
+    footprints and heights with ``testarea.city.json``: per reference building (at least 90 % inside the
+    valid raster) the IoU with the derived footprint that overlaps it most, and whether that footprint's
+    measured height is within 1 m of the reference ``measuredHeight``."""
+    from pathlib import Path
+
+    from shapely.geometry import box
+
+    from citylod.io.city.read import read_city_model
+    from citylod.io.raster import read_info
+    from citylod.lod.build.model import build_model, rasterize_las
+
+    d = Path(data_dir)
+    out = Path(out_dir)
+    tif = rasterize_las(sorted(d.glob("ahn3_*.laz")), out / "delft_dsm.tif", spacing=spacing, crs="EPSG:28992")
+    rep = build_model(tif, out / "model", workers=0, progress=progress)
+    derived = _footprints(read_city_model(out / "model" / "buildings.city.json", lod=1))
+    truth = _footprints(read_city_model(d / "testarea.city.json", lod=1))
+    info = read_info(tif)
+    a, _, c, _, e, f = info.transform
+    extent = box(c, f + e * info.height, c + a * info.width, f).buffer(-2.0)
+    ious, hok = [], []
+    for _, g, h in truth:
+        if g.is_empty or g.intersection(extent).area < 0.9 * g.area:
+            continue
+        best, bh = 0.0, None
+        for _, dg, dh in derived:
+            if not dg.intersects(g):
+                continue
+            iou = g.intersection(dg).area / g.union(dg).area
+            if iou > best:
+                best, bh = iou, dh
+        ious.append(best)
+        hok.append(bh is not None and h is not None and abs(bh - h) <= 1.0)
+    return {"reference_buildings": len(ious), "derived_buildings": len(derived),
+            "median_iou": float(np.median(ious)) if ious else float("nan"),
+            "heights_within_1m": float(np.mean(hok)) if hok else float("nan"),
+            "triangles": rep.triangles, "samples": rep.samples, "seconds": rep.seconds}
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m citylod.bench.model_bench --size 385 --max-error 1.0``: the comparison as a table."""
+    import argparse
+    import tempfile
+
+    from citylod.sample.city import make_city
+    from citylod.sample.files import make_sample
+
+    ap = argparse.ArgumentParser(description=main.__doc__)
+    ap.add_argument("--size", type=int, default=385)
+    ap.add_argument("--spacing", type=float, default=0.5)
+    ap.add_argument("--max-error", type=float, default=1.0)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--share", type=float, default=0.9, help="share of a segment's points within 0.5 m to keep it")
+    ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
+    ap.add_argument("--memory-cell", type=int,
+                    help="instead: build the model of the sample DSM with cells of this many samples in this process "
+                         "and print its peak resident memory")
+    a = ap.parse_args(argv)
+    if a.memory_cell:
+        import resource
+
+        from citylod.lod.build.model import build_model
+
+        with tempfile.TemporaryDirectory() as tmp:
+            info = make_sample(tmp, size=a.size, seed=a.seed, spacing=a.spacing)
+            rep = build_model(info.files["dsm"], f"{tmp}/model", max_error=a.max_error, cell=a.memory_cell, workers=0,
+                              progress=False)
+        print(rep.summary())
+        print(f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+        return
+    if a.delft:
+        with tempfile.TemporaryDirectory() as tmp:
+            print(delft(a.delft, tmp, progress=True))
+        return
+    city = make_city(a.size, seed=a.seed, spacing=a.spacing)
+    rows = compare(city, a.max_error, share=a.share)
+    print(f"sample city {a.size}² at {a.spacing} m, {len(city.buildings)} buildings, ε = {a.max_error} m, "
+          f"segment kept when {100 * a.share:g} % of its points are within 0.5 m")
+    print(f"{'method':52s} {'triangles':>9s} {'kept':>6s} {'seconds':>8s} {'Hausdorff (sampled)':>20s}")
+    for r in rows:
+        print(f"{r.method:52s} {r.triangles:9d} {100 * r.kept:5.1f}% {r.seconds:8.1f} {r.hausdorff_sampled:20.3f}")
+    print(f"throughput of the constrained run: {a.size * a.size / rows[1].seconds:,.0f} vertices/s")
+    with tempfile.TemporaryDirectory() as tmp:
+        info = make_sample(tmp, size=a.size, seed=a.seed, spacing=a.spacing)
+        leaves = tile_tree_leaf_triangles(str(info.files["dsm"]), f"{tmp}/dsm", a.max_error)
+    print(f"DSM tile tree leaves at the same bound: {leaves} triangles, "
+          f"{leaves / rows[1].triangles:.2f}x the constrained model")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,686 @@
+"""Visually complete airborne LiDAR: ground under canopy and building walls, added at build time.
+
+Airborne LiDAR is 2.5D: walls get almost no returns and the ground under tree canopies few, so seen
+obliquely a city's point cloud is roofs floating over holes. Gao (City-scale aerial LiDAR point cloud
+visualization, USC 2014, ch. 3-4) makes it visually complete from the classification alone; this module
+does the same on a 2D cell grid:
+
+1. *scan* — the input is streamed once (:func:`~citylod.io.las.iter_points`, bounded chunks) into per-cell
+   accumulators (counts, height sums, extents) of a grid of ``cell_m`` cells, so memory grows with the
+   area, not the number of points (out-of-core inputs work as long as the 2D grid fits: 112 bytes per
+   cell: 14 float64 planes, 450 MB per km² at 0.5 m);
+2. *ground* — a terrain model: cells with ground returns (ASPRS class 2) keep their mean height, the
+   others are filled from the ground around them (pull-push, see :func:`terrain`). Cells under canopy (classes
+   3-5, or unclassified returns more than ``canopy_m`` above the terrain: AHN puts vegetation in class 1)
+   with no ground return get ground points at the density of the real ground;
+3. *walls* — building cells (class 6, small gaps closed, specks dropped) are labelled; every edge between
+   a building cell and a non-building cell is a wall from the roof height of that cell down to the
+   terrain outside, placed at the outermost roof return of the cell (walls stand under the eaves, not
+   beyond them), and every edge between two building cells whose roof heights differ by more than
+   ``step_m`` is a wall between the two roofs. Wall normals are the boundary direction, taken from the
+   gradient of the smoothed building mask (Gao: normal from the boundary, not from the sparse returns).
+   Walls become points at the roof's point spacing, or quads (one per edge; both of Gao's variants).
+
+Added points keep the class they stand for (2 ground, 6 building) and carry the LAS *synthetic* flag,
+which the point build keeps as a per-point ``SYNTHETIC`` glTF attribute, so they can be hidden, coloured
+or exported; input points are not touched. Input without ground and building classes is not augmented:
+:func:`augment` says so in :attr:`Augmentation.skipped` and a warning.
+
+No VTK, no Qt. The per-point accumulation is one compiled pass; everything after it works per cell,
+vectorised.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from citylod.core.errors import InputError
+from citylod.core.fileio import atomic_write
+
+F64 = npt.NDArray[np.float64]
+F32 = npt.NDArray[np.float32]
+I64 = npt.NDArray[np.int64]
+
+#: ASPRS classes the augmentation reads.
+GROUND, BUILDING, WATER, UNCLASSIFIED = 2, 6, 9, 1
+VEGETATION = (3, 4, 5)
+
+#: What an added point is, in :attr:`Augmentation.kind`.
+KIND_GROUND, KIND_WALL, KIND_STEP = 1, 2, 3
+
+WALL_MODES = ("points", "quads", "none")
+
+#: Most cells a completion grid may have (5.6 GB of accumulators; 12.5 km² at 0.5 m).
+MAX_CELLS = 50_000_000
+
+# Accumulator planes of the scan grid (float64, one per quantity, (ny, nx) each).
+_G_N, _G_Z, _B_N, _B_Z, _B_ZMAX, _B_XLO, _B_XHI, _B_YLO, _B_YHI, _V_N, _U_N, _U_ZMAX, _W_N, _A_N = range(14)
+_PLANES = 14
+# Per-class sums of intensity and counts (for the intensity added points get).
+_NCLASS = 256
+
+
+@dataclass(frozen=True)
+class CompleteOptions:
+    """How to complete a cloud.
+
+    Attributes
+    ----------
+    walls
+        "points" (wall points at the roof spacing), "quads" (one quad per boundary edge) or "none".
+    ground
+        Add ground points under canopy.
+    cell_m
+        Grid cell: about twice the point spacing (0.5 m for AHN3's 10-20 points/m²).
+    min_wall_m
+        Walls lower than this are not added (garden walls, cars at a roof edge).
+    step_m
+        A height jump between adjacent roof cells above this is a wall between the roofs.
+    canopy_m
+        Unclassified returns this far above the terrain count as canopy.
+    min_building_m2
+        Building components smaller than this are noise, not buildings.
+    seed
+        Jitter of the added points (reproducible builds).
+    """
+
+    walls: str = "points"
+    ground: bool = True
+    cell_m: float = 0.5
+    min_wall_m: float = 1.0
+    step_m: float = 2.5
+    canopy_m: float = 2.0
+    min_building_m2: float = 4.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.walls not in WALL_MODES:
+            raise ValueError(f"walls must be one of {', '.join(WALL_MODES)}, not {self.walls!r}")
+        if not self.cell_m > 0:
+            raise ValueError("cell_m must be positive")
+
+
+@dataclass(frozen=True)
+class CellGrid:
+    """What the scan keeps per cell: ``planes`` (14, ny, nx) float64 accumulators, the grid's lower-left
+    corner ``lo`` (2,) and cell size; ``class_n`` / ``class_intensity`` (256,) per-class counts and
+    intensity sums."""
+
+    lo: F64
+    cell: float
+    planes: F64
+    class_n: F64
+    class_intensity: F64
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self.planes.shape[1]), int(self.planes.shape[2])
+
+    def centers(self) -> tuple[F64, F64]:
+        """Cell-centre coordinates: x (nx,) and y (ny,)."""
+        ny, nx = self.shape
+        return self.lo[0] + (np.arange(nx) + 0.5) * self.cell, self.lo[1] + (np.arange(ny) + 0.5) * self.cell
+
+
+@dataclass
+class Augmentation:
+    """Points and quads that complete a cloud.
+
+    Attributes
+    ----------
+    xyz
+        (N, 3) float64 added points, in the source CRS.
+    normals
+        (N, 3) float32 unit normals (walls: horizontal, outwards; ground: the terrain's).
+    kind
+        (N,) uint8 :data:`KIND_GROUND`, :data:`KIND_WALL` (outer walls, roof down to the ground) or
+        :data:`KIND_STEP` (walls between two roofs).
+    classification
+        (N,) uint8 ASPRS class the point stands for (2 or 6).
+    intensity
+        (N,) uint16: the mean intensity of its class in the input.
+    quads
+        (Q, 4, 3) float64 wall quads (corners counter-clockwise seen from outside), when walls are quads.
+    quad_normals
+        (Q, 3) float32.
+    ground_spacing_m, wall_spacing_m
+        Spacing of the added points.
+    skipped
+        Why nothing was added, or None.
+    seconds
+        Wall time of the scan and of the augmentation.
+    """
+
+    xyz: F64
+    normals: F32
+    kind: npt.NDArray[np.uint8]
+    classification: npt.NDArray[np.uint8]
+    intensity: npt.NDArray[np.uint16]
+    quads: F64 = field(default_factory=lambda: np.zeros((0, 4, 3)))
+    quad_normals: F32 = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    ground_spacing_m: float = 0.0
+    wall_spacing_m: float = 0.0
+    skipped: str | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return {"ground": int(np.sum(self.kind == KIND_GROUND)), "wall": int(np.sum(self.kind >= KIND_WALL)),
+                "quads": len(self.quads)}
+
+    def summary(self) -> str:
+        if self.skipped:
+            return f"complete   skipped: {self.skipped}"
+        c = self.counts
+        return (f"complete   {c['ground']:,} ground points under canopy ({self.ground_spacing_m:.2f} m), "
+                f"{c['wall']:,} wall points ({self.wall_spacing_m:.2f} m), {c['quads']:,} wall quads, "
+                f"{sum(self.seconds.values()):.2f} s")
+
+
+def _empty(skipped: str | None = None) -> Augmentation:
+    return Augmentation(np.zeros((0, 3)), np.zeros((0, 3), np.float32), np.zeros(0, np.uint8),
+                        np.zeros(0, np.uint8), np.zeros(0, np.uint16), skipped=skipped)
+
+
+# ----------------------------------------------------------------------------------------------- scan
+@numba.njit(cache=True, nogil=True)
+def _accumulate(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, scales: F64, offsets: F64, cls: np.ndarray,
+                inten: np.ndarray, x0: float, y0: float, inv_cell: float, planes: F64, class_n: F64,
+                class_int: F64) -> None:  # pragma: no cover - compiled
+    """Add decoded LAS columns (:func:`~citylod.io.las.point_fields`) to the cell accumulators, in one pass."""
+    ny, nx = planes.shape[1], planes.shape[2]
+    for i in range(X.shape[0]):
+        x = X[i] * scales[0] + offsets[0]
+        y = Y[i] * scales[1] + offsets[1]
+        z = Z[i] * scales[2] + offsets[2]
+        c = cls[i]
+        class_n[c] += 1.0
+        class_int[c] += inten[i]
+        ix = min(max(int((x - x0) * inv_cell), 0), nx - 1)
+        iy = min(max(int((y - y0) * inv_cell), 0), ny - 1)
+        planes[_A_N, iy, ix] += 1.0
+        if c == GROUND:
+            planes[_G_N, iy, ix] += 1.0
+            planes[_G_Z, iy, ix] += z
+        elif c == BUILDING:
+            if planes[_B_N, iy, ix] == 0.0:
+                planes[_B_ZMAX, iy, ix] = z
+                planes[_B_XLO, iy, ix] = x
+                planes[_B_XHI, iy, ix] = x
+                planes[_B_YLO, iy, ix] = y
+                planes[_B_YHI, iy, ix] = y
+            else:
+                planes[_B_ZMAX, iy, ix] = max(planes[_B_ZMAX, iy, ix], z)
+                planes[_B_XLO, iy, ix] = min(planes[_B_XLO, iy, ix], x)
+                planes[_B_XHI, iy, ix] = max(planes[_B_XHI, iy, ix], x)
+                planes[_B_YLO, iy, ix] = min(planes[_B_YLO, iy, ix], y)
+                planes[_B_YHI, iy, ix] = max(planes[_B_YHI, iy, ix], y)
+            planes[_B_N, iy, ix] += 1.0
+            planes[_B_Z, iy, ix] += z
+        elif c == 3 or c == 4 or c == 5:
+            planes[_V_N, iy, ix] += 1.0
+        elif c == UNCLASSIFIED:
+            if planes[_U_N, iy, ix] == 0.0 or z > planes[_U_ZMAX, iy, ix]:
+                planes[_U_ZMAX, iy, ix] = z
+            planes[_U_N, iy, ix] += 1.0
+        elif c == WATER:
+            planes[_W_N, iy, ix] += 1.0
+
+
+def scan_grid(files: Sequence[str | PathLike[str]], lo: F64, hi: F64, cell_m: float, *,
+              chunk_points: int = 1_000_000) -> CellGrid:
+    """Stream ``files`` once into the cell accumulators of the grid over ``lo``..``hi`` (x, y).
+
+    Memory: one decoded chunk plus the grid.
+    """
+    from citylod.io.las import iter_points, point_fields
+
+    lo2 = np.asarray(lo, np.float64)[:2]
+    hi2 = np.asarray(hi, np.float64)[:2]
+    nx = max(1, int(np.ceil((hi2[0] - lo2[0]) / cell_m)) + 1)
+    ny = max(1, int(np.ceil((hi2[1] - lo2[1]) / cell_m)) + 1)
+    if nx * ny > MAX_CELLS:
+        raise InputError(f"completing {hi2[0] - lo2[0]:.0f} × {hi2[1] - lo2[1]:.0f} m at {cell_m} m cells needs "
+                         f"{nx * ny:,} cells ({nx * ny * _PLANES * 8 / 1e9:.1f} GB), over the {MAX_CELLS:,} "
+                         "allowed; complete the area in tiles or use larger cells", files[0] if files else None)
+    planes = np.zeros((_PLANES, ny, nx))
+    class_n, class_int = np.zeros(_NCLASS), np.zeros(_NCLASS)
+    for f in files:
+        for pts in iter_points(f, chunk_points=chunk_points, raw=True):
+            X, Y, Z, scales, offsets, inten, cls, *_ = point_fields(pts)
+            _accumulate(X, Y, Z, scales, offsets, cls, inten, float(lo2[0]), float(lo2[1]), 1.0 / cell_m,
+                        planes, class_n, class_int)
+    return CellGrid(lo2, float(cell_m), planes, class_n, class_int)
+
+
+# ---------------------------------------------------------------------------------------------- ground
+def terrain(grid: CellGrid) -> F64:
+    """Terrain height per cell, (ny, nx): the mean of its ground returns, else filled by pull-push.
+
+    Pull-push (Gortler et al., "The Lumigraph", 1996): the ground cells are averaged into coarser and
+    coarser grids until every coarse cell has ground, and each gap takes the bilinear upsampling of the
+    next coarser level, so a gap is filled from the ground around it, smoothly, at a cost linear in the
+    cells. Written here rather than ``scipy.interpolate.griddata`` over the cells bordering the gaps:
+    qhull is slow on grid-aligned, co-circular points (docs/PERFORMANCE_LOG.md).
+    """
+    from scipy import ndimage
+
+    gn = grid.planes[_G_N]
+    has = gn > 0
+    if not has.any():
+        return np.zeros(grid.shape)
+    z = np.where(has, grid.planes[_G_Z] / np.maximum(gn, 1.0), 0.0)
+    if has.all():
+        return z
+    # Pull: weights and weighted sums, 2×2 at a time.
+    levels = [(has.astype(np.float64), z * has)]
+    while levels[-1][0].shape[0] > 1 or levels[-1][0].shape[1] > 1:
+        w, v = levels[-1]
+        if np.all(w > 0):
+            break
+        ph, pw = w.shape[0] % 2, w.shape[1] % 2
+        w = np.pad(w, ((0, ph), (0, pw)))
+        v = np.pad(v, ((0, ph), (0, pw)))
+        h2, w2 = w.shape[0] // 2, w.shape[1] // 2
+        levels.append((w.reshape(h2, 2, w2, 2).sum(axis=(1, 3)), v.reshape(h2, 2, w2, 2).sum(axis=(1, 3))))
+    # Push: from the coarsest level down, gaps take the upsampled coarser level.
+    w, v = levels[-1]
+    filled = np.where(w > 0, v / np.maximum(w, 1e-300), 0.0)
+    for w, v in reversed(levels[:-1]):
+        h, wd = w.shape
+        zoom = (2 * filled.shape[0] / filled.shape[0], 2 * filled.shape[1] / filled.shape[1])
+        up = ndimage.zoom(filled, zoom, order=1, mode="nearest", grid_mode=True)[:h, :wd]
+        filled = np.where(w > 0, v / np.maximum(w, 1e-300), up)
+    return filled
+
+
+def _bilinear(field_: F64, grid: CellGrid, x: F64, y: F64) -> F64:
+    from scipy import ndimage
+
+    fx = (x - grid.lo[0]) / grid.cell - 0.5
+    fy = (y - grid.lo[1]) / grid.cell - 0.5
+    return ndimage.map_coordinates(field_, [fy, fx], order=1, mode="nearest")
+
+
+def _jittered(cells_y: I64, cells_x: I64, per_cell: int, grid: CellGrid, rng: np.random.Generator
+              ) -> tuple[F64, F64]:
+    """``per_cell`` stratified, jittered positions in each of the given cells: a k×k sub-grid (k = ⌈√n⌉)
+    of which the first ``per_cell`` strata are used, each point uniform in its stratum."""
+    k = int(np.ceil(np.sqrt(per_cell)))
+    sub = np.arange(per_cell)
+    sx, sy = sub % k, sub // k
+    n = len(cells_x)
+    jx = rng.random((n, per_cell))
+    jy = rng.random((n, per_cell))
+    x = grid.lo[0] + (cells_x[:, None] + (sx[None, :] + jx) / k) * grid.cell
+    y = grid.lo[1] + (cells_y[:, None] + (sy[None, :] + jy) / k) * grid.cell
+    return x.reshape(-1), y.reshape(-1)
+
+
+def _ground_fill(grid: CellGrid, dtm: F64, building: npt.NDArray[np.bool_], opts: CompleteOptions,
+                 rng: np.random.Generator) -> tuple[F64, F32, float]:
+    """Ground points where canopy hides the ground: (M, 3) positions, (M, 3) normals, their spacing."""
+    from scipy import ndimage
+
+    p = grid.planes
+    has_ground = p[_G_N] > 0
+    if not has_ground.any():
+        return np.zeros((0, 3)), np.zeros((0, 3), np.float32), 0.0
+    canopy = (p[_V_N] > 0) | ((p[_U_N] > 0) & (p[_U_ZMAX] > dtm + opts.canopy_m))
+    near_building = ndimage.binary_dilation(building, np.ones((3, 3), bool))
+    fill = canopy & ~has_ground & ~near_building & (p[_W_N] == 0)
+    # The ground's own density: points per ground cell (median, robust to the cells a canopy half hides).
+    per_cell = max(1, int(round(float(np.median(p[_G_N][has_ground])))))
+    spacing = grid.cell / np.sqrt(per_cell)
+    fy, fx = np.nonzero(fill)
+    if len(fy) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.float32), spacing
+    x, y = _jittered(fy, fx, per_cell, grid, rng)
+    z = _bilinear(dtm, grid, x, y)
+    gy, gx = np.gradient(dtm, grid.cell)
+    nxv, nyv = -_bilinear(gx, grid, x, y), -_bilinear(gy, grid, x, y)
+    nrm = np.column_stack([nxv, nyv, np.ones_like(x)])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return np.column_stack([x, y, z]), nrm.astype(np.float32), spacing
+
+
+# ----------------------------------------------------------------------------------------------- walls
+def building_mask(grid: CellGrid, opts: CompleteOptions) -> npt.NDArray[np.bool_]:
+    """Building cells: cells with class-6 returns, one-cell gaps closed and small holes filled (dark or
+    glass roofs return nothing), components smaller than ``min_building_m2`` dropped."""
+    from scipy import ndimage
+
+    raw = grid.planes[_B_N] > 0
+    m = raw | ndimage.binary_closing(raw, np.ones((3, 3), bool), border_value=0)
+    holes = ndimage.binary_fill_holes(m) & ~m
+    lab, n = ndimage.label(holes)
+    if n:
+        small = np.bincount(lab.ravel(), minlength=n + 1) * grid.cell ** 2 <= 4.0 * opts.min_building_m2
+        small[0] = False
+        m |= small[lab]
+    lab, n = ndimage.label(m)
+    if n:
+        keep = np.bincount(lab.ravel(), minlength=n + 1) * grid.cell ** 2 >= opts.min_building_m2
+        keep[0] = False
+        m = keep[lab]
+    return m
+
+
+def _roof(grid: CellGrid, mask: npt.NDArray[np.bool_]) -> F64:
+    """Mean roof height per building cell; cells added by closing take the nearest cell with returns."""
+    from scipy import ndimage
+
+    bn = grid.planes[_B_N]
+    z = np.where(bn > 0, grid.planes[_B_Z] / np.maximum(bn, 1.0), np.nan)
+    empty = bn == 0
+    if empty.all():
+        return z
+    _, (iy, ix) = ndimage.distance_transform_edt(empty, return_indices=True)
+    z = np.where(mask & empty, z[iy, ix], z)
+    return np.where(mask, z, np.nan)
+
+
+@dataclass
+class _Edges:
+    """Wall edges of the cell grid: a straight horizontal segment (x0, y0)-(x1, y1), its outward normal,
+    its bottom and top heights, whether it is a step between two roofs. ``(E,)`` arrays."""
+
+    x0: F64
+    y0: F64
+    x1: F64
+    y1: F64
+    nx: F64
+    ny: F64
+    bottom: F64
+    top: F64
+    step: npt.NDArray[np.bool_]
+
+
+def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions) -> _Edges:
+    """The walls: boundary edges (roof down to the terrain outside) and roof steps (higher roof down to
+    the lower one), with normals from the boundary direction."""
+    from scipy import ndimage
+
+    p = grid.planes
+    roof = _roof(grid, mask)
+    has = p[_B_N] > 0
+    c = grid.cell
+    ny_, nx_ = grid.shape
+    # Boundary direction: the gradient of the smoothed building mask points inwards.
+    smooth = ndimage.gaussian_filter(mask.astype(np.float64), 1.5)
+    gy, gx = np.gradient(smooth)
+    parts: list[tuple[F64, ...]] = []
+    iy, ix = np.mgrid[0:ny_, 0:nx_]
+    x_lo = grid.lo[0] + ix * c
+    y_lo = grid.lo[1] + iy * c
+    # Four directions: (dy, dx), the cell extent that places the wall, the edge's endpoints.
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        nb_mask = np.zeros_like(mask)
+        nb_roof = np.full(mask.shape, np.nan)
+        ys = slice(max(dy, 0), ny_ + min(dy, 0))
+        xs = slice(max(dx, 0), nx_ + min(dx, 0))
+        yd = slice(max(-dy, 0), ny_ + min(-dy, 0))
+        xd = slice(max(-dx, 0), nx_ + min(-dx, 0))
+        nb_mask[yd, xd] = mask[ys, xs]
+        nb_roof[yd, xd] = roof[ys, xs]
+        nb_dtm = dtm.copy()
+        nb_dtm[yd, xd] = dtm[ys, xs]
+        outer = mask & ~nb_mask
+        step = mask & nb_mask & (roof - nb_roof > opts.step_m)
+        for sel, bottom_of in ((outer, nb_dtm), (step, nb_roof)):
+            cy, cx = np.nonzero(sel)
+            if len(cy) == 0:
+                continue
+            top = roof[cy, cx]
+            bottom = bottom_of[cy, cx]
+            x0c, y0c = x_lo[cy, cx], y_lo[cy, cx]
+            if sel is outer:
+                # At the outermost roof return of the cell: walls stand under the eaves.
+                ext = {(0, 1): _B_XHI, (0, -1): _B_XLO, (1, 0): _B_YHI, (-1, 0): _B_YLO}[(dy, dx)]
+                e = np.where(has[cy, cx], p[ext][cy, cx], (x0c if dy == 0 else y0c) + (c if dx + dy > 0 else 0))
+                nrm_x = -gx[cy, cx]
+                nrm_y = -gy[cy, cx]
+            else:
+                e = (x0c if dy == 0 else y0c) + (c if dx + dy > 0 else 0)
+                nrm_x = np.full(len(cy), float(dx))
+                nrm_y = np.full(len(cy), float(dy))
+            if dy == 0:  # an edge along y at x = e
+                seg = (e, y0c, e, y0c + c)
+            else:
+                seg = (x0c, e, x0c + c, e)
+            # The smoothed gradient can vanish or point sideways on thin parts: keep the normal within
+            # 90° of the edge's own outward direction, else use that.
+            dot = nrm_x * dx + nrm_y * dy
+            bad = dot <= 0.2 * np.hypot(nrm_x, nrm_y) + 1e-12
+            nrm_x = np.where(bad, float(dx), nrm_x)
+            nrm_y = np.where(bad, float(dy), nrm_y)
+            norm = np.hypot(nrm_x, nrm_y)
+            parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, float(sel is step)))
+    if not parts:
+        z = np.zeros(0)
+        return _Edges(z, z, z, z, z, z, z, z, np.zeros(0, bool))
+    cols = [np.concatenate([np.broadcast_to(np.asarray(pt[k], np.float64), (len(pt[7]),)) for pt in parts])
+            for k in range(9)]
+    keep = cols[7] - cols[6] >= opts.min_wall_m
+    return _Edges(*(a[keep] for a in cols[:8]), cols[8][keep] > 0)
+
+
+def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator
+                 ) -> tuple[F64, F32, npt.NDArray[np.uint8]]:
+    """Points on every wall edge at ``spacing``: a jittered grid along the edge and down its height.
+    Returns positions, normals and kinds (:data:`KIND_WALL` or :data:`KIND_STEP`)."""
+    length = np.hypot(edges.x1 - edges.x0, edges.y1 - edges.y0)
+    # A wall at an angle to the grid is a staircase of x- and y-edges; each edge stands for the part of
+    # the wall it faces, |cos| of the angle between the wall's normal and its own, so a 45° wall gets
+    # the density of an axis-aligned one rather than √2 times it.
+    facing = np.abs(edges.nx * (edges.y1 - edges.y0) - edges.ny * (edges.x1 - edges.x0)) / np.maximum(length, 1e-12)
+    n_h = np.maximum(1, np.ceil(facing * length / spacing - 1e-9)).astype(np.int64)
+    n_v = np.maximum(1, np.ceil((edges.top - edges.bottom) / spacing - 1e-9)).astype(np.int64)
+    per = n_h * n_v
+    total = int(per.sum())
+    e = np.repeat(np.arange(len(per)), per)
+    k = np.arange(total) - np.repeat(np.cumsum(per) - per, per)
+    a = (k % n_h[e] + rng.random(total) * 0.8 + 0.1) / n_h[e]  # along the edge, jitter inside the stratum
+    b = (k // n_h[e] + rng.random(total) * 0.8 + 0.1) / n_v[e]  # down from the top
+    x = edges.x0[e] + a * (edges.x1[e] - edges.x0[e])
+    y = edges.y0[e] + a * (edges.y1[e] - edges.y0[e])
+    z = edges.top[e] - b * (edges.top[e] - edges.bottom[e])
+    nrm = np.column_stack([edges.nx[e], edges.ny[e], np.zeros(total)]).astype(np.float32)
+    kind = np.where(edges.step[e], KIND_STEP, KIND_WALL).astype(np.uint8)
+    return np.column_stack([x, y, z]), nrm, kind
+
+
+def _wall_quads(edges: _Edges) -> tuple[F64, F32]:
+    """One quad per edge, corners counter-clockwise seen from outside (along the normal)."""
+    p0 = np.column_stack([edges.x0, edges.y0])
+    p1 = np.column_stack([edges.x1, edges.y1])
+    # Seen from outside, counter-clockwise runs bottom-left, bottom-right, top-right, top-left with
+    # "right" = normal × up... order the edge's endpoints so that (p1 - p0) × up points along the normal.
+    d = p1 - p0
+    flip = (d[:, 1] * edges.nx - d[:, 0] * edges.ny) < 0  # (d × z)·n = d_y n_x − d_x n_y
+    a = np.where(flip[:, None], p1, p0)
+    b = np.where(flip[:, None], p0, p1)
+    q = np.empty((len(a), 4, 3))
+    q[:, 0, :2], q[:, 0, 2] = a, edges.bottom
+    q[:, 1, :2], q[:, 1, 2] = b, edges.bottom
+    q[:, 2, :2], q[:, 2, 2] = b, edges.top
+    q[:, 3, :2], q[:, 3, 2] = a, edges.top
+    nrm = np.column_stack([edges.nx, edges.ny, np.zeros(len(a))]).astype(np.float32)
+    return q, nrm
+
+
+# ------------------------------------------------------------------------------------------------ API
+def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions()) -> Augmentation:
+    """Ground under canopy and walls from a scanned grid (see the module docstring)."""
+    t0 = time.perf_counter()
+    n_ground = grid.class_n[GROUND]
+    n_building = grid.class_n[BUILDING]
+    if n_ground == 0 and n_building == 0:
+        msg = "the input has no ground (class 2) or building (class 6) points: nothing is added"
+        warnings.warn(msg, stacklevel=2)
+        return _empty(msg)
+    rng = np.random.default_rng(opts.seed)
+    dtm = terrain(grid)
+    mask = building_mask(grid, opts) if n_building else np.zeros(grid.shape, bool)
+    pieces: list[tuple[F64, F32, npt.NDArray[np.uint8], int]] = []
+    g_sp = w_sp = 0.0
+    if opts.ground and n_ground:
+        gxyz, gn, g_sp = _ground_fill(grid, dtm, mask, opts, rng)
+        pieces.append((gxyz, gn, np.full(len(gxyz), KIND_GROUND, np.uint8), GROUND))
+    quads, qn = np.zeros((0, 4, 3)), np.zeros((0, 3), np.float32)
+    if opts.walls != "none" and mask.any():
+        edges = wall_edges(grid, dtm, mask, opts)
+        has = grid.planes[_B_N] > 0
+        w_sp = grid.cell / np.sqrt(max(1.0, float(np.median(grid.planes[_B_N][has]))))
+        if opts.walls == "points":
+            wxyz, wn, wk = _wall_points(edges, w_sp, rng)
+            pieces.append((wxyz, wn, wk, BUILDING))
+        else:
+            quads, qn = _wall_quads(edges)
+    mean_int = grid.class_intensity / np.maximum(grid.class_n, 1.0)
+    if pieces:
+        xyz = np.concatenate([pc[0] for pc in pieces])
+        nrm = np.concatenate([pc[1] for pc in pieces])
+        kind = np.concatenate([pc[2] for pc in pieces])
+        cls = np.concatenate([np.full(len(pc[0]), pc[3], np.uint8) for pc in pieces])
+    else:
+        xyz, nrm = np.zeros((0, 3)), np.zeros((0, 3), np.float32)
+        kind, cls = np.zeros(0, np.uint8), np.zeros(0, np.uint8)
+    inten = np.clip(np.round(mean_int[cls]), 0, 65535).astype(np.uint16)
+    return Augmentation(xyz, nrm, kind, cls, inten, quads, qn, g_sp, w_sp,
+                        seconds={"augment": time.perf_counter() - t0})
+
+
+def augment(files: Sequence[str | PathLike[str]], opts: CompleteOptions = CompleteOptions(), *,
+            lo: F64 | None = None, hi: F64 | None = None) -> Augmentation:
+    """Scan ``files`` and compute what completes them. ``lo``/``hi``: the cloud's bounds (from the headers
+    when not given)."""
+    if lo is None or hi is None:
+        from citylod.io.las import read_metadata
+
+        meta = read_metadata(files, crs="EPSG:4978")  # the CRS does not matter for bounds
+        lo, hi = meta.lo, meta.hi
+    t0 = time.perf_counter()
+    grid = scan_grid(files, lo, hi, opts.cell_m)
+    t_scan = time.perf_counter() - t0
+    aug = augment_grid(grid, opts)
+    aug.seconds = {"scan": t_scan, **aug.seconds}
+    return aug
+
+
+def write_las(aug: Augmentation, path: str | PathLike[str], template: str | PathLike[str]) -> Path:
+    """Write the added points as a LAS file with the header (point format, scale, offset, CRS) of
+    ``template``, every point flagged *synthetic* (ASPRS LAS 1.2+ classification bit 5).
+
+    Written to a temporary name and renamed, so a half-written file never exists.
+    """
+    import laspy
+
+    out = Path(path)
+    try:
+        with laspy.open(template) as reader:
+            header = reader.header
+    except Exception as exc:
+        raise InputError(f"cannot read the header to copy ({exc})", template) from exc
+    new = laspy.LasHeader(point_format=header.point_format.id, version=str(header.version))
+    new.scales = header.scales
+    new.offsets = header.offsets
+    for vlr in header.vlrs:
+        new.vlrs.append(vlr)
+    las = laspy.LasData(new)
+    las.x, las.y, las.z = aug.xyz[:, 0], aug.xyz[:, 1], aug.xyz[:, 2]
+    las.classification = aug.classification
+    las.intensity = aug.intensity
+    las.return_number = np.ones(len(aug.xyz), np.uint8)
+    las.number_of_returns = np.ones(len(aug.xyz), np.uint8)
+    las.synthetic = np.ones(len(aug.xyz), bool)
+    atomic_write(out, lambda t: las.write(str(t)), suffix=out.suffix)
+    return out
+
+
+def wall_mesh(aug: Augmentation, center: F64, rgb: tuple[int, int, int] = (214, 206, 192)) -> Any:
+    """The wall quads as a :class:`~citylod.io.tiles3d.MeshData` relative to ``center`` (two triangles per
+    quad, one colour)."""
+    from citylod.io.tiles3d import MeshData
+
+    q = len(aug.quads)
+    pos = (aug.quads.reshape(-1, 3) - np.asarray(center)).astype(np.float32)
+    base = (np.arange(q, dtype=np.uint32) * 4)[:, None]
+    faces = np.concatenate([base + np.array([0, 1, 2], np.uint32), base + np.array([0, 2, 3], np.uint32)])
+    colors = np.empty((4 * q, 4), np.uint8)
+    colors[:, :3] = rgb
+    colors[:, 3] = 255
+    return MeshData(positions=pos, faces=faces.astype(np.uint32), colors=colors, name="walls")
+
+
+# ---------------------------------------------------------------------------------- the build's hooks
+def complete_inputs(paths: Sequence[Path], meta: Any, target: Path, opts: CompleteOptions, crs: Any = None
+                    ) -> tuple[Augmentation, list[Path], Any]:
+    """The point build's pre-pass: scan ``paths``, write the added points to ``target`` (a LAS file in the
+    build's scratch folder), and return the augmentation with the file list and metadata the build then
+    reads (input files first, unchanged)."""
+    from citylod.io.crs import is_geographic
+    from citylod.io.las import read_metadata
+
+    if is_geographic(meta.crs):
+        msg = (f"the points are in degrees ({meta.crs.name}): completion needs metric coordinates; "
+               "reproject the files (e.g. to UTM) to complete them")
+        warnings.warn(msg, stacklevel=2)
+        return _empty(msg), list(paths), meta
+    aug = augment(paths, opts, lo=meta.lo, hi=meta.hi)
+    if len(aug.xyz) == 0:
+        return aug, list(paths), meta
+    t0 = time.perf_counter()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    extra = write_las(aug, target, paths[0])
+    aug.seconds["write"] = time.perf_counter() - t0
+    files = [*paths, extra]
+    return aug, files, read_metadata(files, crs if crs is not None else meta.crs)
+
+
+def add_wall_tiles(out_dir: str | PathLike[str], root: Any, aug: Augmentation, block_m: float = 128.0) -> Any:
+    """Write the wall quads as tiles of ``block_m`` square blocks and return a new root whose children are
+    the point octree's root and the wall tiles (3D Tiles REPLACE: a root without content that always
+    refines, so the walls show at every level of the points)."""
+    from citylod.io.tiles3d import TileContent, TileSpec, write_content
+
+    if len(aug.quads) == 0:
+        return root
+    mid = aug.quads.mean(axis=1)[:, :2]
+    b = np.floor((mid - mid.min(axis=0)) / block_m).astype(np.int64)
+    keys = b[:, 0] * (1 << 20) + b[:, 1]
+    order = np.argsort(keys, kind="stable")
+    bounds_ = np.flatnonzero(np.diff(keys[order])) + 1
+    children = [root]
+    for part in np.split(order, bounds_):
+        sub = Augmentation(aug.xyz[:0], aug.normals[:0], aug.kind[:0], aug.classification[:0],
+                           aug.intensity[:0], aug.quads[part], aug.quad_normals[part])
+        corners = sub.quads.reshape(-1, 3)
+        lo, hi = corners.min(axis=0), corners.max(axis=0)
+        center = (lo + hi) / 2.0
+        bx, by = (int(v) for v in b[part[0]])
+        key = f"walls/{bx}-{by}"
+        uri = write_content(out_dir, key, TileContent(meshes=[wall_mesh(sub, center)]))
+        children.append(TileSpec(key=key, level=1, center=center, lo=lo, hi=hi, geometric_error=0.0,
+                                 content=uri, extras={"points": 0, "triangles": 2 * len(part),
+                                                      "quads": len(part), "walls": True}))
+    lo = np.min([c.lo for c in children], axis=0)
+    hi = np.max([c.hi for c in children], axis=0)
+    return TileSpec(key="complete", level=0, center=(lo + hi) / 2.0, lo=lo, hi=hi,
+                    geometric_error=max(float(root.geometric_error), float(np.linalg.norm(hi - lo))),
+                    children=children, extras={"points": 0, "triangles": 0, "quads": 0})
+
+
+__all__ = ["KIND_GROUND", "KIND_STEP", "KIND_WALL", "MAX_CELLS", "WALL_MODES", "Augmentation", "CellGrid", "CompleteOptions", "add_wall_tiles",
+           "augment", "augment_grid", "building_mask", "complete_inputs", "scan_grid",
+           "terrain", "wall_edges", "wall_mesh", "write_las"]

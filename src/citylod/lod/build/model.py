@@ -1,0 +1,550 @@
+"""City models from a DSM: shapes, the shape map, and constrained simplification with a certified error.
+
+Wahl, Schnabel, Klein, PFG 2008; Möser, Wahl, Klein, ISPRS 2009 (chapters 4–5 of Wahl's thesis). A detailed
+DSM becomes a compact mesh that keeps its planes, ridges, eaves and corners:
+
+1. height field → points; façade points are inserted at height discontinuities every ``spacing`` metres
+   (:func:`citylod.lod.kernels.shapes.facade_columns`);
+2. planes by localised RANSAC, roofs and façades with separate parameters and a minimum size
+   (:mod:`citylod.lod.kernels.shapes`);
+3. the shape map: per DSM vertex the shape IDs within ε (edge vertices two, corners more);
+4. half-edge collapses ordered by quadric error, under the subset, edge/corner, shape-border and tunnel
+   rules, the topological filter and a certified vertical L∞ bound (:mod:`citylod.lod.kernels.collapse`).
+
+Out of core: the raster is cut into square cells that share their border row and column with their east
+and south neighbours; the shared samples are locked, so the cells' meshes meet without cracks, and each
+cell is a task on citylod's executor (local processes or Dask), reading only its window: memory is
+bounded by the cells in flight. The mesh is written as 3D Tiles (one tile per cell, ``geometricError`` the
+certified bound); connected components standing above the ground become city objects in CityJSON
+(LoD1 solid from the footprint, measured height and roof planes as attributes) that ``citylod build city``
+reads. No VTK, no Qt.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.core.errors import InputError
+from citylod.core.fileio import atomic_write_text, publish_dir
+from citylod.lod.kernels import collapse, shapes
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class ShapeParams:
+    """Parameters of shape detection, lengths in metres (None: scaled from the sample spacing).
+
+    Roofs (and ground) and façades have separate thresholds, as in Wahl's thesis: roofs are fitted to the
+    samples (distance ``roof_eps``, normal deviation ``roof_angle_deg``, at least ``roof_min_area`` m²);
+    façades to the points inserted at jumps over ``jump`` m (distance ``facade_eps``, at least
+    ``facade_min_area`` m² of wall). ``map_eps`` is the ε of the shape map; two planes make an edge only
+    where they meet at ``min_edge_angle_deg`` or more.
+    """
+
+    roof_eps: float | None = None
+    roof_angle_deg: float = 20.0
+    roof_min_area: float = 15.0
+    roof_max_slope_deg: float = 75.0
+    facade_eps: float | None = None
+    facade_min_area: float = 12.0
+    jump: float = 1.5
+    map_eps: float | None = None
+    min_edge_angle_deg: float = 25.0
+    seed: int = 1
+
+    def resolved(self, spacing: float) -> ShapeParams:
+        """The parameters with the spacing-dependent defaults filled in."""
+        return ShapeParams(
+            roof_eps=self.roof_eps if self.roof_eps is not None else max(0.15, 0.3 * spacing),
+            roof_angle_deg=self.roof_angle_deg, roof_min_area=self.roof_min_area,
+            roof_max_slope_deg=self.roof_max_slope_deg,
+            facade_eps=self.facade_eps if self.facade_eps is not None else 0.8 * spacing,
+            facade_min_area=self.facade_min_area, jump=self.jump,
+            map_eps=self.map_eps if self.map_eps is not None else max(0.25, 0.8 * spacing),
+            min_edge_angle_deg=self.min_edge_angle_deg, seed=self.seed)
+
+
+@dataclass
+class Shapes:
+    """Detected shapes of one grid and its shape map.
+
+    ``roof_label`` (H, W) int32 plane per sample (-1 none); ``roof_planes`` (K, 4) normal and offset in grid
+    metres (x = col·dx, y = -row·dy); ``facade_planes`` (F, 4); ``shape_map`` (H·W, MAX_IDS) int32, façade
+    IDs offset by K.
+    """
+
+    roof_label: npt.NDArray[np.int32]
+    roof_planes: F64
+    facade_planes: F64
+    facade_columns: int
+    shape_map: npt.NDArray[np.int32]
+
+    @property
+    def vertex_classes(self) -> npt.NDArray[np.int64]:
+        """Vertices with 0, 1, 2, 3, … shape IDs (unassigned, face, edge, corner…)."""
+        return np.bincount((self.shape_map >= 0).sum(axis=1), minlength=shapes.MAX_IDS + 1)
+
+
+def detect_shapes(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, params: ShapeParams | None = None) -> Shapes:
+    """Planes of a height grid and its shape map (steps 1–3 of the module docstring).
+
+    Parameters
+    ----------
+    F, V
+        (H, W) float64 heights (row 0 north) and bool validity.
+    dx, dy
+        Sample spacing in metres.
+    """
+    spacing = 0.5 * (dx + dy)
+    p = (params or ShapeParams()).resolved(spacing)
+    F = np.ascontiguousarray(np.where(V, F, 0.0), dtype=np.float64)
+    V = np.ascontiguousarray(V, dtype=bool)
+    min_size = max(3, int(math.ceil(p.roof_min_area / (dx * dy))))
+    label, planes = shapes.detect_roof_planes(F, V, dx, dy, p.roof_eps, p.roof_angle_deg, min_size,
+                                              p.roof_max_slope_deg, p.seed, 24, 24, 3)
+    cols = shapes.facade_columns(F, V, dx, dy, p.jump)
+    fl, fplanes = shapes.detect_facades(cols, spacing, p.facade_eps, p.facade_min_area / (spacing * spacing),
+                                        p.seed, 24, 24, 4.0 * spacing, 2.5 * spacing)
+    smap = shapes.shape_map(F, V, dx, dy, label, planes, p.map_eps, fl, cols, fplanes, p.facade_eps, len(planes),
+                            math.cos(math.radians(p.min_edge_angle_deg)))
+    return Shapes(label, planes, fplanes, len(cols), smap)
+
+
+@dataclass
+class ModelMesh:
+    """A simplified grid mesh: ``faces`` (M, 3) int64 flat sample indices (row·W + col) of the grid,
+    counter-clockwise in (col, row); ``max_error`` the certified vertical bound in metres."""
+
+    shape: tuple[int, int]
+    faces: I64
+    max_error: float
+    collapses: int
+    seconds: float
+    shapes: Shapes | None = None
+
+    @property
+    def vertex_ids(self) -> I64:
+        """Flat sample indices of the vertices used, sorted."""
+        return np.unique(self.faces)
+
+    def vertices(self, F: F64, dx: float, dy: float) -> tuple[F64, I64]:
+        """(V, 3) float64 grid-metre positions (x = col·dx, y = -row·dy, z) and the faces re-indexed."""
+        ids, inv = np.unique(self.faces, return_inverse=True)
+        W = self.shape[1]
+        r, c = np.divmod(ids, W)
+        pos = np.column_stack([c * dx, -r * dy, F.reshape(-1)[ids]])
+        return pos, inv.reshape(-1, 3).astype(np.int64)
+
+
+def simplify_grid(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, max_error: float, *,
+                  params: ShapeParams | None = None, constrained: bool = True, locked: npt.ArrayLike | None = None,
+                  target_triangles: int = 0) -> ModelMesh:
+    """Detect shapes and simplify the grid under their constraints with a certified vertical error.
+
+    Every accepted collapse keeps ``max |T − F| ≤ max_error`` exactly (overlay vertices evaluated, see
+    :mod:`citylod.lod.kernels.collapse`), so the result's symmetric Hausdorff distance to the grid surface
+    is at most ``max_error``. ``constrained=False`` runs the same collapse with an empty shape map (QEM and
+    the bound only), the ablation the shape rules are measured against.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> F = np.fromfunction(lambda r, c: 10.0 + 0.2 * c, (17, 17))  # one tilted plane
+    >>> m = simplify_grid(F, np.ones_like(F, bool), 1.0, 1.0, 0.01)
+    >>> len(m.faces) < 2 * 16 * 16, m.max_error
+    (True, 0.01)
+    """
+    t0 = time.perf_counter()
+    F = np.ascontiguousarray(np.where(V, F, 0.0), dtype=np.float64)
+    V = np.ascontiguousarray(V, dtype=bool)
+    sh = detect_shapes(F, V, dx, dy, params) if constrained else None
+    smap = sh.shape_map if sh is not None else np.full((F.size, shapes.MAX_IDS), -1, np.int32)
+    lk = np.zeros(F.size, bool) if locked is None else np.ascontiguousarray(np.asarray(locked, bool).reshape(-1))
+    faces, n = collapse.simplify(F, V, smap, lk, float(dx), float(dy), float(max_error), int(target_triangles))
+    return ModelMesh(F.shape, faces, float(max_error), int(n), time.perf_counter() - t0, sh)
+
+
+# ------------------------------------------------------------------------------------------ city objects
+@dataclass
+class Footprint:
+    """One connected component above the ground: ``polygon`` a shapely Polygon in CRS metres,
+    ``height`` metres above the ground, ``ground`` and ``top`` absolute, ``roof_planes`` (K, 4)."""
+
+    polygon: Any
+    ground: float
+    height: float
+    roof_planes: F64 = field(default_factory=lambda: np.zeros((0, 4)))
+
+
+def ground_height(F: F64, V: npt.NDArray[np.bool_], spacing: float, window_m: float = 40.0) -> F64:
+    """A bare-earth estimate: grey-scale opening of the DSM with a ``window_m`` square (scipy.ndimage),
+    which removes every object narrower than the window; no-data filled from the nearest sample."""
+    from scipy import ndimage
+
+    if not V.any():
+        return np.zeros_like(F)
+    idx = ndimage.distance_transform_edt(~V, return_distances=False, return_indices=True)
+    filled = F[tuple(idx)]
+    size = max(3, int(round(window_m / spacing)) | 1)
+    g = ndimage.grey_opening(filled, size=(size, size))
+    return ndimage.uniform_filter(g, size=max(3, size // 4))
+
+
+def extract_buildings(F: F64, V: npt.NDArray[np.bool_], transform: tuple[float, ...], spacing: float,
+                      roof_label: npt.NDArray[np.int32] | None = None, roof_planes: F64 | None = None, *,
+                      min_height: float = 2.5, min_area: float = 20.0, min_planar: float = 0.5,
+                      ground: F64 | None = None) -> list[Footprint]:
+    """Connected components standing ``min_height`` above the ground as building footprints.
+
+    A component must cover ``min_area`` m² and, when roof planes are given, have at least ``min_planar``
+    of its samples on planes: tree crowns are rough and fail it, and a tree touching a building is cut
+    off by keeping only the planar samples (opened by one sample) before labelling. Footprints are
+    polygonised with rasterio (``rasterio.features.shapes``) and simplified by one sample spacing
+    (shapely); ``transform`` is the affine (a, b, c, d, e, f) of the grid.
+    """
+    from affine import Affine
+    from rasterio import features
+    from scipy import ndimage
+    from shapely.geometry import shape as to_shape
+
+    g = ground_height(F, V, spacing) if ground is None else ground
+    above = V & (F - g > min_height)
+    if roof_label is not None:
+        planar = above & (roof_label >= 0)
+        planar = ndimage.binary_opening(planar, structure=np.ones((3, 3), bool))
+        planar = ndimage.binary_closing(planar, structure=np.ones((3, 3), bool)) & above
+    else:
+        planar = above
+    lab, n = ndimage.label(planar)
+    out: list[Footprint] = []
+    if n == 0:
+        return out
+    counts = np.bincount(lab.reshape(-1), minlength=n + 1)
+    aff = Affine(*transform)
+    objs = ndimage.find_objects(lab)
+    for k in range(1, n + 1):
+        if counts[k] * spacing * spacing < min_area or objs[k - 1] is None:
+            continue
+        sl = objs[k - 1]
+        m = lab[sl] == k
+        if roof_label is not None:
+            on_plane = (roof_label[sl][m] >= 0).mean()
+            if on_plane < min_planar:
+                continue
+        r0, c0 = sl[0].start, sl[1].start
+        polys = [to_shape(geom) for geom, val in features.shapes(m.astype(np.uint8), mask=m,
+                                                                  transform=aff @ Affine.translation(c0, r0))
+                 if val == 1]
+        if not polys:
+            continue
+        poly = max(polys, key=lambda p: p.area).simplify(spacing * 0.75, preserve_topology=True)
+        if poly.is_empty or poly.area < min_area:
+            continue
+        nd = (F[sl] - g[sl])[m]
+        ground_z = float(np.median(g[sl][m]))
+        planes_here = np.zeros((0, 4))
+        if roof_label is not None and roof_planes is not None and len(roof_planes):
+            ids, cnt = np.unique(roof_label[sl][m], return_counts=True)
+            keep = (ids >= 0) & (cnt * spacing * spacing >= 2.0)
+            planes_here = roof_planes[ids[keep]]
+        out.append(Footprint(poly, ground_z, float(np.percentile(nd, 98)), planes_here))
+    return out
+
+
+def write_cityjson(path: str | os.PathLike[str], footprints: list[Footprint], crs_epsg: int | None,
+                   origin: tuple[float, float] = (0.0, 0.0)) -> Path:
+    """Write footprints as CityJSON 2.0 Buildings: an LoD1 solid (footprint extruded from the ground to
+    the measured height) with ``measuredHeight``, ``footprintArea`` and ``roofPlanes`` (normal and offset
+    per plane, in metres of the CRS relative to ``origin``) as attributes. Atomic."""
+    scale = 0.001
+    verts: list[list[int]] = []
+    objects: dict[str, Any] = {}
+    for i, fp in enumerate(footprints):
+        ring = np.asarray(fp.polygon.exterior.coords)[:-1]
+        if fp.polygon.exterior.is_ccw is False:
+            ring = ring[::-1]
+        base = len(verts)
+        k = len(ring)
+        for z in (fp.ground, fp.ground + fp.height):
+            verts += [[int(round(x / scale)), int(round(y / scale)), int(round(z / scale))] for x, y in ring]
+        bottom = [[list(range(base + k - 1, base - 1, -1))]]
+        top = [[list(range(base + k, base + 2 * k))]]
+        walls = [[[base + j, base + (j + 1) % k, base + k + (j + 1) % k, base + k + j]] for j in range(k)]
+        objects[f"model-{i}"] = {
+            "type": "Building",
+            "attributes": {"measuredHeight": round(fp.height, 3), "footprintArea": round(float(fp.polygon.area), 2),
+                           "groundHeight": round(fp.ground, 3),
+                           "roofPlanes": [[round(float(v), 6) for v in p] for p in fp.roof_planes]},
+            "geometry": [{"type": "Solid", "lod": "1", "boundaries": [bottom + top + walls],
+                          "semantics": {"surfaces": [{"type": "GroundSurface"}, {"type": "RoofSurface"},
+                                                     {"type": "WallSurface"}],
+                                        "values": [[0, 1] + [2] * k]}}],
+        }
+    doc: dict[str, Any] = {"type": "CityJSON", "version": "2.0",
+                           "transform": {"scale": [scale] * 3, "translate": [0.0, 0.0, 0.0]},
+                           "CityObjects": objects, "vertices": verts}
+    if crs_epsg:
+        doc["metadata"] = {"referenceSystem": f"https://www.opengis.net/def/crs/EPSG/0/{crs_epsg}"}
+    _ = origin
+    return atomic_write_text(path, json.dumps(doc, separators=(",", ":")))
+
+
+# ------------------------------------------------------------------------------------------ point clouds
+def rasterize_las(files: list[str | os.PathLike[str]], out_tif: str | os.PathLike[str], *, spacing: float = 0.5,
+                  crs: str | None = None, fill_samples: int = 2) -> Path:
+    """A DSM from LAS/LAZ files: the highest point per ``spacing`` cell (numpy binning of laspy chunks),
+    noise classes (7, 18) dropped, empty cells filled from the nearest sample up to ``fill_samples``
+    away and no-data beyond. Written as a float32 GeoTIFF (rasterio), atomically.
+    """
+    import laspy
+    import rasterio
+    from affine import Affine
+    from scipy import ndimage
+
+    from citylod.core.fileio import atomic_write
+    from citylod.io.las import iter_points
+
+    if not files:
+        raise InputError("no point files given", out_tif)
+    lo = np.array([np.inf, np.inf])
+    hi = -lo
+    wkt = None
+    for f in files:
+        try:
+            with laspy.open(f) as r:
+                lo = np.minimum(lo, r.header.mins[:2])
+                hi = np.maximum(hi, r.header.maxs[:2])
+                wkt = wkt or (r.header.parse_crs().to_wkt() if r.header.parse_crs() else None)
+        except Exception as exc:  # laspy raises several types for unreadable files
+            raise InputError(f"not a readable LAS/LAZ file ({exc})", f) from exc
+    x0, y1 = math.floor(lo[0] / spacing) * spacing, math.ceil(hi[1] / spacing) * spacing
+    W = int(math.ceil((hi[0] - x0) / spacing)) + 1
+    H = int(math.ceil((y1 - lo[1]) / spacing)) + 1
+    grid = np.full(H * W, -np.inf)
+    for f in files:
+        for pts in iter_points(f, raw=True):
+            cls = np.asarray(pts.classification)
+            keep = (cls != 7) & (cls != 18)
+            x, y, z = (np.asarray(a, np.float64)[keep] for a in (pts.x, pts.y, pts.z))
+            c = np.clip(((x - x0) / spacing).astype(np.int64), 0, W - 1)
+            r = np.clip(((y1 - y) / spacing).astype(np.int64), 0, H - 1)
+            np.maximum.at(grid, r * W + c, z)
+    grid = grid.reshape(H, W)
+    empty = ~np.isfinite(grid)
+    dist, idx = ndimage.distance_transform_edt(empty, return_indices=True)
+    dsm = grid[tuple(idx)]
+    dsm[dist > fill_samples] = -9999.0
+    crs_out = crs or wkt
+    if crs_out is None:
+        raise InputError("the point files name no CRS; pass one", files[0])
+
+    def write(tmp: Path) -> None:
+        with rasterio.open(tmp, "w", driver="GTiff", width=W, height=H, count=1, dtype="float32", crs=crs_out,
+                           transform=Affine(spacing, 0, x0, 0, -spacing, y1), nodata=-9999.0) as ds:
+            ds.write(dsm.astype(np.float32), 1)
+
+    return atomic_write(out_tif, write, suffix=".tif")
+
+
+# ------------------------------------------------------------------------------------------ the build
+@dataclass
+class ModelBuildReport:
+    """What :func:`build_model` did."""
+
+    output: Path
+    cells: int
+    samples: int
+    triangles: int
+    grid_triangles: int
+    buildings: int
+    max_error: float
+    seconds: float
+
+    @property
+    def vertices_per_second(self) -> float:
+        return self.samples / max(self.seconds, 1e-9)
+
+    def summary(self) -> str:
+        return (f"model: {self.samples} samples in {self.cells} cells -> {self.triangles} triangles "
+                f"({self.grid_triangles / max(self.triangles, 1):.1f}x fewer than the grid), certified "
+                f"≤ {self.max_error:g} m; {self.buildings} buildings; {self.seconds:.1f} s, "
+                f"{self.vertices_per_second:,.0f} vertices/s -> {self.output}")
+
+
+def _cell_task(raster: str, r0: int, c0: int, cell: int, max_error: float, params: ShapeParams,
+               out_dir: str, key: str, constrained: bool, ortho: str | None = None) -> dict[str, Any]:
+    """One cell: read its window (sharing the border row/column with the east/south neighbours), simplify
+    with the border locked, write its glb (textured by the orthophoto projected from above when one is
+    given), find its buildings. Returns the tile's description."""
+    from citylod.io.raster import RasterSource
+    from citylod.io.tiles3d.content import MeshData, TileContent
+    from citylod.io.tiles3d.tileset import write_content
+
+    src = RasterSource(raster)
+    info = src.info
+    nr = min(cell + 1, info.height - r0)
+    nc = min(cell + 1, info.width - c0)
+    F, V = src.read_window(r0, c0, nr, nc)
+    dx, dy = _spacing_xy(info)
+    locked = np.zeros((nr, nc), bool)
+    if r0 > 0:
+        locked[0, :] = True
+    if c0 > 0:
+        locked[:, 0] = True
+    if r0 + nr < info.height:
+        locked[-1, :] = True
+    if c0 + nc < info.width:
+        locked[:, -1] = True
+    mesh = simplify_grid(F, V, dx, dy, max_error, params=params, constrained=constrained, locked=locked)
+    res: dict[str, Any] = {"key": key, "samples": int(V.sum()), "triangles": len(mesh.faces),
+                           "grid_triangles": int(collapse.grid_triangles(V).shape[0]), "seconds": mesh.seconds,
+                           "content": None, "footprints": []}
+    if len(mesh.faces) == 0:
+        return res
+    ids, inv = np.unique(mesh.faces, return_inverse=True)
+    rr, cc = np.divmod(ids, nc)
+    x, y = _world_xy(info, r0 + rr, c0 + cc)
+    z = F.reshape(-1)[ids]
+    pos = np.column_stack([x, y, z])
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    center = 0.5 * (lo + hi)
+    faces = inv.reshape(-1, 3)
+    # counter-clockwise in (col, row) is clockwise seen from above (row grows southwards): flip for glTF
+    faces = faces[:, ::-1]
+    uv = texture = None
+    if ortho is not None:
+        from citylod.io.image import encode_image
+        from citylod.io.raster import read_image_window
+
+        # orthophoto projected from above: one texel per sample, uv from the horizontal position
+        size = 1 << max(6, min(11, int(math.ceil(math.log2(max(nr, nc))))))
+        img = read_image_window(ortho, (lo[0], lo[1], hi[0], hi[1]), info.metric_crs(), size)
+        if img is not None:
+            texture = encode_image(img, "jpg")
+            span = np.maximum(hi[:2] - lo[:2], 1e-9)
+            uv = np.column_stack([(x - lo[0]) / span[0], (hi[1] - y) / span[1]]).astype(np.float32)
+    content = TileContent(meshes=[MeshData((pos - center).astype(np.float32), faces.astype(np.uint32), uv=uv,
+                                           texture=texture)])
+    res["content"] = write_content(out_dir, key, content)
+    res.update(center=center.tolist(), lo=lo.tolist(), hi=hi.tolist())
+    if mesh.shapes is not None:
+        core = np.zeros_like(V)
+        core[: min(cell, nr), : min(cell, nc)] = True
+        tr = _window_transform(info, r0, c0)
+        for fp in extract_buildings(F, V & core, tr, 0.5 * (dx + dy), mesh.shapes.roof_label, mesh.shapes.roof_planes):
+            res["footprints"].append(fp)
+    return res
+
+
+def _spacing_xy(info: Any) -> tuple[float, float]:
+    a, b, _, d, e, _ = info.transform
+    if not info.geographic:
+        return float(math.hypot(a, d)), float(math.hypot(b, e))
+    return float(info.spacing_m), float(info.spacing_m)
+
+
+def _world_xy(info: Any, rows: npt.ArrayLike, cols: npt.ArrayLike) -> tuple[F64, F64]:
+    """Metric CRS coordinates of samples (projected to the metric CRS for geographic rasters, pyproj)."""
+    x, y = info.sample_xy(rows, cols)
+    if info.geographic:
+        import pyproj
+
+        tr = pyproj.Transformer.from_crs(info.crs, info.metric_crs(), always_xy=True)
+        x, y = tr.transform(x, y)
+    return np.asarray(x, np.float64), np.asarray(y, np.float64)
+
+
+def _window_transform(info: Any, r0: int, c0: int) -> tuple[float, ...]:
+    a, b, c, d, e, f = info.transform
+    if info.geographic:  # footprints in the metric CRS: a local affine from three projected samples
+        x0, y0 = _world_xy(info, np.array([r0 - 0.5, r0 - 0.5, r0 + 0.5]), np.array([c0 - 0.5, c0 + 0.5, c0 - 0.5]))
+        return (x0[1] - x0[0], x0[2] - x0[0], x0[0], y0[1] - y0[0], y0[2] - y0[0], y0[0])
+    return (a, b, a * c0 + b * r0 + c, d, e, d * c0 + e * r0 + f)
+
+
+def build_model(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, max_error: float | None = None,
+                cell: int = 512, params: ShapeParams | None = None, workers: int | None = None,
+                scheduler: str | None = None, progress: bool = True, constrained: bool = True,
+                ortho: str | os.PathLike[str] | None = None) -> ModelBuildReport:
+    """Build the simplified city mesh of a DSM as 3D Tiles plus its buildings as CityJSON.
+
+    Parameters
+    ----------
+    raster
+        A DSM GDAL reads (projected or geographic).
+    out_dir
+        Folder to create: ``tileset.json``, ``tiles/*.glb`` and ``buildings.city.json``.
+    max_error
+        Certified vertical L∞ bound in metres (default: the sample spacing).
+    cell
+        Samples per cell side; memory grows with ``cell²`` times the cells in flight.
+    workers, scheduler
+        As for :func:`citylod.lod.build.dsm.build_dsm`: local processes, or a Dask scheduler address.
+    ortho
+        Orthophoto (any CRS) to texture the mesh with, projected from above.
+
+    Raises
+    ------
+    InputError
+        Unreadable raster or no valid sample.
+    """
+    from citylod.io.raster import RasterSource, check_has_data
+    from citylod.io.tiles3d.tileset import TileSpec, write_tileset
+    from citylod.lod.build.executor import make_executor, run_tasks
+
+    t0 = time.perf_counter()
+    src = RasterSource(raster)
+    check_has_data(src)
+    info = src.info
+    if cell < 16:
+        raise InputError(f"cell must be at least 16 samples, got {cell}", raster)
+    dx, dy = _spacing_xy(info)
+    eps = float(max_error) if max_error is not None else 0.5 * (dx + dy)
+    p = (params or ShapeParams()).resolved(0.5 * (dx + dy))
+    out = Path(out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial", dir=out.parent))
+    try:
+        if ortho is not None and not Path(ortho).is_file():
+            raise InputError("no such orthophoto", ortho)
+        tasks = [(str(src.path), r0, c0, cell, eps, p, str(partial), f"{r0 // cell}_{c0 // cell}", constrained,
+                  None if ortho is None else str(ortho))
+                 for r0 in range(0, max(info.height - 1, 1), cell) for c0 in range(0, max(info.width - 1, 1), cell)]
+        results = []
+        with make_executor(workers, scheduler) as ex:
+            results = list(run_tasks(ex, _cell_task, tasks, progress=progress, desc="model cells"))
+        results.sort(key=lambda r: r["key"])
+        children = [TileSpec(r["key"], 1, np.array(r["center"]), np.array(r["lo"]), np.array(r["hi"]), eps,
+                             content=r["content"]) for r in results if r["content"]]
+        if not children:
+            raise InputError("the raster produced no triangles", raster)
+        lo = np.min([c.lo for c in children], axis=0)
+        hi = np.max([c.hi for c in children], axis=0)
+        extent = float(np.linalg.norm(hi - lo))
+        # the root has no content: drawing it instead of its children would show nothing, an error as large
+        # as the whole box, so a client always refines it
+        root = TileSpec("root", 0, 0.5 * (lo + hi), lo, hi, max(extent, 2 * eps), children=children)
+        crs = info.metric_crs()
+        write_tileset(partial, root, crs, extras={"citylod": {"kind": "model", "max_error_m": eps}})
+        fps = [fp for r in results for fp in r["footprints"]]
+        write_cityjson(partial / "buildings.city.json", fps, crs.to_epsg())
+        publish_dir(partial, out)
+    finally:
+        if partial.exists():
+            import shutil
+
+            shutil.rmtree(partial, ignore_errors=True)
+    return ModelBuildReport(out, len(tasks), sum(r["samples"] for r in results), sum(r["triangles"] for r in results),
+                            sum(r["grid_triangles"] for r in results), len(fps), eps, time.perf_counter() - t0)

@@ -1,0 +1,267 @@
+"""``build points --complete``: walls and ground under canopy on a small classified cloud made here.
+
+The scene: flat ground (class 2) at z = 0, a 12 m × 8 m flat-roofed house 6 m high (class 6) turned by
+30°, and a tree (class 5 canopy at 5-8 m) whose crown hid the ground under it. Every check is computed
+from the scene's own geometry (the rectangle, the disc), never from the augmentation.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+
+from citylod.io.tiles3d import open_tileset
+from citylod.lod.build.complete import (
+    KIND_GROUND,
+    KIND_STEP,
+    KIND_WALL,
+    CompleteOptions,
+    augment,
+)
+from citylod.lod.build.points import build_points
+
+X0, Y0 = 85_000.0, 447_500.0  # RD New, as Delft: large coordinates
+ANGLE = math.radians(30.0)
+HALF = np.array([6.0, 4.0])  # the house's half extents
+CENTER = np.array([20.0, 20.0])
+ROOF_Z = 6.0
+TREE = np.array([8.0, 30.0])
+TREE_R = 4.0
+
+
+def _to_house(xy: np.ndarray) -> np.ndarray:
+    """Scene xy -> the house's frame (axis-aligned rectangle ±HALF)."""
+    c, s = math.cos(ANGLE), math.sin(ANGLE)
+    d = xy - CENTER
+    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+
+
+def _from_house(uv: np.ndarray) -> np.ndarray:
+    c, s = math.cos(ANGLE), math.sin(ANGLE)
+    return np.column_stack([c * uv[:, 0] - s * uv[:, 1], s * uv[:, 0] + c * uv[:, 1]]) + CENTER
+
+
+def _write(path: Path, xyz: np.ndarray, cls: np.ndarray) -> None:
+    hdr = laspy.LasHeader(point_format=1, version="1.2")
+    hdr.scales = np.array([0.001, 0.001, 0.001])
+    hdr.offsets = np.array([X0, Y0, 0.0])
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = xyz[:, 0] + X0, xyz[:, 1] + Y0, xyz[:, 2]
+    las.classification = cls.astype(np.uint8)
+    las.intensity = np.full(len(xyz), 1000, np.uint16)
+    las.return_number = np.ones(len(xyz), np.uint8)
+    las.number_of_returns = np.ones(len(xyz), np.uint8)
+    las.write(str(path))
+
+
+def scene(path: Path, seed: int = 1, classified: bool = True) -> np.ndarray:
+    """Write the scene (≈ 11 points/m²) to ``path``; returns its (N, 4) x, y, z, class (scene frame)."""
+    rng = np.random.default_rng(seed)
+    n = int(40 * 40 * 11)
+    g = rng.uniform(0, 40, (n, 2))
+    in_house = np.all(np.abs(_to_house(g)) <= HALF, axis=1)
+    in_tree = np.hypot(*(g - TREE).T) <= TREE_R
+    ground = g[~in_house & ~in_tree]
+    roof = _from_house(rng.uniform(-HALF, HALF, (int(4 * HALF.prod() * 11), 2)))
+    crown = TREE + TREE_R * np.sqrt(rng.random(600))[:, None] * np.column_stack(
+        [np.cos(t := rng.uniform(0, 2 * np.pi, 600)), np.sin(t)])
+    xyz = np.concatenate([
+        np.column_stack([ground, np.zeros(len(ground))]),
+        np.column_stack([roof, np.full(len(roof), ROOF_Z)]),
+        np.column_stack([crown, rng.uniform(5, 8, len(crown))]),
+    ])
+    cls = np.concatenate([np.full(len(ground), 2), np.full(len(roof), 6), np.full(len(crown), 5)])
+    if not classified:
+        cls = np.ones_like(cls)
+    _write(path, xyz, cls)
+    return np.column_stack([xyz, cls])
+
+
+def _house_distance(xy: np.ndarray) -> np.ndarray:
+    """Horizontal distance from points to the house's outline (the walls), by the rectangle."""
+    uv = np.abs(_to_house(xy))
+    out = np.hypot(np.maximum(uv[:, 0] - HALF[0], 0), np.maximum(uv[:, 1] - HALF[1], 0))
+    inside = np.all(uv <= HALF, axis=1)
+    return np.where(inside, np.min(HALF - uv, axis=1), out)
+
+
+def _signed_distance(xy: np.ndarray) -> np.ndarray:
+    """:func:`_house_distance`, negative inside the house."""
+    inside = np.all(np.abs(_to_house(xy)) <= HALF, axis=1)
+    return np.where(inside, -1.0, 1.0) * _house_distance(xy)
+
+
+@pytest.fixture(scope="module")
+def cloud(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    path = tmp_path_factory.mktemp("complete") / "scene.las"
+    return path, scene(path)
+
+
+def test_walls_stand_on_the_outline_and_cover_it(cloud: tuple[Path, np.ndarray]) -> None:
+    path, _ = cloud
+    aug = augment([path])
+    walls = aug.xyz[aug.kind == KIND_WALL] - [X0, Y0, 0]
+    assert len(walls) > 0 and not np.any(aug.kind == KIND_STEP)  # one flat roof: no steps
+    d = _house_distance(walls[:, :2])
+    # A wall at 30° to the grid is a staircase of cell edges, each at the outermost return of its cell:
+    # within a cell diagonal (0.71 m) of the outline, p95 within 0.35 m (0.33 m measured).
+    assert d.max() <= 0.5 * math.sqrt(2) and np.percentile(d, 95) <= 0.35
+    assert walls[:, 2].min() >= -0.05 and walls[:, 2].max() <= ROOF_Z + 0.05
+    # Complete: every sample of the true walls (10 cm grid over the four faces, 0.2-5.8 m high) has a
+    # wall point within 0.5 m.
+    samples = []
+    for sx, sy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        t = np.linspace(-1, 1, 200)
+        uv = np.column_stack([np.full_like(t, sx * HALF[0]) if sx else t * HALF[0],
+                              np.full_like(t, sy * HALF[1]) if sy else t * HALF[1]])
+        samples.append(_from_house(uv))
+    xy = np.concatenate(samples)
+    zs = np.linspace(0.2, 5.8, 29)
+    true = np.column_stack([np.repeat(xy, len(zs), axis=0), np.tile(zs, len(xy))])
+    from scipy.spatial import cKDTree
+
+    gap, _ = cKDTree(walls).query(true)
+    assert gap.max() <= 0.5
+
+
+def test_wall_normals_point_out_of_the_house(cloud: tuple[Path, np.ndarray]) -> None:
+    path, _ = cloud
+    aug = augment([path])
+    sel = aug.kind == KIND_WALL
+    p = aug.xyz[sel, :2] - [X0, Y0]
+    n = aug.normals[sel]
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5) and np.all(n[:, 2] == 0)
+    # The true outward normal of the nearest face, in the house frame.
+    uv = _to_house(p)
+    face_x = np.abs(uv[:, 0]) - HALF[0] > np.abs(uv[:, 1]) - HALF[1]
+    nu = np.where(face_x, np.sign(uv[:, 0]), 0.0)
+    nv = np.where(face_x, 0.0, np.sign(uv[:, 1]))
+    c, s = math.cos(ANGLE), math.sin(ANGLE)
+    true = np.column_stack([c * nu - s * nv, s * nu + c * nv])
+    cos = np.sum(n[:, :2] * true, axis=1)
+    # Which face is nearest is ambiguous within a cell diagonal of a corner: judged away from them.
+    corner = np.min(np.hypot(np.abs(uv[:, 0:1]) - HALF[0], np.abs(uv[:, 1:2]) - HALF[1]), axis=1) < 0.75
+    assert np.all(cos[~corner] > 0)  # never inwards
+    assert np.percentile(cos, 50) > math.cos(math.radians(20))  # boundary direction, not the grid's
+
+
+def test_ground_fills_under_the_canopy_only(cloud: tuple[Path, np.ndarray]) -> None:
+    path, pts = cloud
+    aug = augment([path])
+    g = aug.xyz[aug.kind == KIND_GROUND] - [X0, Y0, 0]
+    r = np.hypot(*(g[:, :2] - TREE).T)
+    assert np.all(r <= TREE_R + 0.75)  # a cell beyond the crown at most
+    assert np.all(np.abs(g[:, 2]) <= 0.01)  # the flat ground, interpolated
+    # At the density of the real ground (points per m² within 25 %).
+    real = np.sum(pts[:, 3] == 2) / (40 * 40 - 4 * HALF.prod() - np.pi * TREE_R ** 2)
+    added = np.sum(r <= TREE_R - 0.5) / (np.pi * (TREE_R - 0.5) ** 2)
+    assert abs(added / real - 1.0) <= 0.25
+    assert np.all(_house_distance(g[:, :2]) > 0.5)  # nothing under the house
+
+
+def test_build_flags_added_points_and_keeps_input(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    path, pts = cloud
+    out = tmp_path / "ts"
+    # workers=0 and small chunks: the out-of-core path (parked segments, several chunks), in this process.
+    rep = build_points([path], out, crs="EPSG:28992", progress=False, workers=0, max_chunk_points=5_000,
+                       complete=CompleteOptions(walls="points"))
+    assert rep.chunks > 1
+    aug = augment([path])
+    assert "complete" in (rep.complete or "")
+    ts = open_tileset(out)
+    got, syn = [], []
+    stack = [ts.root]
+    while stack:
+        t = stack.pop()
+        stack.extend(t.children)
+        if t.children or t.content_uri is None:
+            continue
+        c = t.load_content()
+        p = c.points
+        got.append(p.positions.astype(np.float64) + t.matrix[:3, 3])
+        syn.append(p.extra.get("synthetic", np.zeros(len(p.positions), np.uint8)))
+    xyz, flag = np.concatenate(got), np.concatenate(syn)
+    assert len(xyz) == len(pts) + len(aug.xyz)
+    assert int(flag.sum()) == len(aug.xyz)
+    # The input as the file holds it (LAS quantum 1 mm), and only it, is unflagged; float32 in the tile
+    # adds micrometres.
+    from scipy.spatial import cKDTree
+
+    back = laspy.read(str(path))
+    theirs = np.column_stack([back.x - X0, back.y - Y0, back.z])
+    mine = xyz[flag == 0] - [X0, Y0, 0]
+    assert len(mine) == len(theirs)
+    assert cKDTree(theirs).query(mine)[0].max() < 1e-4 and cKDTree(mine).query(theirs)[0].max() < 1e-4
+    assert not list(tmp_path.rglob("*.las"))  # the added points' scratch file went with the build folder
+
+
+def test_quads_become_a_walls_tile(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    path, _ = cloud
+    out = tmp_path / "ts"
+    build_points([path], out, crs="EPSG:28992", progress=False, workers=0, complete=CompleteOptions(walls="quads"))
+    doc = json.loads((out / "tileset.json").read_text())
+    kids = doc["root"]["children"]
+    walls = [k for k in kids if k.get("extras", {}).get("walls")]
+    assert len(walls) == 1 and walls[0]["extras"]["quads"] > 0
+    ts = open_tileset(out)
+    tile = next(t for t in ts.root.children if t.content_uri and "walls" in t.content_uri)
+    mesh = tile.load_content().meshes[0]
+    v = mesh.positions.astype(np.float64) + tile.matrix[:3, 3]
+    tri = v[mesh.faces.astype(np.int64)]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    mid = tri.mean(axis=1)[:, :2] - [X0, Y0]
+    # Faces wind counter-clockwise seen from outside: a step along the winding's normal leaves the house.
+    step = 0.05 * n[:, :2] / np.linalg.norm(n[:, :2], axis=1, keepdims=True)
+    uv = _to_house(mid)
+    corner = np.min(np.hypot(np.abs(uv[:, 0:1]) - HALF[0], np.abs(uv[:, 1:2]) - HALF[1]), axis=1) < 0.75
+    out_ = _signed_distance(mid + step) > _signed_distance(mid - step)
+    assert np.all(out_[~corner]), np.c_[uv, n[:, :2]][~corner & ~out_]
+    assert np.allclose(n[:, 2], 0.0, atol=1e-6)
+
+
+def test_unclassified_input_warns_and_adds_nothing(tmp_path: Path) -> None:
+    path = tmp_path / "raw.las"
+    pts = scene(path, classified=False)
+    with pytest.warns(UserWarning, match="no ground"):
+        aug = augment([path])
+    assert len(aug.xyz) == 0 and aug.skipped
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rep = build_points([path], tmp_path / "ts", crs="EPSG:28992", progress=False, workers=0,
+                           complete=CompleteOptions())
+    assert rep.points == len(pts) and "skipped" in (rep.complete or "")
+
+
+def test_cli_complete(cloud: tuple[Path, np.ndarray], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from citylod.cli import main
+
+    path, _ = cloud
+    rc = main(["build", "points", str(path), "-o", str(tmp_path / "ts"), "--crs", "EPSG:28992", "--workers", "0",
+               "--complete", "--no-ground-fill"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "complete" in text and "0 ground points" in text
+
+
+def test_degrees_are_not_completed(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    # The same file read as degrees: a 0.5-"unit" grid would be half a degree; nothing is added, and
+    # the warning says why.
+    path, pts = cloud
+    with pytest.warns(UserWarning, match="degrees"):
+        rep = build_points([path], tmp_path / "ts", crs="EPSG:4326", progress=False, workers=0,
+                           complete=CompleteOptions())
+    assert rep.points == len(pts) and "degrees" in (rep.complete or "")
+
+
+def test_an_area_too_large_for_the_grid_is_refused(tmp_path: Path) -> None:
+    from citylod.core.errors import InputError
+    from citylod.lod.build.complete import scan_grid
+
+    with pytest.raises(InputError, match="cells"):
+        scan_grid([tmp_path / "x.las"], np.array([0.0, 0.0]), np.array([100_000.0, 100_000.0]), 0.5)

@@ -1,0 +1,246 @@
+"""City models from a DSM: shapes, shape map, constrained simplification, outputs, hard cases.
+
+The certified bound is checked by independent computations: citylod's DSM certifier
+(``lod.kernels.certify``, its own overlay walk) and pymeshlab's sampled Hausdorff distance, never by the
+collapse kernel's own error test. Scenes are small analytic grids whose planes are known.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from citylod.lod.build.model import ShapeParams, build_model, detect_shapes, extract_buildings, simplify_grid
+from citylod.lod.kernels.certify import certify
+from citylod.lod.kernels.collapse import grid_triangles
+
+D = 0.5  # sample spacing, metres
+
+
+def _scene(n: int = 96) -> tuple[np.ndarray, np.ndarray, dict]:
+    """A gable house (ridge along columns), a flat block with a courtyard, a tree touching the block, a
+    one-sample spike and a no-data hole on gently sloping ground. Row 0 is north; x = col·D, y = -row·D."""
+    r, c = np.mgrid[0:n, 0:n].astype(float)
+    F = 10.0 + 0.02 * c * D
+    truth: dict = {}
+    # gable house: rows 8..27, cols 8..43, ridge at row 17.5, eave 16 m, ridge 19 m
+    house = (r >= 8) & (r <= 27) & (c >= 8) & (c <= 43)
+    roof = 19.0 - 3.0 * np.abs(r - 17.5) / 10.0
+    F = np.where(house, roof, F)
+    truth["house"] = house
+    # flat block with a courtyard: rows 40..79, cols 10..49, courtyard rows 52..67, cols 22..37, 12 m
+    block = (r >= 40) & (r <= 79) & (c >= 10) & (c <= 49) & ~((r >= 52) & (r <= 67) & (c >= 22) & (c <= 37))
+    F = np.where(block, 22.0, F)
+    truth["block"] = block
+    # a tree crown (a cap of radius 5 m) touching the block's east wall
+    tr = np.hypot((r - 60) * D, (c - 55) * D)
+    crown = 10.0 + 0.02 * c * D + 9.0 * np.sqrt(np.clip(1 - (tr / 5.0) ** 2, 0, None))
+    F = np.where((tr < 5.0) & ~block, np.maximum(F, crown), F)
+    truth["tree"] = (tr < 5.0) & ~block
+    # a one-sample spike on the ground and a no-data hole
+    F[88, 80] += 15.0
+    V = np.ones_like(F, bool)
+    V[30:36, 70:78] = False
+    return F, V, truth
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return _scene()
+
+
+@pytest.fixture(scope="module")
+def model(scene):
+    F, V, _ = scene
+    return simplify_grid(F, V, D, D, 0.3)
+
+
+def _read(F, V):
+    def read_block(r0, c0, nr, nc):
+        return (np.ascontiguousarray(F[r0:r0 + nr, c0:c0 + nc]), np.ascontiguousarray(V[r0:r0 + nr, c0:c0 + nc]))
+    return read_block
+
+
+def test_certified_bound_holds_by_independent_checks(scene, model) -> None:
+    F, V, _ = scene
+    H, W = F.shape
+    faces = model.faces
+    assert len(faces) < 0.25 * len(grid_triangles(V))
+    vr, vc = np.divmod(np.arange(H * W), W)
+    err, _, _ = certify(_read(F, V), (0, 0, H - 1, W - 1), vr.astype(float), vc.astype(float), F.reshape(-1), faces,
+                        (1, 1), 1, per_cell=False)
+    assert err <= 0.3 + 1e-9
+    # no triangle covers the no-data hole: its samples are no vertex and lie in no triangle's box interior
+    ids = np.unique(faces)
+    assert not np.isin(ids, np.flatnonzero(~V.reshape(-1))).any()
+    # pymeshlab's sampled Hausdorff distance to the full grid surface is below the vertical bound
+    import pymeshlab
+
+    pos = np.column_stack([vc * D, -vr * D, F.reshape(-1)])
+    g = grid_triangles(V)
+    ms = pymeshlab.MeshSet()
+    for f in (faces, g):  # each mesh with only the vertices it uses (the no-data samples are in neither)
+        used, inv = np.unique(f, return_inverse=True)
+        ms.add_mesh(pymeshlab.Mesh(pos[used], inv.reshape(-1, 3).astype(np.int32)))
+    for a, b in ((0, 1), (1, 0)):
+        hd = ms.get_hausdorff_distance(sampledmesh=a, targetmesh=b, samplevert=True, sampleedge=True,
+                                       sampleface=True, samplenum=50_000)["max"]
+        assert hd <= 0.3 * (1 + 1e-6)
+
+
+def test_roof_planes_match_the_analytic_roof(scene) -> None:
+    F, V, truth = scene
+    sh = detect_shapes(F, V, D, D)
+    lab = sh.roof_label
+    # the two gable faces are found as two planes whose normals match the truth within 2 degrees
+    north = lab[(np.arange(96)[:, None] >= 9) & (np.arange(96)[:, None] <= 16) & truth["house"]]
+    south = lab[(np.arange(96)[:, None] >= 19) & (np.arange(96)[:, None] <= 26) & truth["house"]]
+    kn = np.bincount(north[north >= 0]).argmax()
+    ks = np.bincount(south[south >= 0]).argmax()
+    assert kn != ks
+    slope = 3.0 / (10.0 * D)  # rise per metre across the ridge
+    for k, sign in ((kn, 1.0), (ks, -1.0)):  # north face rises southwards: dz/dy_north < 0
+        n = sh.roof_planes[k, :3]
+        expect = np.array([0.0, sign * slope, 1.0]) / math.hypot(slope, 1.0)
+        assert math.degrees(math.acos(min(1.0, float(n @ expect)))) < 2.0
+    # ridge samples carry both planes (edge vertices); eave corners carry roof and two façades (corners)
+    S = sh.shape_map.reshape(96, 96, -1)
+    ridge = [(17, cc) for cc in range(12, 40)] + [(18, cc) for cc in range(12, 40)]
+    both = [set(S[rr, cc]) >= {kn, ks} for rr, cc in ridge]
+    assert np.mean(both) > 0.9
+    corner_ids = (S[8, 8] >= 0).sum()
+    assert corner_ids >= 3
+
+
+def test_constrained_collapse_keeps_ridge_and_courtyard(scene, model) -> None:
+    F, V, _truth = scene
+    W = F.shape[1]
+    ids = set(np.unique(model.faces).tolist())
+    # the ridge (rows 17/18) is still there: the mesh has vertices on it at both ends of the house
+    on_ridge = [cc for cc in range(8, 44) if (17 * W + cc) in ids or (18 * W + cc) in ids]
+    assert min(on_ridge) <= 9 and max(on_ridge) >= 42
+    # without shapes the same bound gives fewer triangles (the constraints cost triangles, not accuracy)
+    plain = simplify_grid(F, V, D, D, 0.3, constrained=False)
+    assert len(plain.faces) <= len(model.faces)
+
+
+def test_buildings_courtyard_tree_and_spike(scene) -> None:
+    F, V, truth = scene
+    sh = detect_shapes(F, V, D, D)
+    ground = 10.0 + 0.02 * np.mgrid[0:96, 0:96][1] * D
+    fps = extract_buildings(F, V, (D, 0.0, 0.0, 0.0, -D, 0.0), D, sh.roof_label, sh.roof_planes, ground=ground)
+    areas = sorted(round(fp.polygon.area) for fp in fps)
+    # two buildings: the tree crown is cut off the block, the spike is too small, the hole is no building
+    assert len(fps) == 2, areas
+    block = max(fps, key=lambda f: f.polygon.area)
+    true_area = truth["block"].sum() * D * D
+    assert abs(block.polygon.area - true_area) / true_area < 0.1
+    assert len(block.polygon.interiors) == 1  # the courtyard
+    assert abs(block.height - 12.0) < 0.5
+    house = min(fps, key=lambda f: f.polygon.area)
+    assert len(house.roof_planes) >= 2
+
+
+def _write_tif(path: Path, F: np.ndarray, V: np.ndarray, crs: str, transform) -> Path:
+    import rasterio
+
+    data = np.where(V, F, -9999.0).astype(np.float32)
+    with rasterio.open(path, "w", driver="GTiff", width=F.shape[1], height=F.shape[0], count=1, dtype="float32",
+                       crs=crs, transform=transform, nodata=-9999.0) as ds:
+        ds.write(data, 1)
+    return path
+
+
+@pytest.mark.parametrize("geographic", [False, True])
+def test_build_model_writes_tiles_and_cityjson_read_back(tmp_path: Path, scene, geographic: bool) -> None:
+    from affine import Affine
+
+    from citylod.io.city.read import read_city_model
+    from citylod.io.tiles3d.tileset import open_tileset
+
+    F, V, _ = scene
+    if geographic:  # about 0.5 m at 49° N
+        tr = Affine(0.5 / 73000.0, 0, 8.4, 0, -0.5 / 111200.0, 49.0)
+        dsm = _write_tif(tmp_path / "deg.tif", F, V, "EPSG:4326", tr)
+    else:
+        dsm = _write_tif(tmp_path / "m.tif", F, V, "EPSG:32632", Affine(D, 0, 512000.0, 0, -D, 5403000.0))
+    ortho = None
+    if not geographic:  # an orthophoto whose red channel is the column: the texture must follow x
+        import rasterio
+
+        rgb = np.zeros((3, 96, 96), np.uint8)
+        rgb[0] = (np.arange(96) * 2.5).astype(np.uint8)[None, :]
+        ortho = tmp_path / "ortho.tif"
+        with rasterio.open(ortho, "w", driver="GTiff", width=96, height=96, count=3, dtype="uint8", crs="EPSG:32632",
+                           transform=Affine(D, 0, 512000.0, 0, -D, 5403000.0)) as ds:
+            ds.write(rgb)
+    rep = build_model(dsm, tmp_path / "out", max_error=0.3, cell=48, workers=0, progress=False, ortho=ortho)
+    assert rep.cells == 4 and rep.triangles < rep.grid_triangles / 4
+    ts = open_tileset(tmp_path / "out")
+    assert len(ts.root.children) == 4
+    doc = json.loads((tmp_path / "out" / "buildings.city.json").read_text())
+    assert len(doc["CityObjects"]) >= 2
+    model = read_city_model(tmp_path / "out" / "buildings.city.json")
+    heights = sorted(o.attributes["measuredHeight"] for o in model.objects)
+    assert any(abs(h - 12.0) < 0.7 for h in heights)
+    if geographic:  # positions projected to the UTM zone: metres, not degrees
+        assert ts.root.children[0].box.center[0] > 1000.0
+    else:
+        # no cracks: neighbouring cells have the same vertices on the row/column they share (locked)
+        tiles = {t.content_path.stem: t.load().vertices for t in ts.root.children}
+        xb = 512000.0 + (48 + 0.5) * D
+        yb = 5403000.0 - (48 + 0.5) * D
+        for a, b, axis, val in (("0_0", "0_1", 0, xb), ("0_0", "1_0", 1, yb)):
+            ea = {round(float(v), 3) for v in tiles[a][np.abs(tiles[a][:, axis] - val) < 1e-3][:, 1 - axis]}
+            eb = {round(float(v), 3) for v in tiles[b][np.abs(tiles[b][:, axis] - val) < 1e-3][:, 1 - axis]}
+            assert len(ea) > 40 and ea == eb
+        # textured: the red of the texel under each vertex grows with its x like the orthophoto's
+        from citylod.io.image import decode_image
+
+        t = ts.root.children[0]
+        mesh = t.load_content().meshes[0]
+        img = decode_image(mesh.texture)
+        px = np.clip((mesh.uv * (np.array(img.shape[1::-1]) - 1)).round().astype(int), 0, img.shape[0] - 1)
+        red = img[px[:, 1], px[:, 0], 0].astype(float)
+        xw = t.load().vertices[:, 0]
+        assert np.corrcoef(red, xw)[0, 1] > 0.95
+        # the command line reads the buildings back into a semantic store
+        from citylod.cli import main
+
+        assert main(["-q", "build", "city", str(tmp_path / "out" / "buildings.city.json"), "-o",
+                     str(tmp_path / "city.gpkg")]) == 0
+        assert (tmp_path / "city.gpkg").stat().st_size > 0
+
+
+def test_build_model_bad_input(tmp_path: Path) -> None:
+    from citylod.cli import main
+
+    bad = tmp_path / "bad.tif"
+    bad.write_bytes(b"not a raster")
+    assert main(["-q", "build", "model", str(bad), "-o", str(tmp_path / "o")]) == 2
+    assert not (tmp_path / "o").exists()
+    F, V, _ = _scene()
+    from affine import Affine
+
+    empty = _write_tif(tmp_path / "empty.tif", F, np.zeros_like(V), "EPSG:32632", Affine(D, 0, 0, 0, -D, 0))
+    assert main(["-q", "build", "model", str(empty), "-o", str(tmp_path / "o")]) == 2
+    assert not (tmp_path / "o").exists()
+
+
+def test_sample_city_ridges_and_eaves_kept() -> None:
+    from citylod.bench.model_bench import kept_fraction
+    from citylod.sample.city import make_city
+
+    city = make_city(257, seed=7, spacing=0.5)
+    x, y = city.pixel_centers()
+    F = city.surface_height(x, y)
+    V = ~city.nodata_mask(x, y)
+    m = simplify_grid(np.where(V, F, 0.0), V, D, D, 1.0, params=ShapeParams())
+    ids, inv = np.unique(m.faces, return_inverse=True)
+    pos = np.column_stack([x.reshape(-1)[ids], y.reshape(-1)[ids], F.reshape(-1)[ids]])
+    frac, n = kept_fraction(city, pos, inv.reshape(-1, 3))
+    assert n >= 4 and frac >= 0.95
