@@ -115,7 +115,11 @@ def encode_property_tables(b: _Builder, tables: list[PropertyTable], schema_id: 
                 offsets = np.zeros(len(enc) + 1, np.uint32)
                 offsets[1:] = np.cumsum([len(e) for e in enc], dtype=np.uint64).astype(np.uint32)
                 props_def.setdefault(name, {"type": "STRING", "noData": ""})
-                props[name] = {"values": b.view(b"".join(enc) or b"\x00", align=8),
+                if not offsets[-1]:
+                    # No value at all: the property is left out of the table (it is not required, so a
+                    # reader takes its noData), since a buffer view cannot be empty.
+                    continue
+                props[name] = {"values": b.view(b"".join(enc), align=8),
                                "stringOffsets": b.view(offsets, align=8), "stringOffsetType": "UINT32"}
             elif kind == "FLOAT64":
                 vals = np.where(np.isnan(col), _FLOAT_NODATA, np.asarray(col, np.float64))
@@ -162,6 +166,16 @@ def decode_property_tables(ext: dict[str, Any], view_bytes: Any, source: str) ->
                     elif "noData" in d:
                         arr[arr == d["noData"]] = np.iinfo(arr.dtype).min
                     table.columns[name] = arr
+            for name, d in cls.items():  # properties left out of the table: no value in any row
+                if name in table.columns:
+                    continue
+                if d.get("type") == "STRING":
+                    table.columns[name] = [None] * count
+                elif d.get("componentType") in ("FLOAT64", "FLOAT32"):
+                    table.columns[name] = np.full(count, np.nan)
+                elif d.get("componentType") in ("INT32", "INT64"):
+                    dt = np.int32 if d["componentType"] == "INT32" else np.int64
+                    table.columns[name] = np.full(count, np.iinfo(dt).min, dt)
             out.append(table)
         return out
     except (KeyError, TypeError, ValueError, UnicodeDecodeError) as exc:

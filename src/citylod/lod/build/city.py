@@ -263,6 +263,15 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
     meshes = []
     textured = np.zeros(len(faces), bool)
     uv = None
+    # The surface classes are a second feature ID set when the tile has any (a table needs a property).
+    has_classes = any(classes)
+
+    def feature_sets(used: npt.NDArray[np.int64]) -> list[FeatureIdSet]:
+        sets = [FeatureIdSet(obj_of_vertex[used], 0, len(rows), "city_object")]
+        if has_classes:
+            sets.append(FeatureIdSet(surf_ids[used], 1, len(classes), "surface"))
+        return sets
+
     if (atlas is not None or originals is not None) and pieces:
         uv = np.concatenate([np.full((len(p.vertices), 2), np.nan) if p.uv is None else p.uv for p in pieces])
         textured = np.isfinite(uv).all(axis=1)[faces].all(axis=1)
@@ -275,8 +284,7 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
             img_uv = np.column_stack([uv[used, 0], 1.0 - uv[used, 1]]).astype(np.float32)  # glTF: origin top left
             meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), uv=img_uv,
                                    texture=Path(originals[int(k)]).read_bytes(), name=f"image_{int(k)}",
-                                   features=[FeatureIdSet(obj_of_vertex[used], 0, len(rows), "city_object"),
-                                             FeatureIdSet(surf_ids[used], 1, len(classes), "surface")]))
+                                   features=feature_sets(used)))
         textured_done = True
     else:
         textured_done = False
@@ -286,8 +294,7 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
             continue
         # Each mesh keeps only the vertices its faces use (glTF accessors are per primitive).
         used, inv = np.unique(sel, return_inverse=True)
-        sets = [FeatureIdSet(obj_of_vertex[used], 0, len(rows), "city_object"),
-                FeatureIdSet(surf_ids[used], 1, len(classes), "surface")]
+        sets = feature_sets(used)
         if tex:
             assert atlas is not None and uv is not None
             meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), uv=tile_uv(uv[used], atlas[1]),
@@ -295,8 +302,9 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
         else:
             meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), colors=rgba[used], name="city",
                                    features=sets))
-    tables = [_object_table([objects[i] for i in rows]),
-              PropertyTable("surface", {"surface_class": [c or None for c in classes]})]
+    tables = [_object_table([objects[i] for i in rows])]
+    if has_classes:
+        tables.append(PropertyTable("surface", {"surface_class": [c or None for c in classes]}))
     return TileContent(meshes, property_tables=tables), rounding, int(len(faces))
 
 
