@@ -21,7 +21,7 @@ that at τ px no atlas texel covers more than τ pixels. Surfaces whose image is
 their material colour.
 
 A coarse tile's ``geometricError`` is a proven bound on the symmetric Hausdorff distance between its
-triangles and the original surfaces of its objects (:mod:`citylod.lod.kernels.hausdorff`; the union's
+triangles and the original surfaces of its objects (:mod:`citylod.lod.kernels.mesh_distance`; the union's
 distance is at most the largest of the groups', since every group pairs originals with their own stand-in),
 plus float32 rounding; a parent's error is never below its children's (docs/DESIGN.md, decision 3).
 
@@ -77,7 +77,7 @@ from citylod.lod.build.atlas import (
     tile_uv,
 )
 from citylod.lod.build.citymesh import ObjectMesh, block_mesh, footprint, object_mesh, prism
-from citylod.lod.kernels.hausdorff import hausdorff_bound
+from citylod.lod.kernels.mesh_distance import hausdorff_bound
 
 __all__ = ["CityTilesReport", "build_city_tiles", "default_tiles_dir"]
 

@@ -9,7 +9,7 @@ normal, so outward-facing input gives outward-facing triangles.
 Blocks are the coarse geometry of building LOD: an object's footprint (union of the xy projections of its
 non-vertical faces) extruded over its height range; merged blocks are footprints of neighbouring objects
 closed together (buffer out, union, buffer in) and simplified. Neither is trusted: the builder certifies their
-Hausdorff distance to the original surfaces (:mod:`citylod.lod.kernels.hausdorff`).
+Hausdorff distance to the original surfaces (:mod:`citylod.lod.kernels.mesh_distance`).
 
 No VTK, no Qt, no I/O.
 """

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from citylod.lod.kernels.hausdorff import directed_hausdorff, hausdorff_bound
+from citylod.lod.kernels.mesh_distance import directed_hausdorff, hausdorff_bound
 
 SQUARE = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]], float)
 TWO = np.array([[0, 1, 2], [0, 2, 3]])
