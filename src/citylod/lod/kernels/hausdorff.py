@@ -1,6 +1,6 @@
 """A certified upper bound of the symmetric 3D Hausdorff distance between a TIN and a height raster.
 
-This is the certificate behind a DSM tile's ``geometricError`` under the default metric (decision 3 of the
+This is the certificate behind a DSM tile's ``geometricError`` under ``metric="hausdorff"`` (decision 3 of the
 design): Wahl et al. (WSCG 2004) use the z-projection only to find corresponding parts and measure true 3D
 point–triangle distances between them; the vertical L∞ distance (:mod:`citylod.lod.kernels.certify`) counts
 a façade between two coarse samples at its full height.
