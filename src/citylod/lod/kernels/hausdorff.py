@@ -39,6 +39,7 @@ import numpy.typing as npt
 from numba import njit
 
 from citylod.lod.kernels.aot import kernel
+from citylod.lod.kernels.distance import point_triangle_sq
 from citylod.lod.kernels.tin_kernels import NO_NRT
 
 _EPS = 1e-9
@@ -46,50 +47,8 @@ _EPS = 1e-9
 
 @njit(cache=True, nogil=True, **NO_NRT)
 def _pt_tri(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):  # pragma: no cover - compiled
-    """Exact distance from a point to a triangle (Ericson, Real-Time Collision Detection, 5.1.5)."""
-    abx, aby, abz = bx - ax, by - ay, bz - az
-    acx, acy, acz = cx - ax, cy - ay, cz - az
-    apx, apy, apz = px - ax, py - ay, pz - az
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
-    if d1 <= 0.0 and d2 <= 0.0:
-        return math.sqrt(apx * apx + apy * apy + apz * apz)
-    bpx, bpy, bpz = px - bx, py - by, pz - bz
-    d3 = abx * bpx + aby * bpy + abz * bpz
-    d4 = acx * bpx + acy * bpy + acz * bpz
-    if d3 >= 0.0 and d4 <= d3:
-        return math.sqrt(bpx * bpx + bpy * bpy + bpz * bpz)
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        v = d1 / (d1 - d3)
-        qx, qy, qz = ax + v * abx - px, ay + v * aby - py, az + v * abz - pz
-        return math.sqrt(qx * qx + qy * qy + qz * qz)
-    cpx, cpy, cpz = px - cx, py - cy, pz - cz
-    d5 = abx * cpx + aby * cpy + abz * cpz
-    d6 = acx * cpx + acy * cpy + acz * cpz
-    if d6 >= 0.0 and d5 <= d6:
-        return math.sqrt(cpx * cpx + cpy * cpy + cpz * cpz)
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        w = d2 / (d2 - d6)
-        qx, qy, qz = ax + w * acx - px, ay + w * acy - py, az + w * acz - pz
-        return math.sqrt(qx * qx + qy * qy + qz * qz)
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        qx = bx + w * (cx - bx) - px
-        qy = by + w * (cy - by) - py
-        qz = bz + w * (cz - bz) - pz
-        return math.sqrt(qx * qx + qy * qy + qz * qz)
-    den = va + vb + vc
-    if den == 0.0:  # a degenerate triangle: its vertices and edges were tested above
-        return math.inf
-    v = vb / den
-    w = vc / den
-    qx = ax + abx * v + acx * w - px
-    qy = ay + aby * v + acy * w - py
-    qz = az + abz * v + acz * w - pz
-    return math.sqrt(qx * qx + qy * qy + qz * qz)
+    """Exact distance from a point to a triangle (an over-estimate for a degenerate one, never under)."""
+    return math.sqrt(point_triangle_sq(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz))
 
 
 @njit(cache=True, nogil=True, **NO_NRT)

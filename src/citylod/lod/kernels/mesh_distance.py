@@ -24,61 +24,12 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from citylod.lod.kernels.distance import point_triangle_sq
+
 __all__ = ["directed_hausdorff", "hausdorff_bound"]
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
-
-
-@numba.njit(cache=True, inline="always")
-def _closest_sq(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):  # pragma: no cover - compiled
-    # Ericson 2005, ClosestPtPointTriangle: Voronoi regions of vertices, edges and the face.
-    abx, aby, abz = bx - ax, by - ay, bz - az
-    acx, acy, acz = cx - ax, cy - ay, cz - az
-    apx, apy, apz = px - ax, py - ay, pz - az
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
-    if d1 <= 0.0 and d2 <= 0.0:
-        qx, qy, qz = ax, ay, az
-    else:
-        bpx, bpy, bpz = px - bx, py - by, pz - bz
-        d3 = abx * bpx + aby * bpy + abz * bpz
-        d4 = acx * bpx + acy * bpy + acz * bpz
-        if d3 >= 0.0 and d4 <= d3:
-            qx, qy, qz = bx, by, bz
-        else:
-            vc = d1 * d4 - d3 * d2
-            if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-                t = d1 / (d1 - d3)
-                qx, qy, qz = ax + t * abx, ay + t * aby, az + t * abz
-            else:
-                cpx, cpy, cpz = px - cx, py - cy, pz - cz
-                d5 = abx * cpx + aby * cpy + abz * cpz
-                d6 = acx * cpx + acy * cpy + acz * cpz
-                if d6 >= 0.0 and d5 <= d6:
-                    qx, qy, qz = cx, cy, cz
-                else:
-                    vb = d5 * d2 - d1 * d6
-                    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-                        t = d2 / (d2 - d6)
-                        qx, qy, qz = ax + t * acx, ay + t * acy, az + t * acz
-                    else:
-                        va = d3 * d6 - d5 * d4
-                        if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-                            t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-                            qx, qy, qz = bx + t * (cx - bx), by + t * (cy - by), bz + t * (cz - bz)
-                        else:
-                            den = va + vb + vc
-                            if den == 0.0:  # degenerate triangle: its vertices settle it
-                                qx, qy, qz = ax, ay, az
-                            else:
-                                v = vb / den
-                                w = vc / den
-                                qx = ax + abx * v + acx * w
-                                qy = ay + aby * v + acy * w
-                                qz = az + abz * v + acz * w
-    dx, dy, dz = px - qx, py - qy, pz - qz
-    return dx * dx + dy * dy + dz * dz
 
 
 @numba.njit(cache=True, inline="always")
@@ -97,7 +48,7 @@ def _dist(p, tri, box):  # pragma: no cover - compiled
     for k in range(tri.shape[0]):
         if _box_sq(p, box, k) >= best:
             continue
-        d = _closest_sq(p[0], p[1], p[2], tri[k, 0], tri[k, 1], tri[k, 2], tri[k, 3], tri[k, 4], tri[k, 5],
+        d = point_triangle_sq(p[0], p[1], p[2], tri[k, 0], tri[k, 1], tri[k, 2], tri[k, 3], tri[k, 4], tri[k, 5],
                         tri[k, 6], tri[k, 7], tri[k, 8])
         if d < best:
             best = d
@@ -113,7 +64,7 @@ def _convex_bound(a, b, c, tri, box):  # pragma: no cover - compiled
             continue
         worst = 0.0
         for p in (a, b, c):
-            d = _closest_sq(p[0], p[1], p[2], tri[k, 0], tri[k, 1], tri[k, 2], tri[k, 3], tri[k, 4], tri[k, 5],
+            d = point_triangle_sq(p[0], p[1], p[2], tri[k, 0], tri[k, 1], tri[k, 2], tri[k, 3], tri[k, 4], tri[k, 5],
                             tri[k, 6], tri[k, 7], tri[k, 8])
             if d > worst:
                 worst = d
