@@ -120,6 +120,8 @@ def check_image(uri: str, model_dir: Path, *, max_pixels: int = MAX_IMAGE_PIXELS
 def read_appearances(path: str | os.PathLike[str]) -> Appearances:
     """The appearances of a CityGML or CityJSON file (told apart as :func:`read_city_model` does)."""
     p = Path(path)
+    if p.suffix.lower() == ".jsonl":
+        return Appearances()  # CityJSONSeq: appearances per feature are not read yet; materials fall back
     with open(p, "rb") as fh:
         head = fh.read(256).lstrip(b"\xef\xbb\xbf \t\r\n")
     if p.suffix.lower() in (".json", ".cityjson") or head.startswith(b"{"):
