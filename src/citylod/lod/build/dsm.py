@@ -810,6 +810,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         Tileset folder to create (replaced when it already holds a citylod tileset).
     ortho
         Orthophoto to texture the tiles with (any CRS; resampled per tile by averaging).
+    texture_size
+        Pixels per side of each tile's texture, default 256; rounded up to a power of two, the only size glTF
+        clients mipmap (the glTF validator reports any other).
     max_error
         Leaf target in metres; default half the sample spacing. Level d above the leaves targets 2^d times it.
     tile_size
@@ -858,7 +861,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     partial = out.with_name(out.name + ".partial")
     partial.mkdir(parents=True, exist_ok=True)
     metric = info.metric_crs()
-    tex = texture_size or 256
+    tex = 1 << max(0, int(texture_size or 256) - 1).bit_length()
     cells = tile_size - 1
     stage1: list[DsmJob] = []
     all_jobs: dict[str, DsmJob] = {}
