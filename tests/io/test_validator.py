@@ -1,4 +1,4 @@
-"""citylod's tilesets pass CesiumGS's 3d-tiles-validator with no errors, no warnings and no infos about textures.
+"""citylod's tilesets pass CesiumGS's 3d-tiles-validator: no errors, no warnings, no infos about textures.
 
 The validator is built by ``scripts/validator.sh`` (``make test`` runs it) into ``.validator/``; where it could
 not be built (no node, no npm registry) these tests skip with the reason the script recorded.

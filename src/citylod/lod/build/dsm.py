@@ -65,6 +65,7 @@ import pyproj
 from citylod.core import journal
 from citylod.core.errors import GeoreferenceError, InputError
 from citylod.core.fileio import discard_partial_on_refusal, publish_dir
+from citylod.io.crs import missing_vertical_datum
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod.kernels import aot
@@ -155,6 +156,7 @@ class DsmBuildReport:
     resumed: int = 0
     executor: str = ""  # where the tiles were built: "inline", "threads", "forked processes", ...
     kernels: str = ""  # "compiled-ahead" (citylod.lod.kernels.aot) or "JIT"
+    heights: str = ""  # what the CRS leaves unsaid about the heights (no vertical datum), for the summary
 
     def summary(self) -> str:
         lines = [f"{self.output}: {self.tiles} tiles on {self.levels} levels from {self.width}×{self.height} "
@@ -166,6 +168,8 @@ class DsmBuildReport:
         for lv in self.per_level:
             lines.append(f"{lv['level']:5d} {lv['tiles']:6d} {lv['triangles']:11d} {lv['target']:10.3f} "
                          f"{lv['max_error']:13.3f}")
+        if self.heights:
+            lines.append(f"heights: {self.heights}")
         return "\n".join(lines)
 
 
@@ -969,6 +973,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         samples_per_s=info.width * info.height / max(seconds, 1e-9), peak_rss_mb=_peak_rss_mb(),
         leaf_target=leaf, per_level=per_level, resumed=resumed, executor=where,
         kernels="compiled-ahead" if compiled_ahead else "JIT",
+        # In the summary, not as a warning: a raster's heights are plausibly orthometric but the user cannot
+        # name the datum on the command line, so this says once what was assumed.
+        heights=missing_vertical_datum(info.crs) or "",
     )
 
 

@@ -479,7 +479,7 @@ def _pow2_at_least(n: int) -> int:  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def _shelves(sizes: npt.NDArray[np.int64], order: npt.NDArray[np.int64], width: int, gap: int,
              offsets: npt.NDArray[np.int64]) -> int:  # pragma: no cover - compiled
-    """Shelf-pack ``sizes`` in ``order`` into rows ``width`` texels wide; fills ``offsets``, returns the height."""
+    """Shelf-pack ``sizes`` in ``order`` into rows ``width`` wide; fill ``offsets``, return the height."""
     x = 0
     y = 0
     shelf = 0
