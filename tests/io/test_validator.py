@@ -90,3 +90,16 @@ def test_city_model_mesh_validates(validator, tmp_path) -> None:
     build_model(info.files["dsm"], tmp_path / "model", ortho=info.files["ortho"], cell=32, workers=0,
                 progress=False)
     assert _validate(validator, tmp_path / "model", tmp_path) == []
+
+
+def test_city_tilesets_validate(validator, sample_city, tmp_path) -> None:
+    """CityGML buildings as tiles with feature IDs and property tables (building LOD: blocks, merged
+    blocks), and a textured model with multiresolution atlases."""
+    from citylod.lod.build.city import build_city_tiles
+    from citylod.sample.textured import make_textured_city
+
+    build_city_tiles(sample_city.files["city"], tmp_path / "city", leaf_triangles=20, progress=False)
+    assert _validate(validator, tmp_path / "city", tmp_path) == []
+    textured = make_textured_city(tmp_path / "t", buildings=6, image_px=32)
+    build_city_tiles(textured.path, tmp_path / "textured", atlas_px=128, progress=False)
+    assert _validate(validator, tmp_path / "textured", tmp_path) == []

@@ -97,7 +97,7 @@ _BATCH = 32
 #: Levels of the scan grid: 2^7 = 128 cells per axis.
 SCAN_BITS = 7
 #: Below this many points a build runs in the calling process when no worker count is given: starting
-#: spawned workers (each imports numpy, numba, laspy: ≈1 s) costs more than two cores save.
+#: spawned workers (each imports numpy, numba and laspy) costs more than two cores save.
 INLINE_BELOW = 3_000_000
 
 
@@ -221,8 +221,7 @@ class _ChunkResult:
 def _xyz(recs: Recs) -> F64:
     """(N, 3) float64 positions of POINT_DTYPE records.
 
-    Column by column: one strided copy through ``as_strided`` over the unaligned 31-byte records measured
-    anywhere from 4 to 40 ms on the Delft cloud, the three field copies a steady 7 ms.
+    Column by column: a strided copy over the unaligned records was slower and far less steady.
     """
     out = np.empty((len(recs), 3))
     for k, name in enumerate("xyz"):
@@ -232,7 +231,7 @@ def _xyz(recs: Recs) -> F64:
 
 def _concat_recs(parts: Sequence[Recs]) -> Recs:
     """``np.concatenate`` of record arrays, as opaque bytes: numpy concatenates records field by field,
-    70 ms for the Delft cloud against 5 ms this way."""
+    an order of magnitude slower."""
     if len(parts) == 1:
         return parts[0]
     dt = parts[0].dtype
@@ -244,8 +243,8 @@ def _take(a: np.ndarray, idx: I64) -> np.ndarray:
     """``a[idx]`` along the first axis, for (N,) records or (N, k) arrays.
 
     numpy's fancy indexing copies record by record through the dtype's fields, and (N, 3) rows
-    element by element; gathering the records as opaque bytes, and rows with ``take``, measured 3-8×
-    faster on the Delft cloud.
+    element by element; gathering the records as opaque bytes, and rows with ``take``, is several times
+    faster.
     """
     if a.dtype.names is not None:
         return np.ascontiguousarray(a).view(np.dtype((np.void, a.dtype.itemsize)))[idx].view(a.dtype)
@@ -258,7 +257,7 @@ def _key(level: int, idx: tuple[int, int, int]) -> str:
 
 def _file_key(level: int, idx: tuple[int, int, int]) -> str:
     # One folder per level, not per (level, x, y) as the key would give: creating a folder costs as much
-    # as writing a node (≈0.5 ms on ext4 here), and a deep octree has nearly a folder per node.
+    # as writing a node, and a deep octree has nearly a folder per node.
     return f"{level}/{idx[0]}-{idx[1]}-{idx[2]}"
 
 
