@@ -1,5 +1,6 @@
 """Heights in a CRS without a vertical datum are written as ellipsoidal: ``build points`` warns once, on one
-line ``citylod: warning: ...`` naming the compound CRS to pass instead; ``build dsm`` says so in its summary.
+line ``citylod: warning: ...`` naming the compound CRS to pass instead; ``build dsm`` and ``build model`` say
+so in their summary.
 Every warning the command line prints is one line."""
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import warnings
 
 import numpy as np
 import pyproj
+import pytest
 import rasterio
 from rasterio.transform import from_origin
 
@@ -60,8 +62,9 @@ def _raster(path, crs: str):
     return path
 
 
-def test_dsm_in_a_horizontal_crs_says_so_in_the_summary(tmp_path, capsys) -> None:
-    args = ["-q", "build", "dsm", "--workers", "0", "-o"]
+@pytest.mark.parametrize("kind", ["dsm", "model"])
+def test_raster_in_a_horizontal_crs_says_so_in_the_summary(tmp_path, capsys, kind: str) -> None:
+    args = ["-q", "build", kind, "--workers", "0", "-o"]
     assert main([*args, str(tmp_path / "rd"), str(_raster(tmp_path / "rd.tif", "EPSG:28992"))]) == 0
     out, err = capsys.readouterr()
     heights = [ln for ln in out.splitlines() if ln.startswith("heights:")]
