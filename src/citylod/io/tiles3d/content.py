@@ -274,8 +274,9 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             attrs["TEXCOORD_0"] = b.accessor(np.asarray(mesh.uv, dtype=np.float32), "VEC2")
             mime = "image/png" if mesh.texture[:8] == b"\x89PNG\r\n\x1a\n" else "image/jpeg"
             img = b.add("images", {"bufferView": b.view(mesh.texture), "mimeType": mime})
-            # Mipmaps only for power-of-two images: WebGL 1 clients cannot mipmap others (the validator's
-            # info on plane-quad atlases); LINEAR then, which those clients sample as is.
+            # Mipmaps only for power-of-two images: WebGL 1 clients cannot mipmap others; LINEAR then, which
+            # they sample as is. citylod's own builders write power-of-two textures only (the validator
+            # reports any other, whatever the sampler); other sizes come from re-encoding others' content.
             w, h = _image_size(mesh.texture)
             pot = w > 0 and h > 0 and not (w & (w - 1)) and not (h & (h - 1))
             smp = b.add("samplers", {"magFilter": 9729, "minFilter": 9987 if pot else 9729,

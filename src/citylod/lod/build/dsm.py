@@ -76,6 +76,7 @@ import pyproj
 from citylod.core import journal
 from citylod.core.errors import GeoreferenceError, InputError
 from citylod.core.fileio import discard_partial_on_refusal, publish_dir
+from citylod.io.crs import missing_vertical_datum
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod.kernels import aot
@@ -183,6 +184,7 @@ class DsmBuildReport:
     resumed: int = 0
     executor: str = ""  # where the tiles were built: "inline", "threads", "forked processes", ...
     kernels: str = ""  # "compiled-ahead" (citylod.lod.kernels.aot) or "JIT"
+    heights: str = ""  # what the CRS leaves unsaid about the heights (no vertical datum), for the summary
 
     def summary(self) -> str:
         lines = [f"{self.output}: {self.tiles} tiles on {self.levels} levels from {self.width}×{self.height} "
@@ -194,6 +196,8 @@ class DsmBuildReport:
         for lv in self.per_level:
             lines.append(f"{lv['level']:5d} {lv['tiles']:6d} {lv['triangles']:11d} {lv['target']:10.3f} "
                          f"{lv['max_error']:13.3f}")
+        if self.heights:
+            lines.append(f"heights: {self.heights}")
         return "\n".join(lines)
 
 
@@ -997,6 +1001,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         Tileset folder to create (replaced when it already holds a citylod tileset).
     ortho
         Orthophoto to texture the tiles with (any CRS; resampled per tile by averaging).
+    texture_size
+        Pixels per side of each tile's texture, default 256; rounded up to a power of two, the only size glTF
+        clients mipmap (the glTF validator reports any other).
     max_error
         Leaf target in metres; default half the sample spacing. Level d above the leaves targets 2^d times it.
     tile_size
@@ -1053,7 +1060,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     partial = out.with_name(out.name + ".partial")
     partial.mkdir(parents=True, exist_ok=True)
     metric_crs = info.metric_crs()
-    tex = texture_size or 256
+    tex = 1 << max(0, int(texture_size or 256) - 1).bit_length()
     cells = tile_size - 1
     stage1: list[DsmJob] = []
     all_jobs: dict[str, DsmJob] = {}
@@ -1160,6 +1167,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         samples_per_s=info.width * info.height / max(seconds, 1e-9), peak_rss_mb=_peak_rss_mb(),
         leaf_target=leaf, per_level=per_level, resumed=resumed, executor=where,
         kernels="compiled-ahead" if compiled_ahead else "JIT",
+        # In the summary, not as a warning: a raster's heights are plausibly orthometric but the user cannot
+        # name the datum on the command line, so this says once what was assumed.
+        heights=missing_vertical_datum(info.crs) or "",
     )
 
 
