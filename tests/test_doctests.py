@@ -19,6 +19,8 @@ MODULES = [
     "citylod.lod.build.citymesh",
     "citylod.sample.textured",
     "citylod.lod.build.model",
+    "citylod.lod.build.dsm",
+    "citylod.lod.kernels.hausdorff",
     "citylod.render.offscreen",
     "citylod.render.pyvista_layer",
     "citylod.render.splats",
