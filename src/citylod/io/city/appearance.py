@@ -235,8 +235,8 @@ def _citygml(path: Path) -> Appearances:
         ext = exterior.get(pid)
         if ext is None or len(ext) < 3:
             continue
-        image, uv = textured.get(pid, (None, {}))
-        out.surfaces[ring_key(ext)] = SurfaceAppearance(image if uv else None, uv, material_of.get(pid))
+        image, uv_of = textured.get(pid, (None, {}))
+        out.surfaces[ring_key(ext)] = SurfaceAppearance(image if uv_of else None, uv_of, material_of.get(pid))
     return out
 
 

@@ -51,12 +51,12 @@ class PropertyTable:
         """Row ``i`` as a dict (no-data values as None)."""
         out: dict[str, Any] = {}
         for name, col in self.columns.items():
-            v = col[i]
+            v: Any = col[i]
             if isinstance(col, np.ndarray):
                 if col.dtype.kind == "f":
                     v = None if np.isnan(v) else float(v)
                 else:
-                    v = None if int(v) == np.iinfo(col.dtype).min else int(v)
+                    v = None if int(v) == int(np.iinfo(col.dtype).min) else int(v)  # type: ignore[type-var]
             out[name] = v
         return out
 
@@ -122,7 +122,8 @@ def encode_property_tables(b: _Builder, tables: list[PropertyTable], schema_id: 
                 props[name] = {"values": b.view(b"".join(enc), align=8),
                                "stringOffsets": b.view(offsets, align=8), "stringOffsetType": "UINT32"}
             elif kind == "FLOAT64":
-                vals = np.where(np.isnan(col), _FLOAT_NODATA, np.asarray(col, np.float64))
+                col64 = np.asarray(col, np.float64)
+                vals = np.where(np.isnan(col64), _FLOAT_NODATA, col64)
                 props_def.setdefault(name, {"type": "SCALAR", "componentType": kind, "noData": _FLOAT_NODATA})
                 props[name] = {"values": b.view(vals.astype("<f8"), align=8)}
             else:
@@ -174,8 +175,8 @@ def decode_property_tables(ext: dict[str, Any], view_bytes: Any, source: str) ->
                 elif d.get("componentType") in ("FLOAT64", "FLOAT32"):
                     table.columns[name] = np.full(count, np.nan)
                 elif d.get("componentType") in ("INT32", "INT64"):
-                    dt = np.int32 if d["componentType"] == "INT32" else np.int64
-                    table.columns[name] = np.full(count, np.iinfo(dt).min, dt)
+                    int_type: type[np.signedinteger[Any]] = np.int32 if d["componentType"] == "INT32" else np.int64
+                    table.columns[name] = np.full(count, np.iinfo(int_type).min, int_type)
             out.append(table)
         return out
     except (KeyError, TypeError, ValueError, UnicodeDecodeError) as exc:

@@ -347,7 +347,7 @@ def _atlas_node(n: _Node, square: Square, meshes: Sequence[ObjectMesh], images: 
     err = 0.0
     for p in pieces:
         assert p.uv is not None
-        tex = np.isfinite(p.uv).all(axis=1)[p.faces].all(axis=1)
+        tex = np.asarray(np.isfinite(p.uv).all(axis=1))[p.faces].all(axis=1)
         if tex.any():
             err = max(err, texel_size_m(p.vertices, p.faces[tex], np.nan_to_num(p.uv), square, atlas_px))
     return pieces, (encode_image(pixels, "jpg", 90), square), err
@@ -391,8 +391,8 @@ def _merged_pieces(members: I64, objects: Sequence[CityObject], meshes: Sequence
             err = max(err, _group_error(v, f, [meshes[i] for i in group], tol_m))
         for k in np.flatnonzero(~owned):  # a footprint lost by the closing (a sliver): keep its block
             i = ids[k]
-            v, f, s = block_mesh(feet[i], meshes[i])
-            pieces.append(_Piece(i, v, f, list(s)))
+            bv, bf, bs = block_mesh(feet[i], meshes[i])
+            pieces.append(_Piece(i, bv, bf, list(bs)))
             err = max(err, _group_error(v, f, [meshes[i]], tol_m))
     return pieces, err
 

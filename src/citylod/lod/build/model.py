@@ -341,10 +341,10 @@ def rasterize_las(files: list[str | os.PathLike[str]], out_tif: str | os.PathLik
             c = np.clip(((x - x0) / spacing).astype(np.int64), 0, W - 1)
             r = np.clip(((y1 - y) / spacing).astype(np.int64), 0, H - 1)
             np.maximum.at(grid, r * W + c, z)
-    grid = grid.reshape(H, W)
-    empty = ~np.isfinite(grid)
+    grid2 = grid.reshape(H, W)
+    empty = ~np.isfinite(grid2)
     dist, idx = ndimage.distance_transform_edt(empty, return_indices=True)
-    dsm = grid[tuple(idx)]
+    dsm = grid2[tuple(idx)]
     dsm[dist > fill_samples] = -9999.0
     crs_out = crs or wkt
     if crs_out is None:
