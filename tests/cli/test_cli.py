@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import rasterio
 from rasterio.transform import from_origin
@@ -36,3 +38,35 @@ def test_errors_are_one_line_with_exit_code_2(tmp_path, capsys) -> None:
     assert main(["build", "points", str(tmp_path / "bad.laz"), "-o", str(tmp_path / "p")]) == 2
     assert "bad.laz" in capsys.readouterr().err
     assert not (tmp_path / "p").exists()
+
+
+def test_build_city_writes_the_store_and_the_tileset_beside_it(sample_city, tmp_path: Path, capsys) -> None:
+    from citylod.io.tiles3d import open_tileset
+
+    out = tmp_path / "city.gpkg"
+    assert main(["-q", "build", "city", str(sample_city.files["city"]), "-o", str(out)]) == 0
+    assert out.is_file()
+    ts = open_tileset(tmp_path / "city_tiles")
+    assert ts.kind == "city" and ts.citylod["objects"] == len(sample_city.city.buildings)
+    assert "city objects in" in capsys.readouterr().out
+    assert main(["-q", "build", "city", str(sample_city.files["city"]), "-o", str(tmp_path / "b.gpkg"),
+                 "--no-tiles"]) == 0
+    assert not (tmp_path / "b_tiles").exists()
+    # a broken model: exit 2, nothing written
+    bad = tmp_path / "bad.gml"
+    bad.write_text("<CityModel><cityObjectMember><Building")
+    assert main(["-q", "build", "city", str(bad), "-o", str(tmp_path / "c.gpkg")]) == 2
+    assert not (tmp_path / "c.gpkg").exists() and not (tmp_path / "c_tiles").exists()
+
+
+def test_build_city_textured_warns_about_a_missing_image(tmp_path: Path, capsys) -> None:
+    from citylod.io.tiles3d import open_tileset
+
+    assert main(["-q", "sample", str(tmp_path / "s"), "--textured", "3", "--image-px", "32"]) == 0
+    (tmp_path / "s" / "textures" / "BLDG_T0001_roof.jpg").unlink()
+    assert main(["-q", "build", "city", str(tmp_path / "s" / "textured.gml"), "-o", str(tmp_path / "c.gpkg"),
+                 "--atlas-px", "256"]) == 0
+    out = capsys.readouterr().out
+    assert "BLDG_T0001_roof.jpg" in out and "missing" in out
+    ts = open_tileset(tmp_path / "c_tiles")
+    assert ts.citylod["textured"] and ts.citylod["atlas_px"] == 256

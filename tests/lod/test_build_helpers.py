@@ -125,6 +125,7 @@ def test_quad_atlas_holds_every_texture_once_where_its_uvs_point(n: int) -> None
     res = _plane_result(np.random.default_rng(n), n)
     pos, faces, uv, atlas = quad_mesh_arrays(res)
     ah, aw = atlas.shape[:2]
+    assert ah & (ah - 1) == 0 and aw & (aw - 1) == 0, (ah, aw)  # glTF clients mipmap only these
     assert np.array_equal(pos, res.corners.reshape(-1, 3).astype(np.float32))
     assert faces.shape == (2 * n, 3) and faces.max() == 4 * n - 1
     cover = np.zeros((ah, aw), int)

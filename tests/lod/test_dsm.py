@@ -138,7 +138,7 @@ def test_city_with_cliffs_holes_and_large_coordinates(tmp_path) -> None:
     z[:, :7] = NODATA  # a no-data border
     valid = z != NODATA
     write_raster(tmp_path / "dsm.tif", z, y0=5_500_000.0)
-    rep = build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False)
+    rep = build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False, metric="vertical")
     assert rep.levels == 4
     ts, _ = check_tileset(tmp_path / "out", z, valid, y0=5_500_000.0)
     leaves = [t for t in ts.walk() if not t.children and t.content_uri]
@@ -161,8 +161,8 @@ def test_leaf_bound_from_the_kernel_holds_against_the_certifier(tmp_path) -> Non
     z[90:120, 30:80] = NODATA
     valid = z != NODATA
     write_raster(tmp_path / "dsm.tif", z)
-    build_dsm(tmp_path / "dsm.tif", tmp_path / "kernel", tile_size=65, workers=0, progress=False)
-    build_dsm(tmp_path / "dsm.tif", tmp_path / "certified", tile_size=65, workers=0, progress=False,
+    build_dsm(tmp_path / "dsm.tif", tmp_path / "kernel", tile_size=65, workers=0, progress=False, metric="vertical")
+    build_dsm(tmp_path / "dsm.tif", tmp_path / "certified", tile_size=65, workers=0, progress=False, metric="vertical",
               certify_leaves=True)
     a = {t.key: t for t in check_tileset(tmp_path / "kernel", z, valid)[0].walk()}
     b = {t.key: t for t in check_tileset(tmp_path / "certified", z, valid)[0].walk()}
@@ -206,12 +206,12 @@ def _borders_match(by_key, ts) -> bool:
 def test_flat_constant_and_thin_rasters(tmp_path) -> None:
     flat = np.full((130, 130), 12.5)
     write_raster(tmp_path / "flat.tif", flat)
-    build_dsm(tmp_path / "flat.tif", tmp_path / "flat", tile_size=65, workers=1, progress=False)
+    build_dsm(tmp_path / "flat.tif", tmp_path / "flat", tile_size=65, workers=1, progress=False, metric="vertical")
     ts, _ = check_tileset(tmp_path / "flat", flat, np.ones_like(flat, bool))
     assert sum(len(t.load().faces[~t.load().skirt]) for t in ts.walk() if not t.children) <= 2 * 9
     thin = np.linspace(0, 10, 40)[None, :].repeat(2, axis=0)  # 2×N: the thinnest raster with area
     write_raster(tmp_path / "thin.tif", thin)
-    build_dsm(tmp_path / "thin.tif", tmp_path / "thin", tile_size=65, workers=1, progress=False)
+    build_dsm(tmp_path / "thin.tif", tmp_path / "thin", tile_size=65, workers=1, progress=False, metric="vertical")
     check_tileset(tmp_path / "thin", thin, np.ones_like(thin, bool))
 
 
@@ -288,9 +288,9 @@ def test_resume_after_interruption(tmp_path) -> None:
     z = city_like(200, 200, seed=3)
     write_raster(tmp_path / "dsm.tif", z)
     with pytest.raises(KeyboardInterrupt):
-        build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False, _stop_after=5)
+        build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False, metric="vertical", _stop_after=5)
     assert not (tmp_path / "out").exists() and (tmp_path / "out.partial").exists()
-    rep = build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False)
+    rep = build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=1, progress=False, metric="vertical")
     assert rep.resumed == 5
     check_tileset(tmp_path / "out", z, np.ones_like(z, bool))
 

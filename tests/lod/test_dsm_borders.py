@@ -95,10 +95,10 @@ def test_interrupted_in_stage_two_resumes_with_matching_borders(tmp_path, monkey
     monkeypatch.setattr(dsm, "_real_finish_tile", dsm.finish_tile, raising=False)
     monkeypatch.setattr(dsm, "finish_tile", _finish_or_interrupt)
     with pytest.raises(KeyboardInterrupt):
-        dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=workers, progress=False)
+        dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=workers, progress=False, metric="vertical")
     monkeypatch.setattr(dsm, "finish_tile", dsm._real_finish_tile)
     monkeypatch.setattr(dsm, "build_tile", _no_stage_one)
-    rep = dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=workers, progress=False)
+    rep = dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "out", tile_size=65, workers=workers, progress=False, metric="vertical")
     assert 0 < rep.resumed == rep.tiles
     check_tileset(tmp_path / "out", z, np.ones_like(z, bool))
     ts = open_tileset(tmp_path / "out")
@@ -115,10 +115,10 @@ def test_block_wise_footprints_build_the_same_tiles(tmp_path, monkeypatch) -> No
     z = city_like(150, 170, seed=2)
     z[60:80, 100:120] = NODATA
     write_raster(tmp_path / "dsm.tif", z)
-    dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "whole", tile_size=33, workers=0, progress=False)
+    dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "whole", tile_size=33, workers=0, progress=False, metric="vertical")
     monkeypatch.setattr(dsm, "_WHOLE_FOOTPRINT_SAMPLES", 0)
     monkeypatch.setattr(dsm, "_BLOCK", 40)
-    dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "blocks", tile_size=33, workers=0, progress=False)
+    dsm.build_dsm(tmp_path / "dsm.tif", tmp_path / "blocks", tile_size=33, workers=0, progress=False, metric="vertical")
     a, b = list(open_tileset(tmp_path / "whole").walk()), list(open_tileset(tmp_path / "blocks").walk())
     assert [t.key for t in a] == [t.key for t in b]
     assert [t.geometric_error for t in a] == [t.geometric_error for t in b]

@@ -5,7 +5,8 @@ The ``citylod`` command.
 One module per subcommand (``add_parser`` and ``run``), registered in :data:`COMMANDS`, the one table of
 commands. Each subcommand imports what it needs when it runs, so ``citylod --help`` is fast and a machine
 without a display can run every command but ``view``. A :class:`~citylod.core.errors.CitylodError` becomes
-one line on stderr and exit code 2.
+one line on stderr and exit code 2; a warning becomes one line ``citylod: warning: ...`` (not Python's two,
+whose second repeats the source line that raised it).
 """
 
 from __future__ import annotations
@@ -13,7 +14,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 from collections.abc import Sequence
+from typing import Any, TextIO
 
 from citylod.core.errors import CitylodError
 
@@ -42,9 +45,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: TextIO | None = None, line: str | None = None) -> None:
+    """:func:`warnings.showwarning` for the command line: one line, ``citylod: warning: MESSAGE``; the
+    category is named unless it is a plain UserWarning (citylod's own)."""
+    text = " ".join(str(message).split())
+    kind = "" if category is UserWarning else f"{category.__name__}: "
+    print(f"citylod: warning: {kind}{text}", file=sys.stderr if file is None else file)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     progress = not args.quiet
+    with warnings.catch_warnings():  # the hook only while a command runs: callers of main() keep theirs
+        warnings.showwarning = show_warning
+        return _run(args, progress)
+
+
+def _run(args: Any, progress: bool) -> int:
     try:
         return int(importlib.import_module(f"citylod.cli.{COMMANDS[args.command]}").run(args, progress))
     except CitylodError as exc:

@@ -180,6 +180,45 @@ def _height_offset(wkt: str, x: float, y: float, z: float, lon: float, lat: floa
                  f"(EGM96) or the datum's grid into {pyproj.datadir.get_data_dir()}")
 
 
+def compound_crs_for(crs: pyproj.CRS, limit: int = 3) -> list[str]:
+    """Up to ``limit`` EPSG compound CRSs ("EPSG:7415 (Amersfoort / RD New + NAP height)") whose horizontal
+    part is ``crs``, from PROJ's own database (proj.db, read-only); empty where there is none or the
+    CRS has no EPSG code."""
+    import sqlite3
+
+    auth = crs.to_authority()
+    if auth is None or auth[0] != "EPSG":
+        return []
+    try:
+        path = os.path.join(pyproj.datadir.get_data_dir(), "proj.db")
+        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            rows = db.execute("SELECT code, name FROM compound_crs WHERE auth_name = 'EPSG' "
+                              "AND deprecated = 0 AND horiz_crs_auth_name = 'EPSG' AND horiz_crs_code = ? "
+                              "ORDER BY CAST(code AS INTEGER) LIMIT ?", (auth[1], limit)).fetchall()
+        finally:
+            db.close()
+    except sqlite3.Error:  # another PROJ database layout: no suggestion rather than a failed build
+        return []
+    return [f"EPSG:{code} ({name})" for code, name in rows]
+
+
+def missing_vertical_datum(crs: pyproj.CRS) -> str | None:
+    """Why heights in ``crs`` are written as WGS84 ellipsoidal heights; None where ``crs`` says what they are.
+
+    A horizontal-only CRS (plain EPSG:28992, as Delft's LiDAR headers carry) names no vertical datum, so
+    heights are taken as ellipsoidal; where they are in fact orthometric (NAP, DHHN, ...) they sit tens of
+    metres off on a globe (43 m under the terrain at Delft). A compound CRS or a 3D geographic or geocentric
+    one says what its heights are. The message names the compound CRSs EPSG pairs with ``crs``.
+    """
+    if crs.is_compound or crs.is_geocentric or len(crs.axis_info) >= 3:
+        return None
+    options = compound_crs_for(crs)
+    hint = (f"if they are above a height datum, name its compound CRS, e.g. {' or '.join(options)}" if options
+            else "if they are above a height datum, name a compound CRS that includes it")
+    return f"{crs.name} has no vertical datum: heights are written as WGS84 ellipsoidal heights; {hint}"
+
+
 def height_to_ellipsoid(crs: pyproj.CRS, x: float, y: float, z: float, lon: float, lat: float) -> float:
     """Metres to add to a height of ``crs`` at (x, y, z) (lon, lat in degrees) to get a WGS84 ellipsoidal height.
 

@@ -91,3 +91,32 @@ def encode_png(pixels: npt.NDArray[np.uint8], level: int = 1) -> bytes:
     ihdr = w.to_bytes(4, "big") + h.to_bytes(4, "big") + bytes([8, _PNG_COLOUR_TYPE[c], 0, 0, 0])
     return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw.tobytes(), level))
             + chunk(b"IEND", b""))
+
+
+def read_image(path: str | os.PathLike[str]) -> npt.NDArray[np.uint8]:
+    """Decode an image file (JPEG, PNG, TIFF, ...) to (H, W, 3) uint8 RGB (grey repeated, alpha dropped)."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(str(path))
+    pixels = buf.get_pixels(oiio.UINT8)
+    if pixels is None or buf.has_error:
+        raise InputError(f"cannot decode image ({buf.geterror()})", path)
+    arr = np.asarray(pixels, dtype=np.uint8)
+    if arr.ndim == 2:
+        arr = arr[:, :, None]
+    if arr.shape[2] < 3:
+        arr = np.repeat(arr[:, :, :1], 3, axis=2)
+    return np.ascontiguousarray(arr[:, :, :3])
+
+
+def resize_image(pixels: npt.NDArray[np.uint8], width: int, height: int) -> npt.NDArray[np.uint8]:
+    """(H, W, C) uint8 resampled to (height, width, C) with OpenImageIO's filtered resize (a Lanczos-like
+    filter when shrinking, so detail finer than the new texel averages out instead of aliasing)."""
+    import OpenImageIO as oiio
+
+    arr = np.ascontiguousarray(pixels, np.uint8)
+    h, w, c = arr.shape
+    src = oiio.ImageBuf(oiio.ImageSpec(w, h, c, "uint8"))
+    src.set_pixels(oiio.ROI(), arr)
+    dst = oiio.ImageBufAlgo.resize(src, roi=oiio.ROI(0, int(width), 0, int(height), 0, 1, 0, c))
+    return np.asarray(dst.get_pixels(oiio.UINT8), np.uint8).reshape(int(height), int(width), c)

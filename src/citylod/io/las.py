@@ -263,7 +263,8 @@ def read_metadata(files: Sequence[str | PathLike[str]], crs: Any = None) -> LasM
     else:
         missing = [i for i in infos if i.crs is None]
         if missing:
-            raise GeoreferenceError("the header has no CRS; pass one with --crs (e.g. --crs EPSG:28992)",
+            raise GeoreferenceError("the header has no CRS; pass one with --crs, with its height datum "
+                                    "(e.g. --crs EPSG:7415 for RD New + NAP heights)",
                                     missing[0].path)
         first = infos[0].crs
         assert first is not None

@@ -32,6 +32,7 @@ from numba import njit
 
 from citylod.core.camera import Camera
 from citylod.core.jit import defer_blas_probe
+from citylod.lod.kernels.distance import point_triangle_sq
 from citylod.render.depth import world_rays
 
 defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
@@ -100,50 +101,7 @@ def measure_error(depth_lod: npt.ArrayLike, depth_full: npt.ArrayLike, camera: C
 
 @njit(cache=True, nogil=True)
 def _point_triangle_distance(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
-    # Distance from point p to triangle abc (Ericson, Real-Time Collision Detection, 5.1.5), on scalars:
-    # the array form allocates a temporary per vector operation, which dominated a frame's measurement.
-    abx, aby, abz = bx - ax, by - ay, bz - az
-    acx, acy, acz = cx - ax, cy - ay, cz - az
-    apx, apy, apz = px - ax, py - ay, pz - az
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
-    if d1 <= 0.0 and d2 <= 0.0:
-        qx, qy, qz = ax, ay, az
-    else:
-        bpx, bpy, bpz = px - bx, py - by, pz - bz
-        d3 = abx * bpx + aby * bpy + abz * bpz
-        d4 = acx * bpx + acy * bpy + acz * bpz
-        if d3 >= 0.0 and d4 <= d3:
-            qx, qy, qz = bx, by, bz
-        else:
-            vc = d1 * d4 - d3 * d2
-            if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-                t = d1 / (d1 - d3)
-                qx, qy, qz = ax + abx * t, ay + aby * t, az + abz * t
-            else:
-                cpx, cpy, cpz = px - cx, py - cy, pz - cz
-                d5 = abx * cpx + aby * cpy + abz * cpz
-                d6 = acx * cpx + acy * cpy + acz * cpz
-                if d6 >= 0.0 and d5 <= d6:
-                    qx, qy, qz = cx, cy, cz
-                else:
-                    vb = d5 * d2 - d1 * d6
-                    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-                        t = d2 / (d2 - d6)
-                        qx, qy, qz = ax + acx * t, ay + acy * t, az + acz * t
-                    else:
-                        va = d3 * d6 - d5 * d4
-                        if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-                            t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-                            qx, qy, qz = bx + (cx - bx) * t, by + (cy - by) * t, bz + (cz - bz) * t
-                        else:
-                            den = 1.0 / (va + vb + vc)
-                            v, w = vb * den, vc * den
-                            qx = ax + abx * v + acx * w
-                            qy = ay + aby * v + acy * w
-                            qz = az + abz * v + acz * w
-    dx, dy, dz = px - qx, py - qy, pz - qz
-    return math.sqrt(dx * dx + dy * dy + dz * dz)
+    return math.sqrt(point_triangle_sq(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz))
 
 
 @njit(cache=True, nogil=True)

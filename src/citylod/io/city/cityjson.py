@@ -84,7 +84,7 @@ def _surfaces(geom: dict[str, Any]) -> list[tuple[list[Any], Any]]:
     # Boundaries nest surfaces in shells in solids; walk as deep as the type says, checking each level.
     level: list[tuple[Any, tuple[int, ...]]] = [(b, ())]
     for _ in range(depth - 1):
-        nxt = []
+        nxt: list[tuple[Any, tuple[int, ...]]] = []
         for node, idx in level:
             if not isinstance(node, list):
                 raise _Bad(f"{t} boundaries are not nested {depth + 2} deep")
@@ -331,7 +331,7 @@ def _objects(cos: dict[str, Any], verts: np.ndarray, templates: tuple[dict[str, 
                     continue
                 if not rings:
                     continue
-                poly, n = repair_polygon(rings, implicit_close=True)
+                poly, n = repair_polygon([r for r in rings if r is not None], implicit_close=True)
                 notes += n
                 if poly is not None:
                     polys.append(poly)
@@ -379,7 +379,7 @@ def _instance(g: dict[str, Any], templates: tuple[dict[str, Any], np.ndarray], v
         if any(r is None for r in rings):
             notes.append("dropped a template surface with bad indices")
             continue
-        poly, n = repair_polygon(rings, implicit_close=True) if rings else (None, [])
+        poly, n = repair_polygon([r for r in rings if r is not None], implicit_close=True) if rings else (None, [])
         notes += n
         if poly is not None:
             polys.append(poly)

@@ -5,6 +5,7 @@ What a tile *is* lives here; what *makes* tiles lives in :mod:`citylod.lod.build
 """
 
 from citylod.io.tiles3d.content import MeshData, PointData, TileContent, encode_glb, glb_buffer
+from citylod.io.tiles3d.features import FeatureIdSet, PropertyTable
 from citylod.io.tiles3d.gltf import decode_glb
 from citylod.io.tiles3d.legacy import decode_content
 from citylod.io.tiles3d.tileset import (
@@ -20,7 +21,7 @@ from citylod.io.tiles3d.tileset import (
 )
 
 __all__ = [
-    "MeshData", "PointData", "Tile", "TileContent", "TileMesh", "TileSpec", "Tileset", "content_path",
+    "FeatureIdSet", "MeshData", "PointData", "PropertyTable", "Tile", "TileContent", "TileMesh", "TileSpec", "Tileset", "content_path",
     "decode_content", "decode_glb", "encode_glb", "glb_buffer", "open_tileset", "safe_resolve", "write_content",
     "write_tileset",
 ]

@@ -22,6 +22,7 @@ import numpy.typing as npt
 from citylod._version import __version__
 from citylod.core.geometry import F64
 from citylod.io.tiles3d.colour import SRGB8_TO_LINEAR8, SRGB8_TO_LINEAR16
+from citylod.io.tiles3d.features import FeatureIdSet, PropertyTable, encode_property_tables
 
 _COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
@@ -33,7 +34,8 @@ _POINT_ATTRS = {"_INTENSITY": "intensity", "_CLASSIFICATION": "classification", 
 class MeshData:
     """One triangle mesh of a tile. ``positions`` (N, 3) float32 relative to the tile centre, z up;
     ``faces`` (M, 3) uint32; ``skirt`` (M,) bool or None; ``uv`` (N, 2) float32 (origin top-left);
-    ``texture`` encoded JPEG/PNG bytes; ``colors`` (N, 4) uint8."""
+    ``texture`` encoded JPEG/PNG bytes; ``colors`` (N, 4) uint8; ``features`` the feature ID sets
+    (``EXT_mesh_features``), the k-th written as vertex attribute ``_FEATURE_ID_k``."""
 
     positions: npt.NDArray[np.float32]
     faces: npt.NDArray[np.uint32]
@@ -42,11 +44,12 @@ class MeshData:
     texture: bytes | None = None
     colors: npt.NDArray[np.uint8] | None = None
     name: str = "surface"
+    features: list[FeatureIdSet] = field(default_factory=list)
 
     @property
     def nbytes(self) -> int:
         n = self.positions.nbytes + self.faces.nbytes
-        for a in (self.uv, self.colors, self.skirt):
+        for a in (self.uv, self.colors, self.skirt, *(f.ids for f in self.features)):
             n += 0 if a is None else a.nbytes
         return n + (len(self.texture) if self.texture else 0)
 
@@ -77,7 +80,8 @@ class PointData:
 
 @dataclass
 class TileContent:
-    """What one content file holds: meshes (surfaces, quads) and/or points.
+    """What one content file holds: meshes (surfaces, quads) and/or points, and the property tables
+    (``EXT_structural_metadata``) that the meshes' feature IDs index.
 
     Positions are float32 relative to ``origin`` (3,) float64, in the tile's z-up frame. A reader puts a
     content's large offset there (``RTC_CENTER``, a far node translation) instead of adding it to float32
@@ -87,6 +91,7 @@ class TileContent:
     meshes: list[MeshData] = field(default_factory=list)
     points: PointData | None = None
     origin: F64 = field(default_factory=lambda: np.zeros(3))
+    property_tables: list[PropertyTable] = field(default_factory=list)
 
     def rebased(self, origin: npt.ArrayLike) -> TileContent:
         """This content with positions relative to ``origin`` (shifted in float64, stored float32)."""
@@ -100,7 +105,7 @@ class TileContent:
 
         meshes = [replace(m, positions=shift(m.positions)) for m in self.meshes]
         points = None if self.points is None else replace(self.points, positions=shift(self.points.positions))
-        return TileContent(meshes=meshes, points=points, origin=new)
+        return TileContent(meshes=meshes, points=points, origin=new, property_tables=self.property_tables)
 
     @staticmethod
     def merged(parts: list[TileContent]) -> TileContent:
@@ -160,10 +165,11 @@ class _GlbBuilder:
             "buffers": [], "bufferViews": [], "accessors": [], "meshes": [], "nodes": [], "scenes": [],
         }
 
-    def view(self, data: bytes | np.ndarray, target: int | None = None, stride: int | None = None) -> int:
+    def view(self, data: bytes | np.ndarray, target: int | None = None, stride: int | None = None,
+             align: int = 4) -> int:
         raw = (np.frombuffer(data, np.uint8) if isinstance(data, bytes)
                else np.ascontiguousarray(data).reshape(-1).view(np.uint8))
-        self.size += -self.size % 4
+        self.size += -self.size % align
         bv: dict[str, Any] = {"buffer": 0, "byteOffset": self.size, "byteLength": int(raw.size)}
         if target is not None:
             bv["target"] = target
@@ -268,8 +274,9 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             attrs["TEXCOORD_0"] = b.accessor(np.asarray(mesh.uv, dtype=np.float32), "VEC2")
             mime = "image/png" if mesh.texture[:8] == b"\x89PNG\r\n\x1a\n" else "image/jpeg"
             img = b.add("images", {"bufferView": b.view(mesh.texture), "mimeType": mime})
-            # Mipmaps only for power-of-two images: WebGL 1 clients cannot mipmap others (the validator's
-            # info on plane-quad atlases); LINEAR then, which those clients sample as is.
+            # Mipmaps only for power-of-two images: WebGL 1 clients cannot mipmap others; LINEAR then, which
+            # they sample as is. citylod's own builders write power-of-two textures only (the validator
+            # reports any other, whatever the sampler); other sizes come from re-encoding others' content.
             w, h = _image_size(mesh.texture)
             pot = w > 0 and h > 0 and not (w & (w - 1)) and not (h & (h - 1))
             smp = b.add("samplers", {"magFilter": 9729, "minFilter": 9987 if pot else 9729,
@@ -282,6 +289,7 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             unlit = True
         if mesh.colors is not None:
             attrs["COLOR_0"] = b.accessor(_linear_rgba16(mesh.colors), "VEC4", normalized=True)
+        mesh_features = _feature_id_attributes(b, mesh.features, attrs)
         mat = b.add("materials", material)
         skirt = np.zeros(len(faces), bool) if mesh.skirt is None else np.asarray(mesh.skirt, bool)
         for is_skirt in (False, True):
@@ -291,6 +299,8 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
             prim: dict[str, Any] = {"attributes": attrs, "mode": 4, "material": mat,
                                     "indices": b.accessor(sel.reshape(-1), "SCALAR", target=34963)}
             prim["extras"] = {"citylod_name": mesh.name, "citylod_skirt": is_skirt}
+            if mesh_features:
+                prim["extensions"] = {"EXT_mesh_features": mesh_features}
             primitives.append(prim)
     if content.points is not None and len(content.points.positions):
         attrs = _point_attributes(b, content.points)
@@ -321,9 +331,42 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
         b.gltf["nodes"] = [{"mesh": 0}]
         b.gltf["scenes"] = [{"nodes": [0]}]
         b.gltf["scene"] = 0
+    used = b.gltf.setdefault("extensionsUsed", [])
+    if any("EXT_mesh_features" in p.get("extensions", {}) for p in primitives) and "EXT_mesh_features" not in used:
+        used.append("EXT_mesh_features")
+    if content.property_tables:
+        ext = b.gltf.setdefault("extensions", {})
+        if "EXT_structural_metadata" in ext:
+            raise ValueError("property tables and point attributes in one content are not supported")
+        ext["EXT_structural_metadata"] = encode_property_tables(b, content.property_tables)
+        used.append("EXT_structural_metadata")
     if unlit:
-        b.gltf.setdefault("extensionsUsed", []).insert(0, "KHR_materials_unlit")
+        used.insert(0, "KHR_materials_unlit")
+    if not used:
+        del b.gltf["extensionsUsed"]
     return b.buffer()
+
+
+def _feature_id_attributes(b: _GlbBuilder, sets: list[FeatureIdSet], attrs: dict[str, int]) -> dict[str, Any]:
+    """Write each feature ID set as vertex attribute ``_FEATURE_ID_k`` into ``attrs``; the primitive's
+    ``EXT_mesh_features`` object (empty without sets).
+
+    glTF forbids 32-bit integer vertex attributes, so IDs are uint16 while they fit and float32 beyond
+    (exact up to 2^24, far more features than one tile holds).
+    """
+    ids_json = []
+    for k, fs in enumerate(sets):
+        ids = np.asarray(fs.ids, np.uint32)
+        count = fs.feature_count
+        stored = ids.astype(np.uint16) if count <= 65535 else ids.astype(np.float32)
+        attrs[f"_FEATURE_ID_{k}"] = b.accessor(stored, "SCALAR")
+        entry: dict[str, Any] = {"featureCount": count, "attribute": k}
+        if fs.table is not None:
+            entry["propertyTable"] = int(fs.table)
+        if fs.label:
+            entry["label"] = fs.label
+        ids_json.append(entry)
+    return {"featureIds": ids_json} if ids_json else {}
 
 
 #: 3D Tiles metadata component type of each LAS attribute citylod writes on points.

@@ -30,6 +30,7 @@ from citylod.core.errors import InputError
 from citylod.core.geometry import F64
 from citylod.io.tiles3d.colour import linear_colors_to_srgb8, linear_to_srgb, srgb_to_linear
 from citylod.io.tiles3d.content import _POINT_ATTRS, MeshData, PointData, TileContent, recentre
+from citylod.io.tiles3d.features import FeatureIdSet, decode_property_tables
 
 #: Reads a URI relative to the content (external buffers and images); raises InputError when it cannot.
 Resolver = Callable[[str], bytes]
@@ -125,6 +126,10 @@ def decode_gltf(gltf: dict[str, Any], chunks: list[bytes], source: str, *, rtc_c
         raise InputError(f"glTF content is invalid ({type(exc).__name__}: {exc})", source) from exc
     if point_parts:
         content.points = _concat_points(point_parts)
+    ext = gltf.get("extensions", {}).get("EXT_structural_metadata")
+    if isinstance(ext, dict) and ext.get("propertyTables"):
+        content.property_tables = decode_property_tables(
+            ext, lambda i: _view_bytes(gltf, buffers, i, source), source)
     # Positions were kept float64 (z-up, without the RTC centre): one origin for all, float32 relative to it.
     parts = [m.positions for m in content.meshes] + ([content.points.positions] if content.points else [])
     bounds = np.array([[p.min(axis=0), p.max(axis=0)] for p in parts if len(p)]).reshape(-1, 3)
@@ -384,7 +389,23 @@ def _decode_group(gltf: dict[str, Any], buffers: list[bytes], group: list[dict[s
         positions=pos32, faces=np.concatenate(faces_list), skirt=np.concatenate(skirt_list),
         uv=uv, texture=texture, colors=colors,
         name=str(first.get("extras", {}).get("citylod_name", "surface")),
+        features=_feature_ids(first, lambda name: repeat(np.asarray(attribute(name)))),
     ))
+
+
+def _feature_ids(prim: dict[str, Any], attribute: Any) -> list[FeatureIdSet]:
+    """The attribute-based feature ID sets of a primitive (``EXT_mesh_features``); implicit and texture
+    feature IDs are not read."""
+    out = []
+    ext = prim.get("extensions", {}).get("EXT_mesh_features", {})
+    for fid in ext.get("featureIds", []) if isinstance(ext, dict) else []:
+        name = f"_FEATURE_ID_{fid.get('attribute')}"
+        if "attribute" not in fid or name not in prim.get("attributes", {}):
+            continue
+        ids = np.asarray(attribute(name))
+        out.append(FeatureIdSet(np.round(ids).astype(np.uint32).reshape(-1), fid.get("propertyTable"),
+                                int(fid.get("featureCount", 0)), fid.get("label")))
+    return out
 
 
 def _base_color_factor(gltf: dict[str, Any], prim: dict[str, Any]) -> list[float] | None:

@@ -419,7 +419,7 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
     # Boundary direction: the gradient of the smoothed building mask points inwards.
     smooth = ndimage.gaussian_filter(mask.astype(np.float64), 1.5)
     gy, gx = np.gradient(smooth)
-    parts: list[tuple[F64, ...]] = []
+    parts: list[tuple[Any, ...]] = []
     iy, ix = np.mgrid[0:ny_, 0:nx_]
     x_lo = grid.lo[0] + ix * c
     y_lo = grid.lo[1] + iy * c
@@ -472,7 +472,8 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
     cols = [np.concatenate([np.broadcast_to(np.asarray(pt[k], np.float64), (len(pt[7]),)) for pt in parts])
             for k in range(9)]
     keep = cols[7] - cols[6] >= opts.min_wall_m
-    return _Edges(*(a[keep] for a in cols[:8]), cols[8][keep] > 0)
+    x0, y0, x1, y1, nx, ny, bottom, top = (a[keep] for a in cols[:8])
+    return _Edges(x0, y0, x1, y1, nx, ny, bottom, top, cols[8][keep] > 0)
 
 
 def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator

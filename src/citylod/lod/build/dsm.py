@@ -20,6 +20,17 @@ what the issue allows in place of Wahl's l−2 reference bookkeeping. A tile's f
 window, when it holds up to ``_WHOLE_FOOTPRINT_SAMPLES`` samples (its grid and every certification are then
 taken from memory), and in cached blocks otherwise, so memory does not grow with the raster.
 
+The metric (``metric``). The default, ``"vertical"``, certifies the vertical L∞ distance described above
+for every level; with ``metric="hausdorff"`` a coarse tile's ``geometricError`` bounds the symmetric 3D Hausdorff
+distance between the tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`),
+which charges a façade between two coarse samples about the horizontal distance to it rather than its
+height. Its TIN is the TIN kernel's simplification of the tile's grid at a vertical tolerance (the coarsest of
+1, ½, ¼ × the target whose certificate meets the target), on grid heights that reach features narrower than
+the stride (`_feature_heights`); its skirts are sized from the border's measured vertical error. Leaves keep
+the kernel's vertical bound, which bounds Hausdorff too; geographic rasters are certified vertically.
+Hausdorff becomes the default once its coarse levels meet their targets and its builds their time
+(docs/BENCHMARKS.md has where they stand).
+
 Borders, in two stages. Stage 1 (:func:`build_tile`) chooses every tile's TIN. Its border vertices are the
 1D simplification of the border samples (the same on both sides) plus the few the exact 2D bound or a
 no-data boundary made the kernel add, which differ between neighbours. Stage 2 (:func:`finish_tile`) gives
@@ -65,10 +76,12 @@ import pyproj
 from citylod.core import journal
 from citylod.core.errors import GeoreferenceError, InputError
 from citylod.core.fileio import discard_partial_on_refusal, publish_dir
+from citylod.io.crs import missing_vertical_datum
 from citylod.io.raster import RasterInfo, RasterSource, check_has_data, read_image_window
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
 from citylod.lod.kernels import aot
 from citylod.lod.kernels.certify import certify, grid_error_lower_bound, skirt_strip
+from citylod.lod.kernels.hausdorff import certify_hausdorff
 from citylod.lod.kernels.octree import bounds as xyz_bounds
 
 # Coarse levels may need several passes of "force the vertices of bad cells"; after this many the
@@ -87,6 +100,21 @@ _SHORTCUT_SLACK = 1.25
 # built (2049² float64 heights + validity ≈ 38 MB); larger ones are read in cached blocks of _BLOCK cells.
 _WHOLE_FOOTPRINT_SAMPLES = 2049 * 2049
 _BLOCK = 1024
+# Hausdorff metric: rings of raster cells searched around a piece for a closer part of the surface, and the
+# TIN kernel's vertical tolerances tried on a coarse tile, as fractions of its target (the first whose
+# certificate meets the target is kept; see build_tile).
+_HAUSDORFF_REACH = 12
+_HAUSDORFF_TOLERANCES = (1.0, 0.5, 0.25)
+
+
+# What a tileset's geometricError means, written into its citylod extras.
+_METRIC_TEXT = {
+    "hausdorff": "symmetric 3D Hausdorff distance vs full-resolution grid, certified upper bound (coarse tiles: "
+                 "point-triangle distances at the vertices of the overlay pieces; leaves: exact vertical "
+                 "L-infinity), plus float32 horizontal quantisation",
+    "vertical": "vertical L-infinity vs full-resolution grid, exact (samples + edge crossings), "
+                "plus float32 horizontal quantisation; bounds the symmetric Hausdorff distance",
+}
 
 
 @dataclass(frozen=True)
@@ -110,6 +138,7 @@ class DsmJob:
     stage1: TileResult | None = None  # stage 2 only: this tile's stage-1 result
     stage1_tin: journal.Entry | None = None  # stage 2 only: where its stage-1 TIN is journalled
     certify_leaves: bool = False  # certify leaves against the raster too (see finish_tile)
+    metric: str = "vertical"  # what geometricError bounds: "hausdorff" (3D, symmetric) or "vertical" (L∞)
 
 
 @dataclass
@@ -155,6 +184,7 @@ class DsmBuildReport:
     resumed: int = 0
     executor: str = ""  # where the tiles were built: "inline", "threads", "forked processes", ...
     kernels: str = ""  # "compiled-ahead" (citylod.lod.kernels.aot) or "JIT"
+    heights: str = ""  # what the CRS leaves unsaid about the heights (no vertical datum), for the summary
 
     def summary(self) -> str:
         lines = [f"{self.output}: {self.tiles} tiles on {self.levels} levels from {self.width}×{self.height} "
@@ -166,6 +196,8 @@ class DsmBuildReport:
         for lv in self.per_level:
             lines.append(f"{lv['level']:5d} {lv['tiles']:6d} {lv['triangles']:11d} {lv['target']:10.3f} "
                          f"{lv['max_error']:13.3f}")
+        if self.heights:
+            lines.append(f"heights: {self.heights}")
         return "\n".join(lines)
 
 
@@ -309,12 +341,100 @@ def _place(info: RasterInfo, to_metric: pyproj.Transformer | None, rpos: np.ndar
 
 
 def _certify(fp: _Footprint, vr: np.ndarray, vc: np.ndarray, zq: np.ndarray, faces: np.ndarray, cells: int,
-             stride: int, per_cell: bool = False) -> tuple[float, np.ndarray]:
-    """Exact vertical L∞ of the TIN (quantised heights) against the full-resolution footprint, and per cell
-    (zeros unless ``per_cell``)."""
+             stride: int, per_cell: bool = False, hausdorff: tuple[float, float, float, float] | None = None,
+             floor: float = 0.0) -> tuple[float, np.ndarray]:
+    """The TIN's certified error (quantised heights) against the full-resolution footprint, and per cell
+    (zeros unless ``per_cell``): exact vertical L∞, or with ``hausdorff`` (the raster's affine, see
+    `citylod.lod.kernels.hausdorff.certify_hausdorff`) a bound of the symmetric 3D Hausdorff distance, pieces
+    under ``floor`` kept at their vertical bound."""
+    if hausdorff is not None:
+        err, cell_err, _ = certify_hausdorff(fp.read_block, fp.footprint, vr, vc, zq, faces.astype(np.int64),
+                                             (cells, cells), stride, hausdorff, block=fp.block, per_cell=per_cell,
+                                             floor=floor, reach=_HAUSDORFF_REACH)
+        return err, cell_err
     err, cell_err, _ = certify(fp.read_block, fp.footprint, vr, vc, zq, faces.astype(np.int64), (cells, cells),
                                stride, block=fp.block, per_cell=per_cell)
     return err, cell_err
+
+
+def _hausdorff_affine(info: RasterInfo, job: DsmJob) -> tuple[float, float, float, float] | None:
+    """The raster's affine without offsets when ``job`` certifies the Hausdorff distance, else None.
+
+    Geographic rasters keep the vertical metric: their samples are not an affine image of rows and
+    columns in the metric CRS, and the vertical bound (plus the projection term) bounds Hausdorff too.
+    """
+    if job.metric != "hausdorff" or info.geographic:
+        return None
+    a, b, _, d, e, _ = info.transform[:6]
+    return float(a), float(b), float(d), float(e)
+
+
+def _feature_heights(fp: _Footprint, heights: np.ndarray, valid: np.ndarray, stride: int,
+                     target: float) -> np.ndarray:
+    """Grid heights for the Hausdorff metric: an interior grid vertex near a feature narrower than the stride
+    (a tree, a chimney, a one-sample trench) that the grid G misses by more than ``target`` takes that
+    feature's height.
+
+    Every full-resolution sample lies within half a stride (per axis) of a grid vertex; where the samples in
+    that window rise above (sink below) G by more than ``target``, the vertex is raised (lowered) by the
+    largest such residual, so the TIN reaches the feature within half a stride horizontally instead of
+    passing over (under) it at its full height. Border vertices keep their samples, so neighbours still
+    share their border heights. Only a better candidate surface: the certificate decides.
+    """
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    rpos, cpos = fp.rpos, fp.cpos
+    nr, nc = heights.shape
+    if nr < 3 or nc < 3:
+        return heights
+    up = np.full((nr, nc), -np.inf)
+    down = np.full((nr, nc), np.inf)
+    top = np.full((nr, nc), -np.inf)
+    bottom = np.full((nr, nc), np.inf)
+    r0, c0, r1, c1 = fp.footprint
+    size = 2 * (stride // 2) + 1
+    for br in range(r0, max(r1, r0 + 1), fp.block):
+        for bc in range(c0, max(c1, c0 + 1), fp.block):
+            bh, bw = min(fp.block + 1, r1 - br + 1), min(fp.block + 1, c1 - bc + 1)
+            f, v = fp.read_block(br, bc, bh, bw)
+            rows, cols = np.arange(br, br + bh), np.arange(bc, bc + bw)
+            a = np.clip(np.searchsorted(rpos, rows, "right") - 1, 0, nr - 2)
+            b = np.clip(np.searchsorted(cpos, cols, "right") - 1, 0, nc - 2)
+            u = ((rows - rpos[a]) / (rpos[a + 1] - rpos[a]))[:, None]
+            w = ((cols - cpos[b]) / (cpos[b + 1] - cpos[b]))[None, :]
+            z00, z01 = heights[np.ix_(a, b)], heights[np.ix_(a, b + 1)]
+            z10, z11 = heights[np.ix_(a + 1, b)], heights[np.ix_(a + 1, b + 1)]
+            g = np.where(u >= w, z00 + u * (z10 - z00) + w * (z11 - z10), z00 + w * (z01 - z00) + u * (z11 - z01))
+            ok = v & valid[np.ix_(a, b)] & valid[np.ix_(a, b + 1)] & valid[np.ix_(a + 1, b)] & valid[np.ix_(a + 1, b + 1)]
+            res = f - g
+            hi = maximum_filter(np.where(ok, res, -np.inf), size=size, mode="constant", cval=-np.inf)
+            lo = minimum_filter(np.where(ok, res, np.inf), size=size, mode="constant", cval=np.inf)
+            ri = np.flatnonzero((rpos >= br) & (rpos < br + bh))
+            ci = np.flatnonzero((cpos >= bc) & (cpos < bc + bw))
+            ix = np.ix_(ri, ci)
+            sub = np.ix_(rpos[ri] - br, cpos[ci] - bc)
+            up[ix] = np.maximum(up[ix], hi[sub])
+            down[ix] = np.minimum(down[ix], lo[sub])
+            fmax = maximum_filter(np.where(ok, f, -np.inf), size=size, mode="constant", cval=-np.inf)
+            fmin = minimum_filter(np.where(ok, f, np.inf), size=size, mode="constant", cval=np.inf)
+            top[ix] = np.maximum(top[ix], fmax[sub])
+            bottom[ix] = np.minimum(bottom[ix], fmin[sub])
+    # Only features the grid misses: a vertex is raised when it and its eight grid neighbours all lie more
+    # than ``target`` below the window's top (a tree or chimney between them), lowered likewise (a trench);
+    # never beyond the heights the window holds. A vertex beside a façade has a neighbour on the other side
+    # and stays where it is (moving it would delete a building whose only grid vertex it is).
+    hv = np.where(valid, heights, np.nan)
+    nmax = maximum_filter(np.where(valid, heights, -np.inf), size=3, mode="nearest")
+    nmin = minimum_filter(np.where(valid, heights, np.inf), size=3, mode="nearest")
+    can_up = (up > target) & (nmax < top - target)
+    can_down = (-down > target) & (nmin > bottom + target)
+    raised = np.minimum(hv + up, top)
+    lowered = np.maximum(hv + down, bottom)
+    out = np.where(can_up & (~can_down | (up >= -down)), raised, np.where(can_down, lowered, hv))
+    keep = ~np.isfinite(out) | ~(can_up | can_down) | ~valid
+    keep[[0, -1], :] = True
+    keep[:, [0, -1]] = True
+    return np.where(keep, heights, out)
 
 
 def _fixed_cell(cell: tuple[int, int], vij: np.ndarray, must: np.ndarray | None, last_r: int, last_c: int) -> bool:
@@ -392,9 +512,32 @@ def build_tile(job: DsmJob) -> TileResult:
         if len(faces) == 0 or not check:
             return math.nan, vij, faces, vz, np.zeros((cells, cells))
         _, _, _, vr, vc, zq = _place(info, to_metric, rpos, cpos, vij, vz)
-        err, cell_err = _certify(fp, vr, vc, zq, faces, cells, stride, per_cell=per_cell)
+        err, cell_err = _certify(fp, vr, vc, zq, faces, cells, stride, per_cell=per_cell, hausdorff=haus,
+                                 floor=0.5 * job.target)
         return err, vij, faces, vz, cell_err
 
+    haus = _hausdorff_affine(info, job) if stride > 1 else None
+    if haus is not None:
+        heights = _feature_heights(fp, heights, valid, stride, job.target)
+        # The TIN kernel simplifies the tile's grid G within a vertical tolerance; the certificate measures
+        # the TIN against the raster in 3D. H(TIN, raster) ≤ H(TIN, G) + H(G, raster) ≤ tol + H(G, raster),
+        # and H(G, raster) is what a coarse grid cannot avoid (a façade between its samples), so the coarsest
+        # tolerance whose certificate meets the target is kept; a finer one only when it lowers the
+        # certificate clearly (a façade-bound tile gains nothing from more triangles).
+        kept = None
+        for frac in _HAUSDORFF_TOLERANCES:
+            trial = attempt(frac * job.target, None, per_cell=False)
+            if len(trial[2]) == 0:
+                break
+            if kept is not None and trial[0] >= kept[0] * _REFINE_GAIN:
+                break
+            kept = trial
+            if trial[0] <= job.target:
+                break
+        if kept is None:
+            _journal_result(job.out_dir, key, res)
+            return res
+        return _stage1_done(job, res, key, kept, 1, valid, stride, last_r, last_c, t0)
     if stride > 1:
         full = grid_error_lower_bound(fp.read_block, fp.footprint, rpos, cpos, heights, valid, block=fp.block)
         if full > 2.0 * job.target:
@@ -514,6 +657,7 @@ def finish_tile(job: DsmJob) -> TileResult:
     replaced = faces[:0]
     old_center = None
     # A leaf's error is its kernel's bound (see below), not a certificate: nothing of stage 1 is re-evaluated.
+    haus = _hausdorff_affine(info, job) if stride > 1 else None
     kernel_leaf = stride == 1 and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
     if job.border_extra:
         vij2, faces2, replaced = _insert_border_vertices(vij, faces, dict(job.border_extra), last_r, last_c)
@@ -536,6 +680,12 @@ def finish_tile(job: DsmJob) -> TileResult:
         if len(replaced):
             assert fp is not None
             err = max(err, _certify(fp, vr, vc, zq, faces[n_kept:], cells, stride)[0])
+    elif haus is not None:
+        # Hausdorff pieces look for candidates among neighbouring faces, so a subset of faces certifies
+        # higher than in the whole TIN: a tile the fans changed is certified again as a whole.
+        if fp is not None or math.isnan(err):
+            err, _ = _certify(fp or _Footprint(job.source, rpos, cpos), vr, vc, zq, faces, cells, stride,
+                              hausdorff=haus, floor=0.5 * job.target)
     elif fp is not None and old_center is not None and not math.isnan(err) and np.array_equal(center, old_center):
         # Certified in stage 1, and the old vertices quantise as they did: the certificate is a maximum
         # over faces, so the fans, and where needed the faces they replaced or kept, are evaluated (exactly,
@@ -561,7 +711,8 @@ def finish_tile(job: DsmJob) -> TileResult:
         if again is not None:
             vz2 = heights[again[0][:, 0], again[0][:, 1]]
             placed = _place(info, to_metric, rpos, cpos, again[0], vz2)
-            err2, _ = _certify(fp, placed[3], placed[4], placed[5], again[1], cells, stride)
+            err2, _ = _certify(fp, placed[3], placed[4], placed[5], again[1], cells, stride, hausdorff=haus,
+                               floor=0.5 * job.target)
             if err2 < err:
                 (vij, faces), vz, err = again, vz2, err2
                 local, center, q_xy, vr, vc, zq = placed
@@ -569,7 +720,17 @@ def finish_tile(job: DsmJob) -> TileResult:
     res.quantisation = q_xy
     res.projection = 0.0 if to_metric is None else _projection_bound(info, to_metric, rpos, cpos, vij, faces)
     res.geometric_error = err + q_xy + res.projection
+    # Two neighbours' borders lie on the same grid line, each within its vertical error there of the raster,
+    # so they differ by at most the sum of those errors: the skirt reaches twice this tile's. Under the
+    # Hausdorff metric the geometricError says nothing vertical (a façade on the border line), so the
+    # border's own vertical error is measured (exact along the line: both are linear between samples).
+    # A neighbour of another level may lie lower by its own vertical error, which this tile does not know:
+    # the skirt also reaches the lowest raster sample on this tile's border lines (a coarse neighbour's
+    # border interpolates samples of the same line).
     skirt_depth = 2.0 * max(res.geometric_error, job.target)
+    if haus is not None:
+        border_err, drop = _border_vertical_error(job.source, rpos, cpos, vij, zq, last_r, last_c)
+        skirt_depth = max(2.0 * max(border_err, job.target), drop + job.target)
     out_faces = faces[:, ::-1] if info.transform[0] * info.transform[4] > 0 else faces  # south-up: mirrored
     # No skirt along the raster's own edges: no tile lies beyond them, so there is no crack to close, and a
     # skirt there only hangs a curtain of twice the tile's error under the data's outline (40 m under the
@@ -607,6 +768,35 @@ def finish_tile(job: DsmJob) -> TileResult:
     res.seconds += time.perf_counter() - t0
     _journal_result(job.out_dir, key, res)
     return res
+
+
+def _border_vertical_error(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray, vij: np.ndarray, zq: np.ndarray,
+                           last_r: int, last_c: int) -> tuple[float, float]:
+    """max |TIN − raster| along the tile's four border lines, at every full-resolution sample on them (the
+    TIN's border is linear between its border vertices, which are samples, so that is the exact maximum), and
+    how far the lowest valid sample on a border line lies below the TIN's highest border vertex."""
+    worst = 0.0
+    drop = 0.0
+    for axis, fixed in ((0, 0), (0, last_r), (1, 0), (1, last_c)):
+        on = vij[:, axis] == fixed
+        if on.sum() < 2:
+            continue
+        along = vij[on, 1 - axis]
+        order = np.argsort(along)
+        pos = (cpos if axis == 0 else rpos)[along[order]].astype(np.float64)
+        zt = zq[on][order]
+        if axis == 0:
+            f, v = src.read_window(int(rpos[fixed]), int(pos[0]), 1, int(pos[-1] - pos[0]) + 1)
+        else:
+            f, v = src.read_window(int(pos[0]), int(cpos[fixed]), int(pos[-1] - pos[0]) + 1, 1)
+        f, v = f.reshape(-1), v.reshape(-1)
+        x = pos[0] + np.arange(len(f))
+        t = np.interp(x, pos, zt)
+        d = np.abs(t - f)[v]
+        worst = max(worst, float(d.max(initial=0.0)))
+        if v.any():
+            drop = max(drop, float(zt.max() - f[v].min()))
+    return worst, drop
 
 
 def _projection_bound(info: RasterInfo, to_metric: pyproj.Transformer, rpos: np.ndarray, cpos: np.ndarray,
@@ -799,7 +989,8 @@ def plan_levels(info: RasterInfo, tile_size: int) -> int:
 def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, ortho: str | os.PathLike[str] | None = None,
               max_error: float | None = None, tile_size: int = 129, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, texture_size: int | None = None,
-              certify_leaves: bool = False, _stop_after: int | None = None) -> DsmBuildReport:
+              certify_leaves: bool = False, metric: str = "vertical",
+              _stop_after: int | None = None) -> DsmBuildReport:
     """Build a 3D Tiles quadtree from a DSM raster. See the module docstring for the method.
 
     Parameters
@@ -810,6 +1001,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         Tileset folder to create (replaced when it already holds a citylod tileset).
     ortho
         Orthophoto to texture the tiles with (any CRS; resampled per tile by averaging).
+    texture_size
+        Pixels per side of each tile's texture, default 256; rounded up to a power of two, the only size glTF
+        clients mipmap (the glTF validator reports any other).
     max_error
         Leaf target in metres; default half the sample spacing. Level d above the leaves targets 2^d times it.
     tile_size
@@ -824,7 +1018,28 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         is the TIN kernel's own exact bound on the full-resolution grid plus the float32 rounding of its
         heights, and only the faces stage 2 changed are certified: the same guarantee, a fraction of the
         time, a bound instead of the measured maximum (at most the target).
+    metric
+        What ``geometricError`` bounds: ``"hausdorff"``, the symmetric 3D Hausdorff distance between a
+        tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`), or
+        ``"vertical"`` (default), the vertical L∞ distance (which bounds Hausdorff too, but counts a façade between two
+        coarse samples at its full height). Leaves keep the TIN kernel's vertical bound under both, and
+        geographic rasters are certified vertically under both.
+
+    Returns
+    -------
+    DsmBuildReport
+        Tiles, levels, triangles and certified errors per level, timings; ``summary()`` is what the CLI
+        prints.
+
+    Examples
+    --------
+    >>> report = build_dsm("dsm.tif", "tiles", ortho="ortho.tif", workers=2)      # doctest: +SKIP
+    >>> print(report.summary())                                                   # doctest: +SKIP
+    >>> build_dsm("dsm.tif", "tiles_h", metric="hausdorff")                      # doctest: +SKIP
+    >>> build_dsm("dsm.tif", "tiles", scheduler="tcp://127.0.0.1:8786")          # doctest: +SKIP
     """
+    if metric not in ("hausdorff", "vertical"):
+        raise ValueError(f"metric must be 'hausdorff' or 'vertical', got {metric!r}")
     t0 = time.perf_counter()
     if tile_size < 3 or (tile_size - 1) & (tile_size - 2):
         raise ValueError(f"tile_size must be 2^k + 1 (e.g. 65, 129, 257), got {tile_size}")
@@ -857,8 +1072,8 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     out = Path(out_dir)
     partial = out.with_name(out.name + ".partial")
     partial.mkdir(parents=True, exist_ok=True)
-    metric = info.metric_crs()
-    tex = texture_size or 256
+    metric_crs = info.metric_crs()
+    tex = 1 << max(0, int(texture_size or 256) - 1).bit_length()
     cells = tile_size - 1
     stage1: list[DsmJob] = []
     all_jobs: dict[str, DsmJob] = {}
@@ -866,7 +1081,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     borders: dict[str, TileResult] = {}  # stage-1 results (their border vertices) of tiles with content
     jdir = _journal_dir(partial)
     idx = journal.index(jdir)  # what an interrupted build finished (empty for a new one)
-    metric_wkt = metric.to_wkt()
+    metric_wkt = metric_crs.to_wkt()
     for d in range(levels + 1):
         stride = 2 ** (levels - d)
         nr = math.ceil(max(info.height - 1, 1) / (cells * stride))
@@ -876,7 +1091,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
                 key = f"{d}/{i}/{j}"
                 job = DsmJob(src, str(partial), d, i, j, levels, tile_size, leaf * 2 ** (levels - d),
                              None if ortho is None else str(ortho), tex, metric_wkt,
-                             certify_leaves=certify_leaves)
+                             certify_leaves=certify_leaves, metric=metric)
                 all_jobs[key] = job
                 prev = _read_result(partial, key, idx)
                 tin = _read_stage1(key, idx)
@@ -938,11 +1153,10 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     root = _assemble(results, levels, info, cells)
     if root is None:
         raise InputError("no tile has valid data", raster)
-    write_tileset(partial, root, metric, extras={"citylod": {
+    write_tileset(partial, root, metric_crs, extras={"citylod": {
         "kind": "dsm", "source": str(Path(raster).name), "source_crs": info.crs_wkt,
         "leaf_target_m": leaf, "tile_size": tile_size, "levels": levels + 1,
-        "error_metric": "vertical L-infinity vs full-resolution grid, exact (samples + edge crossings), "
-                        "plus float32 horizontal quantisation; bounds the symmetric Hausdorff distance",
+        "error_metric": _METRIC_TEXT["hausdorff" if metric == "hausdorff" and not info.geographic else "vertical"],
     }})
     _replace_dir(partial, out)
     seconds = time.perf_counter() - t0
@@ -966,6 +1180,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         samples_per_s=info.width * info.height / max(seconds, 1e-9), peak_rss_mb=_peak_rss_mb(),
         leaf_target=leaf, per_level=per_level, resumed=resumed, executor=where,
         kernels="compiled-ahead" if compiled_ahead else "JIT",
+        # In the summary, not as a warning: a raster's heights are plausibly orthometric but the user cannot
+        # name the datum on the command line, so this says once what was assumed.
+        heights=missing_vertical_datum(info.crs) or "",
     )
 
 
@@ -1025,7 +1242,8 @@ def _preload_kernels() -> None:
 
 def exercise_kernels() -> None:
     """Build a 40×40 raster inline, in a temporary folder: every compiled kernel a tile task calls runs
-    once, with the argument types a build passes (coarse levels, façades, no-data, border fans)."""
+    once, with the argument types a build passes (coarse levels, façades, no-data, border fans), under
+    both metrics."""
     import tempfile
 
     import rasterio
@@ -1041,7 +1259,8 @@ def exercise_kernels() -> None:
                            crs="EPSG:32632", transform=from_origin(500_000.0, 5_400_000.0, 1.0, 1.0),
                            nodata=-9999.0) as ds:
             ds.write(z, 1)
-        build_dsm(path, Path(tmp) / "tiles", tile_size=17, workers=0, progress=False)
+        for metric in ("vertical", "hausdorff"):  # each metric's certifier
+            build_dsm(path, Path(tmp) / metric, tile_size=17, workers=0, progress=False, metric=metric)
 
 
 def _assemble(results: dict[str, TileResult], levels: int, info: RasterInfo, cells: int) -> TileSpec | None:

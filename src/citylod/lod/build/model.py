@@ -341,10 +341,10 @@ def rasterize_las(files: list[str | os.PathLike[str]], out_tif: str | os.PathLik
             c = np.clip(((x - x0) / spacing).astype(np.int64), 0, W - 1)
             r = np.clip(((y1 - y) / spacing).astype(np.int64), 0, H - 1)
             np.maximum.at(grid, r * W + c, z)
-    grid = grid.reshape(H, W)
-    empty = ~np.isfinite(grid)
+    grid2 = grid.reshape(H, W)
+    empty = ~np.isfinite(grid2)
     dist, idx = ndimage.distance_transform_edt(empty, return_indices=True)
-    dsm = grid[tuple(idx)]
+    dsm = grid2[tuple(idx)]
     dsm[dist > fill_samples] = -9999.0
     crs_out = crs or wkt
     if crs_out is None:
@@ -371,6 +371,7 @@ class ModelBuildReport:
     buildings: int
     max_error: float
     seconds: float
+    heights: str = ""  # what the CRS leaves unsaid about the heights (no vertical datum), as in build dsm
 
     @property
     def vertices_per_second(self) -> float:
@@ -380,7 +381,8 @@ class ModelBuildReport:
         return (f"model: {self.samples} samples in {self.cells} cells -> {self.triangles} triangles "
                 f"({self.grid_triangles / max(self.triangles, 1):.1f}x fewer than the grid), certified "
                 f"≤ {self.max_error:g} m; {self.buildings} buildings; {self.seconds:.1f} s, "
-                f"{self.vertices_per_second:,.0f} vertices/s -> {self.output}")
+                f"{self.vertices_per_second:,.0f} vertices/s -> {self.output}"
+                + (f"\nheights: {self.heights}" if self.heights else ""))
 
 
 def _cell_task(raster: str, r0: int, c0: int, cell: int, max_error: float, params: ShapeParams,
@@ -500,6 +502,7 @@ def build_model(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str],
     InputError
         Unreadable raster or no valid sample.
     """
+    from citylod.io.crs import missing_vertical_datum
     from citylod.io.raster import RasterSource, check_has_data
     from citylod.io.tiles3d.tileset import TileSpec, write_tileset
     from citylod.lod.build.executor import make_executor, run_tasks
@@ -547,4 +550,5 @@ def build_model(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str],
 
             shutil.rmtree(partial, ignore_errors=True)
     return ModelBuildReport(out, len(tasks), sum(r["samples"] for r in results), sum(r["triangles"] for r in results),
-                            sum(r["grid_triangles"] for r in results), len(fps), eps, time.perf_counter() - t0)
+                            sum(r["grid_triangles"] for r in results), len(fps), eps, time.perf_counter() - t0,
+                            heights=missing_vertical_datum(crs) or "")

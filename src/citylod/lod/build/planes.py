@@ -469,19 +469,17 @@ def _planes(p: F64, colors: U8, texel: float, phi: float, seed: int, n_candidate
 
 
 @numba.njit(cache=True, nogil=True)
-def _pack_atlas(sizes: npt.NDArray[np.int64], tex: U8, tex_off: npt.NDArray[np.int64]
-                ) -> tuple[U8, npt.NDArray[np.int64]]:  # pragma: no cover - compiled
-    """:func:`pack_atlas` on the arrays of a :class:`PlaneResult`, compiled and without the GIL."""
-    n = sizes.shape[0]
-    gap = 1  # transparent texel between textures so linear filtering does not bleed colour across
-    area = 0
-    wmax = 0
-    for k in range(n):
-        area += (sizes[k, 0] + gap) * (sizes[k, 1] + gap)
-        wmax = max(wmax, sizes[k, 0])
-    width = max(wmax + gap, int(np.ceil(np.sqrt(area) * 1.15)))
-    order = np.argsort(-sizes[:, 1], kind="mergesort")  # tallest first, ties in the order given
-    offsets = np.zeros((n, 2), np.int64)
+def _pow2_at_least(n: int) -> int:  # pragma: no cover - compiled
+    p = 1
+    while p < n:
+        p *= 2
+    return p
+
+
+@numba.njit(cache=True, nogil=True)
+def _shelves(sizes: npt.NDArray[np.int64], order: npt.NDArray[np.int64], width: int, gap: int,
+             offsets: npt.NDArray[np.int64]) -> int:  # pragma: no cover - compiled
+    """Shelf-pack ``sizes`` in ``order`` into rows ``width`` wide; fill ``offsets``, return the height."""
     x = 0
     y = 0
     shelf = 0
@@ -492,7 +490,33 @@ def _pack_atlas(sizes: npt.NDArray[np.int64], tex: U8, tex_off: npt.NDArray[np.i
         offsets[k, 0], offsets[k, 1] = x, y
         x += w + gap
         shelf = max(shelf, h)
-    atlas = np.zeros((y + shelf, width, 4), np.uint8)
+    return y + shelf
+
+
+@numba.njit(cache=True, nogil=True)
+def _pack_atlas(sizes: npt.NDArray[np.int64], tex: U8, tex_off: npt.NDArray[np.int64]
+                ) -> tuple[U8, npt.NDArray[np.int64]]:  # pragma: no cover - compiled
+    """:func:`pack_atlas` on the arrays of a :class:`PlaneResult`, compiled and without the GIL."""
+    n = sizes.shape[0]
+    gap = 1  # transparent texel between textures so linear filtering does not bleed colour across
+    area = 0
+    wmax = 0
+    for k in range(n):
+        area += (sizes[k, 0] + gap) * (sizes[k, 1] + gap)
+        wmax = max(wmax, sizes[k, 0])
+    order = np.argsort(-sizes[:, 1], kind="mergesort")  # tallest first, ties in the order given
+    # Power-of-two sides: glTF clients mipmap only those (WebGL 1), and the glTF validator reports every other
+    # image. Of the two power-of-two widths around the square's side, keep the one whose padded area is least.
+    offsets = np.zeros((n, 2), np.int64)
+    trial = np.zeros((n, 2), np.int64)
+    width = _pow2_at_least(max(wmax + gap, int(np.ceil(np.sqrt(area)))))
+    height = _pow2_at_least(_shelves(sizes, order, width, gap, offsets))
+    if width > 1 and width // 2 >= wmax + gap:
+        h2 = _pow2_at_least(_shelves(sizes, order, width // 2, gap, trial))
+        if (width // 2) * h2 < width * height:
+            width, height = width // 2, h2
+            offsets[:] = trial
+    atlas = np.zeros((height, width, 4), np.uint8)
     for k in range(n):
         w, h = sizes[k, 0], sizes[k, 1]
         ox, oy = offsets[k, 0], offsets[k, 1]
@@ -506,7 +530,7 @@ def pack_atlas(res: PlaneResult) -> tuple[U8, npt.NDArray[np.int64]]:
     Returns
     -------
     atlas
-        (H, W, 4) uint8.
+        (H, W, 4) uint8, both sides powers of two (the rest transparent).
     offsets
         (Q, 2) int64 (x, y) texel offset of each quad's texture in the atlas, in the order given.
     """
@@ -524,9 +548,9 @@ def quad_mesh_arrays(res: PlaneResult) -> tuple[npt.NDArray[np.float32], npt.NDA
     faces
         (2Q, 3) uint32.
     uv
-        (4Q, 2) float32, origin at the atlas's top-left (glTF).
+        (4Q, 2) float32, origin at the atlas's top-left (glTF); exact, the sides being powers of two.
     atlas
-        (H, W, 4) uint8.
+        (H, W, 4) uint8, both sides powers of two.
     """
     atlas, offsets = pack_atlas(res)
     ah, aw = atlas.shape[:2]

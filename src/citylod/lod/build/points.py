@@ -38,6 +38,7 @@ import os
 import pickle
 import shutil
 import time
+import warnings
 import zlib
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Executor
@@ -54,6 +55,7 @@ import numpy.typing as npt
 from citylod._version import __version__
 from citylod.core.fileio import atomic_write, atomic_write_bytes, discard_partial_on_refusal, publish_dir
 from citylod.core.palette import ASPRS_CLASS_RGB
+from citylod.io.crs import missing_vertical_datum
 from citylod.io.image import encode_png
 from citylod.io.las import POINT_DTYPE, iter_points, point_fields, read_metadata
 from citylod.io.tiles3d import (
@@ -756,6 +758,12 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
     ------
     InputError
         Unreadable, truncated, empty or un-georeferenced input (naming the file).
+
+    Warns
+    -----
+    UserWarning
+        The CRS names no vertical datum, so heights were written as ellipsoidal (with the compound CRSs
+        to pass as ``crs`` instead, :func:`citylod.io.crs.missing_vertical_datum`).
     """
     t_start = time.perf_counter()
     paths = [Path(f) for f in files]
@@ -850,6 +858,11 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         **({} if aug is None else {"complete": aug.counts})}})
     _finish(partial, out)
     seconds = time.perf_counter() - t_start
+    note = missing_vertical_datum(meta.crs)
+    if note:
+        # The user can know better (--crs EPSG:7415): said once, after the build, where the progress bars do
+        # not scroll it away and a refused input keeps its one error line alone.
+        warnings.warn(note, stacklevel=2)
     return PointBuildReport(
         output=out, points=meta.point_count, nodes=stats.nodes, leaves=stats.leaves, levels=stats.max_level + 1,
         chunks=n_chunks, quads=stats.quads, quad_points=stats.quad_points, seconds=seconds,

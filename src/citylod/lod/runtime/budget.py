@@ -115,15 +115,15 @@ class FrameTimeController:
         """
         e = math.log(max(frame_ms, 1e-3) / self.target_ms)
         free = self.base_points is not None and drawn_points is not None and not budget_limited
-        if free and e > 0 and drawn_points:
+        if free and e > 0 and drawn_points and self.base_points is not None:
             self.log_scale = min(self._hi, max(self.log_scale, 0.5 * math.log(self.base_points / drawn_points)))
         g = self.gains
-        if self._last is None:
-            self._last = self._last2 = e
+        last = e if self._last is None else self._last
+        last2 = e if self._last is None else self._last2
         # Incremental (velocity) PID: the change of log s is kp·Δe + ki·e + kd·Δ²e. Limits and the rate
         # limit then cannot wind up an integral, since none is stored.
-        du = g.kp * (e - self._last) + g.ki * e + g.kd * (e - 2.0 * self._last + self._last2)
-        self._last2, self._last = self._last, e
+        du = g.kp * (e - last) + g.ki * e + g.kd * (e - 2.0 * last + last2)
+        self._last2, self._last = last, e
         if free and e < 0:
             du = max(du, 0.0)  # the view drew all it needs: a larger budget would only wind up
         # Coarsening may be quick (a slow frame is worse than a coarse one); refining is slow, and new
@@ -135,5 +135,5 @@ class FrameTimeController:
     def reset(self) -> None:
         """Back to the user's τ and budget (a new scene, or budget mode switched on again)."""
         self.log_scale = 0.0
-        self._last: float | None = None
+        self._last = None
         self._last2 = 0.0

@@ -1,0 +1,93 @@
+"""Appearances of city models: CityGML ParameterizedTexture / X3DMaterial, CityJSON appearance, and
+hostile image references (outside the folder, missing, corrupt, huge declared size)."""
+
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from citylod.io.city import read_city_model
+from citylod.io.city.appearance import check_image, read_appearances
+from citylod.io.image import encode_png
+from citylod.sample.textured import make_textured_city
+
+
+def _png_header(width: int, height: int) -> bytes:
+    """A PNG whose header declares width × height but which holds one empty row only."""
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00")) + chunk(b"IEND", b"")
+
+
+def test_citygml_textures_and_materials_reach_every_surface(tmp_path: Path) -> None:
+    city = make_textured_city(tmp_path, buildings=3, image_px=32)
+    apps = read_appearances(city.path)
+    assert apps.warnings == []
+    model = read_city_model(city.path)
+    for obj, house in zip(model.objects, city.houses, strict=True):
+        for poly, sem in zip(obj.surfaces, obj.semantics, strict=True):
+            app = apps.lookup(poly[0])
+            if sem == "GroundSurface":
+                assert app is None
+                continue
+            assert app is not None and app.image is not None and app.rgb is not None
+            assert app.image.name == Path(house.roof if sem == "RoofSurface" else house.facade).name
+            uv = app.uv_of(poly[0][:-1])
+            assert uv is not None and np.all((uv >= 0) & (uv <= 1))
+            # the eaves (the ring's highest vertices) are at the top of the image: v = 1 in CityGML
+            top = poly[0][:-1, 2] >= poly[0][:, 2].max() - 1e-6
+            if sem == "WallSurface" and top.sum() == 2 and len(uv) == 4:
+                assert np.all(uv[top, 1] == 1.0)
+
+
+def test_hostile_image_references_are_warnings_naming_the_file(tmp_path: Path) -> None:
+    (tmp_path / "model").mkdir()
+    (tmp_path / "outside.png").write_bytes(encode_png(np.zeros((4, 4, 3), np.uint8)))
+    (tmp_path / "model" / "corrupt.jpg").write_bytes(b"\xff\xd8\xff\xe0 not really a jpeg")
+    (tmp_path / "model" / "huge.png").write_bytes(_png_header(20_000, 20_000))
+    (tmp_path / "model" / "ok.png").write_bytes(encode_png(np.zeros((4, 4, 3), np.uint8)))
+    base = tmp_path / "model"
+    for uri, words in (("../outside.png", "outside"), ("missing.jpg", "missing"), ("corrupt.jpg", "cannot be read"),
+                       ("huge.png", "1144 MB"), ("http://example.org/a.jpg", "URL"),
+                       ("/etc/passwd", "outside")):
+        path, warning = check_image(uri, base)
+        assert path is None and warning is not None and words in warning and uri in warning
+    assert check_image("ok.png", base) == ((base / "ok.png").resolve(), None)
+    # a header within OpenImageIO's sanity limits but above ours
+    path, warning = check_image("ok.png", base, max_pixels=15)
+    assert path is None and warning is not None and "4×4" in warning
+
+
+def test_cityjson_appearance_and_a_missing_texture(tmp_path: Path) -> None:
+    (tmp_path / "wall.png").write_bytes(encode_png(np.full((8, 8, 3), 200, np.uint8)))
+    doc = {
+        "type": "CityJSON", "version": "1.0", "metadata": {"referenceSystem": "urn:ogc:def:crs:EPSG::7415"},
+        "vertices": [[0, 0, 0], [10, 0, 0], [10, 0, 5], [0, 0, 5], [10, 8, 0], [10, 8, 5]],
+        "appearance": {
+            "textures": [{"type": "PNG", "image": "wall.png"}, {"type": "PNG", "image": "gone.png"}],
+            "vertices-texture": [[0, 0], [1, 0], [1, 1], [0, 1]],
+            "materials": [{"name": "red", "diffuseColor": [0.9, 0.1, 0.1]}],
+        },
+        "CityObjects": {"b1": {"type": "Building", "attributes": {"h": 5}, "geometry": [{
+            "type": "MultiSurface", "lod": 2, "boundaries": [[[0, 1, 2, 3]], [[1, 4, 5, 2]]],
+            "texture": {"photo": {"values": [[[0, 0, 1, 2, 3]], [[1, 0, 1, 2, 3]]]}},
+            "material": {"paint": {"values": [0, 0]}},
+        }]}},
+    }
+    path = tmp_path / "m.city.json"
+    path.write_text(json.dumps(doc))
+    apps = read_appearances(path)
+    assert len(apps.warnings) == 1 and "gone.png" in apps.warnings[0]
+    verts = np.array(doc["vertices"], float)
+    first = apps.lookup(verts[[0, 1, 2, 3]])
+    second = apps.lookup(verts[[1, 4, 5, 2]])
+    assert first is not None and first.image == (tmp_path / "wall.png").resolve() and first.rgb == (0.9, 0.1, 0.1)
+    np.testing.assert_array_equal(first.uv_of(verts[[0, 1, 2, 3]]), [[0, 0], [1, 0], [1, 1], [0, 1]])
+    # the missing image: no texture, the material stays
+    assert second is not None and second.image is None and second.rgb == (0.9, 0.1, 0.1)
