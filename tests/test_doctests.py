@@ -15,14 +15,11 @@ MODULES = [
     "citylod.io.tiles3d.tileset",
     "citylod.lod.runtime.selection",
     "citylod.lod.runtime.loader",
-<<<<<<< HEAD
     "citylod.app.navigation",
     "citylod.render.hud",
-=======
     "citylod.lod.runtime.texture_budget",
     "citylod.lod.build.citymesh",
     "citylod.sample.textured",
->>>>>>> main
     "citylod.lod.build.model",
     "citylod.lod.build.dsm",
     "citylod.lod.kernels.hausdorff",
