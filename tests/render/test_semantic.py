@@ -15,7 +15,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import shapely
 from scipy import ndimage
 
 from citylod.core.camera import Camera
@@ -147,27 +146,36 @@ def test_pick_returns_the_building_under_its_roof_centre(city: SimpleNamespace) 
         overlay.close()
 
 
-def test_hiding_a_building_reveals_what_is_behind(city: SimpleNamespace, tmp_path: Path) -> None:
+def test_hiding_a_building_on_a_dsm_leaves_the_ground_under_it(city: SimpleNamespace, tmp_path: Path) -> None:
+    """A DSM has nothing behind a building: hiding it lowers its surface onto its ground (no hole onto the
+    sky), checked against the sample's analytic footprint and ground height."""
     b = city.truth.buildings[5]
     cam = oblique(city.truth, b)
     before, after, overlay, store = render_pair([city.dir / "dsm"], city.gpkg, cam,
                                                 lambda ov, st: ov.state.hide([b.id]))
+    save_png(tmp_path / "before.png", before.rgb)
     save_png(tmp_path / "hidden.png", after.rgb)
     inside = analytic_mask(city.truth, before.depth, cam, b.index, store.inflate)
     core = ndimage.binary_erosion(inside, np.ones((3, 3), bool), iterations=1)
     assert core.sum() > 1000
-    # Every pixel that showed the building now shows something farther away (or the background).
-    assert np.all(after.depth[core] > before.depth[core] + 0.5)
-    # Outside the building (away from its silhouette) nothing changed.
+    # No pixel of the building shows the background, and none shows anything nearer than before.
+    assert np.isfinite(after.depth[core]).all()
+    assert np.all(after.depth[core] >= before.depth[core] - 0.05)
+    # Elsewhere the surface only moves away from the eye: a TIN's large triangles that joined the roof to
+    # distant ground vertices sink with the roof vertices, nothing rises
     far = ~ndimage.binary_dilation(inside, np.ones((3, 3), bool), iterations=2)
-    assert np.array_equal(after.depth[far], before.depth[far])
-    # Nothing seen now lies inside the hidden building's proxy, but within the contour map's texel
-    # quantisation of its outline (half a texel diagonal).
+    # (pixels that showed the background may now show ground: the sample's DSM has a no-data hole.)
+    seen = far & np.isfinite(before.depth)
+    assert np.all(after.depth[seen] >= before.depth[seen] - 0.02)  # 2 cm: depth-buffer rounding
+    # What is seen over the footprint (analytic: 1 m above that point's ground is inside the building) is at
+    # the building's ground: its roof is gone.
     pts = points_from_distance(after.depth, cam, relative=False)[np.isfinite(after.depth)]
-    idx = store.proxies.index_of(b.id)
-    seen = pts[store.proxies.contains(pts) == idx]
-    edge = shapely.distance(store.proxies.shapes[idx].boundary, shapely.points(seen[:, :2]))
-    assert np.all(edge <= overlay.map.resolution * 0.71)
+    over = city.truth.inside_building(pts[:, 0], pts[:, 1], np.full(len(pts), b.ground + 1.0), 0.0) == b.index
+    assert over.sum() > 1000
+    err = np.abs(pts[over, 2] - b.ground)
+    assert np.percentile(err, 99) <= 0.05
+    assert err.max() <= 0.5  # a few pixels on triangles that straddle the outline slope up to the outside
+    overlay.close()
 
 
 def test_points_inside_the_proxy_are_tinted(city: SimpleNamespace, tmp_path: Path) -> None:
@@ -268,3 +276,19 @@ def test_semantic_hook_needs_a_city(city: SimpleNamespace) -> None:
 
     with OffscreenRenderer([city.dir / "dsm"], size=(32, 32)) as r, pytest.raises(CitylodError):
         semantic_hook(r.scene, city=None, highlight="1 = 1")
+
+
+def test_highlight_on_a_dsm_reads_as_its_colour(city: SimpleNamespace, tmp_path: Path) -> None:
+    """The app's default highlight (#ffcc00) on a textured DSM is a bright, saturated yellow over the
+    building, not a darkened khaki: the median pixel over the analytic footprint is near the colour."""
+    b = city.truth.buildings[5]
+    cam = oblique(city.truth, b)
+    before, after, overlay, store = render_pair([city.dir / "dsm"], city.gpkg, cam,
+                                                lambda ov, st: ov.state.highlight([b.id], "#ffcc00"))
+    save_png(tmp_path / "highlight.png", after.rgb)
+    inside = analytic_mask(city.truth, before.depth, cam, b.index, store.inflate)
+    core = ndimage.binary_erosion(inside, np.ones((3, 3), bool), iterations=1)
+    assert core.sum() > 1000
+    r, g, bl = np.median(after.rgb[core].astype(float), axis=0)
+    assert r >= 215 and g >= 170 and bl <= 40, (r, g, bl)
+    overlay.close()

@@ -14,8 +14,12 @@ GPU textures:
 
 A vertex-shader replacement passes each vertex's position, mapped by one per-actor matrix (the actor's
 model matrix composed with the map's placement) into map texel units, to the fragment stage; the fragment
-shader fetches the texel under the fragment, tests z against its interval, and tints or ``discard``\\ s. A
-frame therefore costs two texel fetches per drawn fragment: the cost depends on the pixels drawn, not on
+shader fetches the texel under the fragment, tests z against its interval, and tints or ``discard``\\ s.
+On surfaces (DSM tiles, meshes) the vertex stage also lowers the vertices of a hidden object onto its
+ground (the lower contour + inflate) and the fragment stage keeps those triangles: a DSM holds nothing
+behind a building, so discarding its roof would open a hole onto the background. A frame therefore
+costs two texel fetches per drawn fragment (plus up to 18 per vertex of a surface tile near an object
+with a state): the cost depends on the pixels and vertices drawn, not on
 the size of the dataset or the number of objects highlighted or hidden. A state change re-uploads the
 state table (4 bytes per object); tiles streaming in get the shader through
 :meth:`~citylod.render.tileset_actor.Scene.add_actor_hook`.
@@ -56,13 +60,55 @@ _LUT_WIDTH = 4096  # objects per row of the state table (GL textures are at leas
 
 _VS_DEC = """//VTK::PositionVC::Dec
 uniform mat4 citylodToMap;
+uniform mat4 citylodFromMap;
+uniform sampler2D citylodMap;
+uniform sampler2D citylodState;
+uniform int citylodOn;
+uniform int citylodLutWidth;
+uniform int citylodFlatten;
+uniform float citylodGround;
+uniform float citylodReach;
 out vec3 citylodG;
+out float citylodFlat;
 """
 _VS_IMPL = """//VTK::PositionVC::Impl
 citylodG = (citylodToMap * vertexMC).xyz;
 """
+# After VTK's own position code: a surface vertex inside a hidden object's volume is lowered onto the
+# object's ground (the proxy's lower contour + inflate), so a hidden building on a DSM leaves the terrain
+# under it, not a hole onto the sky. Point tiles do not flatten (their points inside are discarded).
+_VS_END = """//VTK::CustomEnd::Impl
+citylodFlat = 0.0;
+if (citylodOn != 0 && citylodFlatten != 0) {
+  ivec2 clSize = textureSize(citylodMap, 0);
+  float clGround = 1e30;
+  // The vertex's texel and its neighbours up to citylodReach texels away: a DSM vertex on an eave or a
+  // gable just outside the footprint's texels would otherwise stay up as a spike.
+  for (int dj = -1; dj <= 1; ++dj) {
+    for (int di = -1; di <= 1; ++di) {
+      ivec2 clIJ = ivec2(floor(citylodG.xy + vec2(di, dj) * citylodReach));
+      if (clIJ.x < 0 || clIJ.y < 0 || clIJ.x >= clSize.x || clIJ.y >= clSize.y) continue;
+      vec4 clM = texelFetch(citylodMap, clIJ, 0);
+      bool clIn = (di == 0 && dj == 0) ? citylodG.z <= clM.b : true;
+      if (clM.r >= 0.0 && citylodG.z >= clM.g && clIn) {
+        int clId = int(clM.r + 0.5);
+        vec4 clS = texelFetch(citylodState, ivec2(clId % citylodLutWidth, clId / citylodLutWidth), 0);
+        if (clS.a * 255.0 > 254.5) clGround = min(clGround, clM.g + citylodGround);
+      }
+    }
+  }
+  if (clGround < 1e29) {
+    // Marked even when already at or below the ground: its triangles are then kept by the fragment stage.
+    citylodFlat = 1.0;
+    if (citylodG.z > clGround) {
+      gl_Position = MCDCMatrix * (citylodFromMap * vec4(citylodG.xy, clGround, 1.0));
+    }
+  }
+}
+"""
 _FS_DEC = """//VTK::PositionVC::Dec
 in vec3 citylodG;
+in float citylodFlat;
 uniform sampler2D citylodMap;
 uniform sampler2D citylodState;
 uniform int citylodOn;
@@ -80,10 +126,14 @@ if (citylodOn != 0) {
       int clId = int(clM.r + 0.5);
       vec4 clS = texelFetch(citylodState, ivec2(clId % citylodLutWidth, clId / citylodLutWidth), 0);
       float clA = clS.a * 255.0;
-      if (clA > 254.5) discard;
-      if (clA > 0.5) {
+      if (clA > 254.5) {
+        if (citylodFlat <= 0.0) discard;
+      } else if (clA > 0.5) {
+        // The highlight colour keeps a little of the surface's shading but stays saturated and bright,
+        // so it reads on a grey DSM as well as on an orthophoto (a plain luminance scale turned yellow
+        // into khaki there).
         float clL = dot(gl_FragData[0].rgb, vec3(0.299, 0.587, 0.114));
-        gl_FragData[0].rgb = mix(gl_FragData[0].rgb, clS.rgb * (0.55 + 0.45 * clL), clA / 254.0);
+        gl_FragData[0].rgb = mix(gl_FragData[0].rgb, min(clS.rgb * (0.8 + 0.4 * clL), vec3(1.0)), clA / 254.0);
       }
     }
   }
@@ -504,17 +554,19 @@ class SemanticOverlay:
         if on:
             sp.AddVertexShaderReplacement("//VTK::PositionVC::Dec", True, _VS_DEC, False)
             sp.AddVertexShaderReplacement("//VTK::PositionVC::Impl", True, _VS_IMPL, False)
+            sp.AddVertexShaderReplacement("//VTK::CustomEnd::Impl", True, _VS_END, False)
             sp.AddFragmentShaderReplacement("//VTK::PositionVC::Dec", True, _FS_DEC, False)
             sp.AddFragmentShaderReplacement("//VTK::TCoord::Impl", True, _FS_IMPL, False)
         else:
             sp.ClearVertexShaderReplacement("//VTK::PositionVC::Dec", True)
             sp.ClearVertexShaderReplacement("//VTK::PositionVC::Impl", True)
+            sp.ClearVertexShaderReplacement("//VTK::CustomEnd::Impl", True)
             sp.ClearFragmentShaderReplacement("//VTK::PositionVC::Dec", True)
             sp.ClearFragmentShaderReplacement("//VTK::TCoord::Impl", True)
         self._shaded[id(actor)] = on
 
     def _callback(self, actor: Any) -> Callable[..., None]:
-        cache: dict[str, Any] = {"key": None, "matrix": _vtk.vtkMatrix4x4()}
+        cache: dict[str, Any] = {"key": None, "matrix": _vtk.vtkMatrix4x4(), "inverse": _vtk.vtkMatrix4x4()}
 
         @_vtk.calldata_type(_vtk.VTK_OBJECT)
         def update(mapper: Any, _event: str, program: Any) -> None:
@@ -525,6 +577,12 @@ class SemanticOverlay:
             program.SetUniformi("citylodMap", self._map_tex.GetTextureUnit())
             program.SetUniformi("citylodState", self._lut_tex.GetTextureUnit())
             program.SetUniformi("citylodLutWidth", self._lut_w)
+            data = mapper.GetInput()
+            surface = data is not None and data.GetNumberOfPolys() + data.GetNumberOfStrips() > 0
+            program.SetUniformi("citylodFlatten", 1 if surface else 0)
+            program.SetUniformf("citylodGround", float(self.store.inflate))
+            # One inflate distance (at least one texel): the proxies' own tolerance around a footprint.
+            program.SetUniformf("citylodReach", max(1.0, float(self.store.inflate) / self.map.resolution))
             m = actor.GetMatrix()
             # VTK may upload positions shifted and scaled (vtkOpenGLVertexBufferObject's coordinate
             # shift/scale): vertexMC = (p - shift) * scale, so undo it before the model matrix.
@@ -539,9 +597,12 @@ class SemanticOverlay:
                 unshift[:3, :3] = np.diag(1.0 / np.asarray(scale, np.float64))
                 unshift[:3, 3] = shift
                 # GLSL reads the 16 values column by column: hand it the transpose.
-                cache["matrix"].DeepCopy((self._to_map @ model @ unshift).T.ravel().tolist())
+                to_map = self._to_map @ model @ unshift
+                cache["matrix"].DeepCopy(to_map.T.ravel().tolist())
+                cache["inverse"].DeepCopy(np.linalg.inv(to_map).T.ravel().tolist())
                 cache["key"] = key
             program.SetUniformMatrix("citylodToMap", cache["matrix"])
+            program.SetUniformMatrix("citylodFromMap", cache["inverse"])
 
         return update
 
