@@ -208,6 +208,49 @@ def test_query_panel_runs_sql_with_history(qtbot, sample, qsettings) -> None:
         doc.close()
 
 
+def test_plugin_query_shows_its_parameters(qtbot, sample, qsettings) -> None:
+    """Choosing a registered query by keyboard puts a JSON template of its parameters in the box; filled in
+    by typing and run with a click, it finds the objects an independent footprint-distance test finds."""
+    import json
+
+    import shapely
+    from PySide6.QtCore import Qt
+
+    from citylod.app.qt_panels import QueryPanel
+    from citylod.semantics.store import CityStore
+
+    store_path = _store(sample)
+    doc = Document(workers=1)
+    try:
+        doc.open(store_path)
+        panel = QueryPanel(doc, qsettings)
+        qtbot.addWidget(panel)
+        panel.show()
+        qtbot.waitExposed(panel)
+        panel.kind.setFocus()
+        qtbot.keyClicks(panel.kind, "distance")
+        assert panel.kind.currentText() == "distance"
+        template = json.loads(panel.edit.toPlainText())
+        assert set(template) == {"point", "distance"}
+        assert "point" in panel.edit.placeholderText() and panel.edit.toolTip()
+        store = CityStore.open(store_path)
+        shapes = store.proxies.shapes
+        cx, cy = shapely.centroid(shapes[0]).coords[0]
+        store.close()
+        panel.edit.clear()
+        qtbot.keyClicks(panel.edit, json.dumps({"point": [cx, cy], "distance": 30.0}))
+        qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
+        got = {panel.results.item(i).text() for i in range(panel.results.count())}
+        # Proxies are footprints grown by ``inflate``: sure inside within 30 m - inflate of the proxy, sure
+        # outside beyond 30 m of it, whichever of the two the query measures to.
+        d = shapely.distance(shapes, shapely.Point(cx, cy))
+        ids = np.asarray(store.ids)
+        assert got and set(ids[d <= 30.0 - store.inflate]) <= got
+        assert not got & set(ids[d > 30.0])
+    finally:
+        doc.close()
+
+
 def test_tree_and_inspector_follow_selection(qtbot, sample) -> None:
     store_path = _store(sample)
     from citylod.app.qt_panels import AttributePanel, ObjectTreePanel

@@ -262,6 +262,7 @@ class QueryPanel(QWidget):
         except ImportError:  # pragma: no cover - semantics always ships with citylod
             self.kind.addItem("sql")
         self.kind.setCurrentText("sql")
+        self.kind.currentTextChanged.connect(self._on_kind)
         self.recent = QComboBox()
         self.recent.setPlaceholderText("history")
         self.recent.textActivated.connect(self._use_history)
@@ -299,6 +300,21 @@ class QueryPanel(QWidget):
         lay.addWidget(self.results, 1)
         lay.addLayout(buttons)
         self._refresh_history()
+
+    def _on_kind(self, name: str) -> None:
+        """Show the chosen query's parameters (a JSON template from its signature) and its description."""
+        if name == "sql":
+            self.edit.setPlaceholderText("type = 'Building' AND measured_height > 15")
+            self.edit.setToolTip("an SQL WHERE clause over city_objects")
+            return
+        from citylod.semantics.queries import get_query, parameter_hint
+
+        hint = parameter_hint(name)
+        query = get_query(name)
+        self.edit.setPlaceholderText(f"parameters: {hint}" if hint else "")
+        self.edit.setToolTip(getattr(query, "description", "") or "")
+        if not self.edit.toPlainText().strip() and hint:
+            self.edit.setPlainText(hint)  # a template to edit rather than an empty box
 
     def _refresh_history(self) -> None:
         self.recent.clear()

@@ -16,7 +16,7 @@ from typing import Any, Protocol, runtime_checkable
 
 from citylod.core.errors import PluginError
 
-__all__ = ["GROUP", "Query", "QueryInfo", "QueryRegistry", "get_query", "list_queries", "registry", "run_query"]
+__all__ = ["GROUP", "Query", "QueryInfo", "QueryRegistry", "get_query", "list_queries", "parameter_hint", "registry", "run_query"]
 
 GROUP = "citylod.queries"
 _BUILTIN_SOURCE = "citylod (built-in)"
@@ -157,6 +157,33 @@ def list_queries() -> list[QueryInfo]:
 def get_query(name: str) -> Query | None:
     """A query by name (imported on first use); None and a warning if it fails to load."""
     return registry.get(name)
+
+
+def parameter_hint(name: str) -> str:
+    """A JSON template of a registered query's parameters, read from its ``run`` signature.
+
+    Keyword parameters with a default show it; those without show ``null`` to fill in. The GUI shows this
+    as the placeholder of the parameter box, so a plugin's parameters are discoverable without its source.
+    Empty for the SQL query (its box takes a WHERE clause) and for a query that fails to load.
+    """
+    import inspect
+    import json
+
+    if name == "sql":
+        return ""
+    query = registry.get(name)
+    if query is None:
+        return ""
+    fields: dict[str, Any] = {}
+    for p in list(inspect.signature(query.run).parameters.values())[1:]:  # after ``store``
+        if p.kind in (p.VAR_KEYWORD, p.VAR_POSITIONAL):
+            continue
+        default = None if p.default is p.empty else p.default
+        fields[p.name] = list(default) if isinstance(default, tuple) else default
+    try:
+        return json.dumps(fields)
+    except TypeError:  # a default JSON cannot show
+        return json.dumps(dict.fromkeys(fields))
 
 
 def run_query(store: Any, name: str, **params: Any) -> list[str]:
