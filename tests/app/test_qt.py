@@ -191,7 +191,14 @@ def test_query_panel_runs_sql_with_history(qtbot, sample, qsettings) -> None:
         assert panel.kind.currentText() == "sql"
         panel.edit.setPlainText("type = 'Building'")
         ids = panel.run()
-        assert ids and panel.results.count() == len(ids)
+        assert ids and panel.results.topLevelItemCount() == len(ids)
+        # Attribute columns next to the id, from the store (one row per object).
+        header = [panel.results.headerItem().text(c) for c in range(panel.results.columnCount())]
+        assert header[:2] == ["object_id", "type"] and "measured_height" in header
+        first = panel.results.topLevelItem(0)
+        attrs = doc.store.attributes(first.text(0))
+        assert first.text(1) == str(attrs["type"])
+        assert first.text(header.index("measured_height")) == str(attrs["measured_height"])
         assert qsettings.value("query/history") == ["type = 'Building'"]
         panel.buttons["Highlight"].click()
         assert set(doc.state.colors) == set(ids)
@@ -240,7 +247,7 @@ def test_plugin_query_shows_its_parameters(qtbot, sample, qsettings) -> None:
         panel.edit.clear()
         qtbot.keyClicks(panel.edit, json.dumps({"point": [cx, cy], "distance": 30.0}))
         qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
-        got = {panel.results.item(i).text() for i in range(panel.results.count())}
+        got = {panel.results.topLevelItem(i).text(0) for i in range(panel.results.topLevelItemCount())}
         # Proxies are footprints grown by ``inflate``: sure inside within 30 m - inflate of the proxy, sure
         # outside beyond 30 m of it, whichever of the two the query measures to.
         d = shapely.distance(shapes, shapely.Point(cx, cy))

@@ -221,6 +221,22 @@ def test_builtin_and_entry_point_queries(store_path: Path) -> None:
         assert reg.run(s, "distance", point=(X0 + 25, Y0 + 5), distance=6) == ["B"]
 
 
+def test_rows_agree_with_attributes_and_parameter_hints(store_path: Path) -> None:
+    with CityStore.open(store_path) as s:
+        ids = ["C", "A", "nope", "B"]
+        rows = s.rows(ids, ("type", "measured_height"))
+        assert rows[2] == (None, None)
+        for oid, row in zip(ids, rows, strict=True):
+            if oid != "nope":
+                a = s.attributes(oid)
+                assert row == (a["type"], a["measured_height"])
+        with pytest.raises(InputError, match="no column"):
+            s.rows(ids, ("type; DROP TABLE city_objects",))
+    assert queries.parameter_hint("sql") == ""
+    assert queries.parameter_hint("polygon") == '{"polygon": null, "predicate": "intersects"}'
+    assert queries.parameter_hint("distance") == '{"point": null, "distance": null}'
+
+
 def test_broken_plugin_is_a_warning(monkeypatch: pytest.MonkeyPatch, store_path: Path) -> None:
     broken = EntryPoint("broken", "citylod.no_such_module:Nothing", queries.GROUP)
     not_query = EntryPoint("not_query", "citylod.core.errors:CitylodError", queries.GROUP)

@@ -38,6 +38,8 @@ from PySide6.QtWidgets import (
     QTableWidget,
     QTableWidgetItem,
     QTreeView,
+    QTreeWidget,
+    QTreeWidgetItem,
     QVBoxLayout,
     QWidget,
 )
@@ -54,6 +56,7 @@ from citylod.app.qt_profile import profiled
 from citylod.core.camera import Camera
 from citylod.core.errors import CitylodError
 from citylod.semantics.state import StateChange
+from citylod.semantics.store import CityStore
 
 __all__ = ["AttributePanel", "BookmarkPanel", "LayerPanel", "LodPanel", "MeasurePanel", "ObjectTreePanel",
            "QueryPanel"]
@@ -274,7 +277,11 @@ class QueryPanel(QWidget):
         self.run_button.clicked.connect(self.run)
         self.message = QLabel("")
         self.message.setWordWrap(True)
-        self.results = QListWidget()
+        self.results = QTreeWidget()
+        self.results.setRootIsDecorated(False)
+        self.results.setUniformRowHeights(True)
+        self.results.setSortingEnabled(True)
+        self.results.setHeaderLabels(["object_id", *CityStore.LIST_COLUMNS])
         self.results.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
         self.results.itemSelectionChanged.connect(self._on_results_selected)
         buttons = QHBoxLayout()
@@ -325,11 +332,11 @@ class QueryPanel(QWidget):
         self.edit.setPlainText(text)
 
     def _targets(self) -> list[str]:
-        chosen = [i.text() for i in self.results.selectedItems()]
+        chosen = [i.text(0) for i in self.results.selectedItems()]
         return chosen or list(self.document.results)
 
     def _on_results_selected(self) -> None:
-        ids = [i.text() for i in self.results.selectedItems()]
+        ids = [i.text(0) for i in self.results.selectedItems()]
         if ids:
             self.document.select(ids)
 
@@ -353,11 +360,30 @@ class QueryPanel(QWidget):
         except (CitylodError, json.JSONDecodeError, TypeError) as exc:
             self.message.setText(f"<span style='color:#b00'>{exc}</span>")
             return None
-        self.results.clear()
-        self.results.addItems(ids[:10000])
+        self._fill_results(ids[:10000])
         more = " (first 10000 listed)" if len(ids) > 10000 else ""
         self.message.setText(f"{len(ids)} objects{more}")
         return ids
+
+
+    def _fill_results(self, ids: list[str]) -> None:
+        """One row per object: its id and the store's list columns (numbers sort as numbers)."""
+        self.results.setSortingEnabled(False)
+        self.results.clear()
+        store = self.document.store
+        rows = store.rows(ids) if store is not None else [()] * len(ids)
+        items = []
+        for oid, row in zip(ids, rows, strict=True):
+            item = QTreeWidgetItem([oid, *("" if v is None else str(v) for v in row)])
+            for col, v in enumerate(row, start=1):
+                if isinstance(v, (int, float)):
+                    item.setData(col, Qt.ItemDataRole.DisplayRole, v)
+            items.append(item)
+        self.results.addTopLevelItems(items)
+        self.results.setSortingEnabled(True)
+        self.results.sortByColumn(-1, Qt.SortOrder.AscendingOrder)  # keep the query's order until a click
+        for col in range(self.results.columnCount()):
+            self.results.resizeColumnToContents(col)
 
 
 class LodPanel(QWidget):
