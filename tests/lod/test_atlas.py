@@ -137,7 +137,7 @@ def _world_meshes(t) -> tuple[np.ndarray, np.ndarray, list]:
 
 def test_far_textured_tiles_are_blocks_in_the_atlas_colours(tmp_path: Path) -> None:
     city = make_textured_city(tmp_path, buildings=24, image_px=64, seed=5)
-    report = build_city_tiles(city.path, tmp_path / "tiles", atlas_px=256, progress=False)
+    report = build_city_tiles(city.path, tmp_path / "tiles", atlas_px=256, texture_blocks=True, progress=False)
     ts = open_tileset(tmp_path / "tiles")
     inner = [t for t in ts.walk() if t.children]
     assert inner and report.root_triangles < report.leaf_triangles

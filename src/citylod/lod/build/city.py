@@ -18,10 +18,12 @@ Buchholz (2006, ch. 4): the 4-ary tree is balanced by surface area and split unt
 atlas at their own resolution; every tile holds its subtree's full surfaces and one fixed-size atlas
 (:mod:`citylod.lod.build.atlas`), and its ``geometricError`` is that atlas's texel size on the surface, so
 that at τ px no atlas texel covers more than τ pixels. Surfaces whose image is missing or refused keep
-their material colour. Its inner tiles then get building LOD too (``texture_blocks``, the default): blocks and
-merged blocks as below, each face in the mean colour of its object's surfaces of that class in the node's
-atlas, with the certified Hausdorff bound plus the atlas's texel size as ``geometricError``; far views then
-draw far fewer triangles and bind no texture.
+their material colour. With ``texture_blocks`` its inner tiles get building LOD instead: blocks and merged
+blocks as below, each face in the mean colour of its object's surfaces of that class in the node's atlas,
+with the certified Hausdorff bound plus the atlas's texel size as ``geometricError``; far views then bind no
+texture. Off by default: a block's error (a gable roof's height) is far above the texel sizes of the levels
+it replaces, so under a texture budget views refine to many leaves and fall back to coarse blocks
+(docs/BENCHMARKS.md, "Textured city models").
 
 A coarse tile's ``geometricError`` is a proven bound on the symmetric Hausdorff distance between its
 triangles and the original surfaces of its objects (:mod:`citylod.lod.kernels.mesh_distance`; the union's
@@ -466,7 +468,7 @@ def _group_error(v: F64, f: I64, originals: Sequence[ObjectMesh], tol_m: float) 
 def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | PathLike[str], *, lod: int = 2,
                      crs: str | pyproj.CRS | None = None, leaf_triangles: int = 20_000, merge_m: float = 2.0,
                      tol_m: float = 0.05, textures: bool | str = True, atlas_px: int = 1024,
-                     texture_blocks: bool = True, progress: bool = True) -> CityTilesReport:
+                     texture_blocks: bool = False, progress: bool = True) -> CityTilesReport:
     """Write the city model's geometry as a 3D Tiles 1.1 tileset with feature IDs and property tables.
 
     Parameters
@@ -495,8 +497,8 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
     texture_blocks
         Give a textured model building LOD too: its inner tiles carry blocks and merged blocks (as an
         untextured model's do) coloured with the node atlas's mean colour per object and surface class, and
-        their ``geometricError`` is the blocks' certified Hausdorff bound plus that atlas's texel size. Off:
-        every tile holds its subtree's full surfaces with its atlas (texture LOD only).
+        their ``geometricError`` is the blocks' certified Hausdorff bound plus that atlas's texel size. Off
+        (default): every tile holds its subtree's full surfaces with its atlas (texture LOD only).
     progress
         Show progress bars.
 
