@@ -14,6 +14,7 @@ import pytest
 from citylod.bench.flight import default_flight
 from citylod.bench.synthetic import make_terrain_tileset
 from citylod.core.camera import Camera
+from citylod.io.tiles3d import open_tileset
 from citylod.render.depth import world_rays
 from citylod.render.sse import measure_error
 
@@ -69,9 +70,14 @@ def test_run_bench_writes_a_consistent_report(tmp_path: Path) -> None:
     assert full.err_max_px == 0
     assert full.triangles_median >= fine.triangles_median >= coarse.triangles_median
     assert coarse.triangles_median < full.triangles_median
-    assert len(res.frames) == 3 * 3
+    assert len(res.frames) == (3 + 1) * 3  # the flight and the overview camera, each at full resolution and two τ
+    assert all(r.frames == 3 for r in res.rows)  # the overview camera is not summarised with the flight
+    # The overview camera sees the whole dataset: at full resolution every leaf, and fewer at a coarse τ.
+    o_full, _, o_coarse = res.overview
+    assert o_full.tiles_median == sum(1 for t in open_tileset(ts).walk() if not t.children and t.content_uri)
+    assert o_coarse.triangles_median < o_full.triangles_median
     md = (tmp_path / "report" / "report.md").read_text()
-    assert "| tau=8 |" in md and "full.png" in md
+    assert "| tau=8 |" in md and "full.png" in md and "Overview camera" in md
 
 
 def test_report_figure_counts_what_the_data_is_made_of(tmp_path: Path) -> None:

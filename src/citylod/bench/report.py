@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from citylod.bench.flight import default_flight
-from citylod.core.camera import Camera, load_cameras
+from citylod.core.camera import Camera, load_cameras, overview_camera
 from citylod.core.errors import CitylodError
 from citylod.core.fileio import atomic_write_bytes
 from citylod.render import _vtk
@@ -93,6 +93,8 @@ class BenchResult:
     size: tuple[int, int] = (0, 0)
     cameras: int = 0
     gl_backend: str | None = None
+    #: The same summaries for the overview camera alone (the whole dataset in view), not part of ``rows``.
+    overview: list[TauRow] = field(default_factory=list)
 
     def row(self, tau_px: float | None) -> TauRow:
         """The summary for ``tau_px`` (None for the full-resolution baseline)."""
@@ -167,8 +169,11 @@ def run_bench(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[Camer
         cams = list(cameras) if cameras else default_flight(*scene.bounds)
         rep = len(cams) // 2 if representative is None else representative
         rep_tau = min(taus, key=lambda t: abs(t - 1.0))
-        bar = tqdm(total=len(cams) * (len(taus) + 1), desc="bench", unit="frame", disable=not progress)
-        for ci, cam in enumerate(cams):
+        bar = tqdm(total=(len(cams) + 1) * (len(taus) + 1), desc="bench", unit="frame", disable=not progress)
+        # The flight, then the overview camera (the whole dataset in view; camera -1 in frames.csv), whose
+        # triangle counts show whether frames are output-sensitive: summarised apart from the flight.
+        overview = overview_camera(*scene.bounds, aspect=size[0] / size[1])
+        for ci, cam in [*enumerate(cams), (-1, overview)]:
             # Baseline: every leaf drawn, same window, same camera.
             st = r.prepare(cam, full_resolution=True)
             ms = _timed_draws(r, repeats)
@@ -204,9 +209,13 @@ def run_bench(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[Camer
                                              (255 - np.clip(diff * 4, 0, 255)).astype(np.uint8))
                 bar.update()
         bar.close()
-    rows = [_summarise("full", 0.0, [f for f in frames if f.tau_px == 0.0])]
-    rows += [_summarise(f"tau={t:g}", t, [f for f in frames if f.tau_px == t]) for t in taus]
-    result = BenchResult(rows, frames, out, files, tuple(size), len(cams), _vtk.WINDOW_BACKEND)
+    flight = [f for f in frames if f.camera >= 0]
+    rows = [_summarise("full", 0.0, [f for f in flight if f.tau_px == 0.0])]
+    rows += [_summarise(f"tau={t:g}", t, [f for f in flight if f.tau_px == t]) for t in taus]
+    over = [f for f in frames if f.camera < 0]
+    overview_rows = [_summarise("full", 0.0, [f for f in over if f.tau_px == 0.0])]
+    overview_rows += [_summarise(f"tau={t:g}", t, [f for f in over if f.tau_px == t]) for t in taus]
+    result = BenchResult(rows, frames, out, files, tuple(size), len(cams), _vtk.WINDOW_BACKEND, overview_rows)
     _write_csv(out / "frames.csv", [asdict(f) for f in frames])
     _write_csv(out / "report.csv", [asdict(rw) for rw in rows])
     files["frames_csv"], files["csv"] = out / "frames.csv", out / "report.csv"
@@ -280,6 +289,13 @@ def _plot(path: Path, rows: list[TauRow]) -> Path:
     return path
 
 
+def _md_row(r: TauRow) -> str:
+    return (f"| {r.label} | {r.frame_ms_median:.1f} / {r.frame_ms_p95:.1f} | {r.select_ms_median:.2f} "
+            f"| {r.tiles_median:.0f} | {r.triangles_median:.0f} | {r.points_median:.0f} "
+            f"| {r.bytes_resident_max / 1e6:.1f} | {r.err_max_px:.2f} / {r.err_p99_px:.2f} "
+            f"| {r.err_near_max_px:.2f} / {r.err_near_p99_px:.2f} | {r.full_only_px} | {r.lod_only_px} |")
+
+
 def _write_md(path: Path, res: BenchResult, sources: list[str]) -> Path:
     w, h = res.size
     lines = [
@@ -300,12 +316,11 @@ def _write_md(path: Path, res: BenchResult, sources: list[str]) -> Path:
         "| err ray max / p99 (px) | err near max / p99 (px) | holes | extra |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in res.rows:
-        lines.append(
-            f"| {r.label} | {r.frame_ms_median:.1f} / {r.frame_ms_p95:.1f} | {r.select_ms_median:.2f} "
-            f"| {r.tiles_median:.0f} | {r.triangles_median:.0f} | {r.points_median:.0f} "
-            f"| {r.bytes_resident_max / 1e6:.1f} | {r.err_max_px:.2f} / {r.err_p99_px:.2f} "
-            f"| {r.err_near_max_px:.2f} / {r.err_near_p99_px:.2f} | {r.full_only_px} | {r.lod_only_px} |")
+    header = lines[-2:]
+    lines += [_md_row(r) for r in res.rows]
+    if res.overview:
+        lines += ["", "Overview camera (the whole dataset in view; not part of the flight above):", "", *header]
+        lines += [_md_row(r) for r in res.overview]
     lines += ["", "![speed against error](report.png)", ""]
     if "lod" in res.files:
         lines += [

@@ -1,7 +1,8 @@
 """The DSM build's kernels compiled ahead of time, so that a process runs them without starting numba.
 
 A fresh process that calls its first numba kernel starts numba's runtime (its typing and lowering
-registries, ≈ 0.3 s here) and loads every cached kernel it calls (≈ 15 ms each, eleven in a DSM build):
+registries, ≈ 0.3 s here) and loads every cached kernel it calls (≈ 15 ms each, eleven in a DSM build,
+twelve with ``metric="hausdorff"``):
 ≈ 0.45–0.6 s of every ``citylod build dsm``, on one core before the workers fork, a sixth of the 2049²
 city's build and two thirds of the 513² sample's. :func:`build` compiles the same kernels, with the
 argument types a build passes them, into one extension module with numba's ahead-of-time compiler
@@ -55,9 +56,10 @@ EXPORTS: dict[str, tuple[str, ...]] = {
                                 "live_mesh"),
     "citylod.lod.kernels.certify": ("certify_block", "_edge_table", "skirt_strip", "_grid_sample_error"),
     "citylod.lod.kernels.octree": ("_bounds",),
+    "citylod.lod.kernels.hausdorff": ("hausdorff_block",),
 }
 #: The modules whose source the compiled code comes from (the hash in :func:`kernel_dir`).
-SOURCES = ("tin_kernels.py", "certify.py", "octree.py", "sort.py", "aot.py")
+SOURCES = ("tin_kernels.py", "certify.py", "octree.py", "sort.py", "hausdorff.py", "distance.py", "aot.py")
 _MODULE = "_citylod_dsm_kernels"
 _MANIFEST = "manifest.json"
 #: Hex digits of the source/machine hash naming a kernel folder.
