@@ -426,7 +426,7 @@ def _surface_colours(pieces: Sequence[_Piece], atlas: npt.NDArray[np.uint8],
     for p in pieces:
         if p.uv is None or not len(p.faces):
             continue
-        tex = np.isfinite(p.uv).all(axis=1)[p.faces].all(axis=1)
+        tex = np.asarray(np.isfinite(p.uv).all(axis=1))[p.faces].all(axis=1)
         if not tex.any():
             continue
         f = p.faces[tex]
