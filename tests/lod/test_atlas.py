@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from citylod.io.city import read_city_model
 from citylod.io.image import decode_image, read_image
@@ -14,6 +15,7 @@ from citylod.io.tiles3d import open_tileset
 from citylod.lod.build.atlas import Square, quadrant, texel_size_m
 from citylod.lod.build.city import build_city_tiles
 from citylod.sample.textured import make_textured_city
+from tests.lod.test_city_tiles import _samples
 
 
 def test_texel_size_of_a_quad_by_hand() -> None:
@@ -31,7 +33,7 @@ def test_texel_size_of_a_quad_by_hand() -> None:
 def textured(tmp_path_factory: pytest.TempPathFactory):
     d = tmp_path_factory.mktemp("textured")
     city = make_textured_city(d, buildings=12, image_px=64, seed=3)
-    report = build_city_tiles(city.path, d / "tiles", atlas_px=256, progress=False)
+    report = build_city_tiles(city.path, d / "tiles", atlas_px=256, texture_blocks=False, progress=False)
     return city, report, open_tileset(d / "tiles")
 
 
@@ -120,3 +122,43 @@ def test_a_missing_image_falls_back_to_the_material(tmp_path: Path) -> None:
     # the roof's X3DMaterial (0.62, 0.30, 0.22) is drawn where its texture is missing
     assert (np.abs(colours.astype(int) - [158, 76, 56]).max(axis=1) <= 1).any()
     del leaf
+
+
+def _world_meshes(t) -> tuple[np.ndarray, np.ndarray, list]:
+    """All meshes of a tile in world coordinates, concatenated, and the meshes themselves."""
+    meshes = t.load_content().meshes
+    vs, fs, off = [], [], 0
+    for m in meshes:
+        vs.append(m.positions.astype(np.float64) @ t.matrix[:3, :3].T + t.matrix[:3, 3])
+        fs.append(m.faces.astype(np.int64) + off)
+        off += len(m.positions)
+    return np.concatenate(vs), np.concatenate(fs), meshes
+
+
+def test_far_textured_tiles_are_blocks_in_the_atlas_colours(tmp_path: Path) -> None:
+    city = make_textured_city(tmp_path, buildings=24, image_px=64, seed=5)
+    report = build_city_tiles(city.path, tmp_path / "tiles", atlas_px=256, texture_blocks=True, progress=False)
+    ts = open_tileset(tmp_path / "tiles")
+    inner = [t for t in ts.walk() if t.children]
+    assert inner and report.root_triangles < report.leaf_triangles
+    roof_means = [read_image(tmp_path / h.roof)[:, :, :3].reshape(-1, 3).mean(axis=0) for h in city.houses]
+    for t in inner:
+        v, f, meshes = _world_meshes(t)
+        assert all(m.texture is None for m in meshes)  # a far tile binds no texture
+        leaves = [_world_meshes(x)[:2] for x in ts.walk_from(t) if not x.children]
+        lv = np.concatenate([a for a, _ in leaves])
+        lf = np.concatenate([b + o for (_, b), o in zip(leaves, np.cumsum([0] + [len(a) for a, _ in leaves[:-1]]),
+                                                          strict=True)])
+        # independent Hausdorff estimate between the blocks and the full surfaces (dense samples, scipy)
+        ps, rs = _samples(v, f, 0.5)
+        pf, rf = _samples(lv, lf, 0.5)
+        est = max(cKDTree(pf).query(ps)[0].max() - rf, cKDTree(ps).query(pf)[0].max() - rs)
+        assert est <= t.geometric_error + 1e-6
+        assert all(c.geometric_error <= t.geometric_error for c in t.children)
+        # roof faces are drawn in colours of the roof images (mean of the atlas, shrunk and JPEG-coded)
+        cols = np.concatenate([m.colors[:, :3] for m in meshes]).astype(float)
+        n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        up = n[:, 2] / np.linalg.norm(n, axis=1) > 0.5
+        roof_cols = cols[f[up, 0]]
+        near = np.min(np.abs(roof_cols[:, None, :] - np.array(roof_means)[None]).max(axis=2), axis=1)
+        assert np.median(near) < 25, np.median(near)

@@ -7,8 +7,8 @@ cache (geometry and decoded textures: an upper bound of texture memory), and the
 of the drawn tiles (for atlas tiles their certified texel size projected at their distance: above 1 px an
 atlas texel would be magnified).
 
-Run: ``python -m citylod.bench.texture_bench OUT_DIR [HOUSES]``; writes ``texture_flight.json`` and prints a
-table. Timings belong in reports, never in tests.
+Run: ``python -m citylod.bench.texture_bench OUT_DIR [HOUSES] [--blocks]``; writes ``texture_flight.json``
+(``texture_flight_blocks.json`` with ``--blocks``: far atlas tiles as coloured blocks) and prints a table. Timings belong in reports, never in tests.
 """
 
 from __future__ import annotations
@@ -89,36 +89,40 @@ def _fly(tiles: Path, cameras: list[Any], *, size: tuple[int, int], tau_px: floa
 
 def texture_flight(out_dir: str | Path, houses: int = 1000, *, image_px: int = 256, atlas_px: int = 1024,
                    budget_mb: float = 256.0, frames: int = 24, size: tuple[int, int] = (960, 540),
-                   tau_px: float = 1.0) -> dict[str, Any]:
-    """Build both tilesets of a textured sample (reused when present) and fly them; the report dict."""
+                   tau_px: float = 1.0, texture_blocks: bool = False) -> dict[str, Any]:
+    """Build both tilesets of a textured sample (reused when present) and fly them; the report dict.
+    ``texture_blocks``: the atlas tileset's far tiles are coloured blocks (folder ``atlas_blocks``)."""
     out = Path(out_dir)
+    name = "atlas_blocks" if texture_blocks else "atlas"
     model = out / "textured.gml"
     if not model.exists():
         make_textured_city(out, buildings=houses, image_px=image_px)
     t = time.perf_counter()
-    if not (out / "atlas" / "tileset.json").exists():
-        build_city_tiles(model, out / "atlas", atlas_px=atlas_px, progress=False)
+    if not (out / name / "tileset.json").exists():
+        build_city_tiles(model, out / name, atlas_px=atlas_px, texture_blocks=texture_blocks, progress=False)
     t_atlas = time.perf_counter() - t
     t = time.perf_counter()
     if not (out / "original" / "tileset.json").exists():
         build_city_tiles(model, out / "original", textures="original", progress=False)
     t_orig = time.perf_counter() - t
-    lo, hi = open_tileset(out / "atlas").bounds
+    lo, hi = open_tileset(out / name).bounds
     cams = default_flight(lo, hi, n=frames)
     raw_mb = 2 * houses * image_px * image_px * 3 / 2**20
-    atlas = _fly(out / "atlas", cams, size=size, tau_px=tau_px, cache_bytes=int(budget_mb * 2**20))
+    atlas = _fly(out / name, cams, size=size, tau_px=tau_px, cache_bytes=int(budget_mb * 2**20))
     orig = _fly(out / "original", cams, size=size, tau_px=tau_px, cache_bytes=64 << 30)
     report = {"houses": houses, "image_px": image_px, "atlas_px": atlas_px, "budget_mb": budget_mb,
-              "raw_texture_mb": raw_mb, "tau_px": tau_px, "size": list(size), "build_s": {"atlas": t_atlas,
+              "texture_blocks": texture_blocks, "raw_texture_mb": raw_mb, "tau_px": tau_px, "size": list(size), "build_s": {"atlas": t_atlas,
                                                                                         "original": t_orig},
               "atlas": atlas, "original": orig, "speedup_median": orig["median_ms"] / atlas["median_ms"]}
-    (out / "texture_flight.json").write_text(json.dumps(report, indent=1))
+    (out / f"texture_flight{'_blocks' if texture_blocks else ''}.json").write_text(json.dumps(report, indent=1))
     return report
 
 
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
-    rep = texture_flight(args[0], int(args[1]) if len(args) > 1 else 1000)
+    blocks = "--blocks" in args
+    args = [a for a in args if a != "--blocks"]
+    rep = texture_flight(args[0], int(args[1]) if len(args) > 1 else 1000, texture_blocks=blocks)
     print(f"{rep['houses']} houses, {2 * rep['houses']} images of {rep['image_px']} px "
           f"({rep['raw_texture_mb']:.0f} MB raw), tau {rep['tau_px']} px, budget {rep['budget_mb']:.0f} MB")
     print("variant   median ms  max textures/frame  max resident MB  max atlas texel px  frames leaf>tau")

@@ -56,6 +56,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--atlas-px", type=int, default=1024, choices=(256, 512, 1024, 2048, 4096),
                    help="side of the texture atlas of every tile of a textured model (default 1024)")
     c.add_argument("--no-textures", action="store_true", help="ignore the model's appearances")
+    c.add_argument("--texture-blocks", action="store_true",
+                   help="textured model: far tiles carry blocks in the atlas's mean colours (building LOD) "
+                        "instead of full surfaces with atlases")
     c.add_argument("--lod", type=int, choices=(1, 2), default=2)
     c.add_argument("--inflate", type=float, help="proxy inflation in metres")
     c.add_argument("--crs", help="metric CRS to project geographic input to, or the CRS of a file that names none, "
@@ -102,7 +105,8 @@ def run(args: argparse.Namespace, progress: bool) -> int:
             print(report.summary())
             report = build_city_tiles(raw, args.tiles or default_tiles_dir(args.output), crs=args.crs,
                                       leaf_triangles=args.leaf_triangles, atlas_px=args.atlas_px,
-                                      textures=not args.no_textures, progress=progress)
+                                      textures=not args.no_textures,
+                                      texture_blocks=args.texture_blocks, progress=progress)
             for w in report.warnings:
                 if "texture" in w:
                     print(f"citylod: warning: {w}")

@@ -18,7 +18,12 @@ Buchholz (2006, ch. 4): the 4-ary tree is balanced by surface area and split unt
 atlas at their own resolution; every tile holds its subtree's full surfaces and one fixed-size atlas
 (:mod:`citylod.lod.build.atlas`), and its ``geometricError`` is that atlas's texel size on the surface, so
 that at τ px no atlas texel covers more than τ pixels. Surfaces whose image is missing or refused keep
-their material colour.
+their material colour. With ``texture_blocks`` its inner tiles get building LOD instead: blocks and merged
+blocks as below, each face in the mean colour of its object's surfaces of that class in the node's atlas,
+with the certified Hausdorff bound plus the atlas's texel size as ``geometricError``; far views then bind no
+texture. Off by default: a block's error (a gable roof's height) is far above the texel sizes of the levels
+it replaces, so under a texture budget views refine to many leaves and fall back to coarse blocks
+(docs/BENCHMARKS.md, "Textured city models").
 
 A coarse tile's ``geometricError`` is a proven bound on the symmetric Hausdorff distance between its
 triangles and the original surfaces of its objects (:mod:`citylod.lod.kernels.mesh_distance`; the union's
@@ -397,6 +402,58 @@ def _merged_pieces(members: I64, objects: Sequence[CityObject], meshes: Sequence
     return pieces, err
 
 
+def _block_pieces(n: _Node, objects: Sequence[CityObject], meshes: Sequence[ObjectMesh], feet: Sequence[Any],
+                  merge_m: float, tol_m: float) -> tuple[list[_Piece], float]:
+    """A coarse node's stand-ins and their certified error: blocks for parents of leaves, merged blocks
+    (closing distance doubling per level) above."""
+    if n.height >= 2:
+        return _merged_pieces(n.objects, objects, meshes, feet, merge_m * 2.0 ** (n.height - 2), tol_m)
+    pieces, err = [], 0.0
+    for i in n.objects:
+        v, f, s = block_mesh(feet[i], meshes[i], simplify_m=0.5 * merge_m)
+        pieces.append(_Piece(int(i), v, f, list(s)))
+        if v is not meshes[i].vertices:
+            err = max(err, _group_error(v, f, [meshes[i]], tol_m))
+    return pieces, err
+
+
+def _surface_colours(pieces: Sequence[_Piece], atlas: npt.NDArray[np.uint8],
+                     square: Square) -> dict[int, dict[str, F64]]:
+    """Area-weighted mean atlas colour (RGB in 0..1) of each object's textured triangles per surface class
+    (key ``""`` for all its textured triangles), read at the triangles' centroids in the node's atlas."""
+    side = atlas.shape[0]
+    out: dict[int, dict[str, F64]] = {}
+    for p in pieces:
+        if p.uv is None or not len(p.faces):
+            continue
+        tex = np.asarray(np.isfinite(p.uv).all(axis=1))[p.faces].all(axis=1)
+        if not tex.any():
+            continue
+        f = p.faces[tex]
+        a, b, c = p.vertices[f[:, 0]], p.vertices[f[:, 1]], p.vertices[f[:, 2]]
+        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+        uv = tile_uv(p.uv[f].mean(axis=1), square)
+        px = np.clip((uv * side).astype(np.int64), 0, side - 1)
+        rgb = atlas[px[:, 1], px[:, 0], :3].astype(np.float64) / 255.0
+        cls = np.array([p.surface[k] or "" for k in f[:, 0]])
+        w = np.maximum(area, 1e-12)
+        cols = {"": (rgb * w[:, None]).sum(axis=0) / w.sum()}
+        for name in np.unique(cls):
+            m = cls == name
+            cols[str(name)] = (rgb[m] * w[m, None]).sum(axis=0) / w[m].sum()
+        out[p.obj] = cols
+    return out
+
+
+def _coloured(p: _Piece, colours: dict[str, F64]) -> _Piece:
+    """``p`` with per-vertex material colours from ``colours`` (by surface class, else the object's mean;
+    NaN, hence the class colour, for an object without textures)."""
+    if not colours:
+        return p
+    rgb = np.array([colours.get(s or "", colours[""]) for s in p.surface], np.float64).reshape(-1, 3)
+    return _Piece(p.obj, p.vertices, p.faces, p.surface, rgb=rgb)
+
+
 def _group_error(v: F64, f: I64, originals: Sequence[ObjectMesh], tol_m: float) -> float:
     """Certified Hausdorff bound between a stand-in (v, f) and the union of the original meshes."""
     ov = np.concatenate([m.vertices for m in originals])
@@ -411,7 +468,7 @@ def _group_error(v: F64, f: I64, originals: Sequence[ObjectMesh], tol_m: float) 
 def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | PathLike[str], *, lod: int = 2,
                      crs: str | pyproj.CRS | None = None, leaf_triangles: int = 20_000, merge_m: float = 2.0,
                      tol_m: float = 0.05, textures: bool | str = True, atlas_px: int = 1024,
-                     progress: bool = True) -> CityTilesReport:
+                     texture_blocks: bool = False, progress: bool = True) -> CityTilesReport:
     """Write the city model's geometry as a 3D Tiles 1.1 tileset with feature IDs and property tables.
 
     Parameters
@@ -437,6 +494,11 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
         ``"original"`` writes one tile with every image as it is, one mesh per image (the baseline).
     atlas_px
         Side of every atlas in pixels (a power of two).
+    texture_blocks
+        Give a textured model building LOD too: its inner tiles carry blocks and merged blocks (as an
+        untextured model's do) coloured with the node atlas's mean colour per object and surface class, and
+        their ``geometricError`` is the blocks' certified Hausdorff bound plus that atlas's texel size. Off
+        (default): every tile holds its subtree's full surfaces with its atlas (texture LOD only).
     progress
         Show progress bars.
 
@@ -527,18 +589,17 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
             elif textured:
                 pieces, atlas, err = _atlas_node(n, squares[n.key], meshes, images, atlases, common, atlas_px,
                                                  warnings)
+                if texture_blocks and n.height >= 1:
+                    # Geometric LOD for far textured tiles: blocks in the atlas's mean colours. The error adds
+                    # the blocks' Hausdorff bound to the texel size of the atlas the colours come from.
+                    colours = _surface_colours(pieces, atlases[n.key], squares[n.key])
+                    pieces, hd = _block_pieces(n, objects, meshes, feet, merge_m, tol_m)
+                    pieces = [_coloured(p, colours.get(p.obj, {})) for p in pieces]
+                    atlas, err = None, err + hd
             elif n.height == 0:
                 pieces = [_Piece.of(i, meshes[i]) for i in n.objects]
-            elif n.height == 1:
-                pieces = []
-                for i in n.objects:
-                    v, f, s = block_mesh(feet[i], meshes[i], simplify_m=0.5 * merge_m)
-                    pieces.append(_Piece(int(i), v, f, list(s)))
-                    if v is not meshes[i].vertices:
-                        err = max(err, _group_error(v, f, [meshes[i]], tol_m))
             else:
-                pieces, err = _merged_pieces(n.objects, objects, meshes, feet,
-                                             merge_m * 2.0 ** (n.height - 2), tol_m)
+                pieces, err = _block_pieces(n, objects, meshes, feet, merge_m, tol_m)
             lo = boxes[n.objects, :3].min(axis=0)
             hi = boxes[n.objects, 3:].max(axis=0)
             for p in pieces:  # stand-ins may reach out of the originals' box (closing, midrange roofs)
