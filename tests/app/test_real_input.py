@@ -204,6 +204,34 @@ def test_measure_distance_with_clicks(qtbot, window, xin, sample) -> None:  # no
     assert window.measure.text.startswith("distance")
 
 
+def test_ellipsoidal_distance_switch_from_the_menu(qtbot, window, xin, sample) -> None:  # noqa: F811
+    """Tools → Ellipsoidal distances (keyboard through the menu), then two clicks: the distance is the
+    geodesic between the picked points, computed independently with pyproj's Geod on WGS84."""
+    import pyproj
+
+    _start_tool(qtbot, window, xin, sample, "m", "distance")
+    xin.key(window.view.vtk, "alt+t")
+    qtbot.waitUntil(lambda: window.menuBar().activeAction() is not None, timeout=3000)
+    xin.key(window.menuBar(), "e")
+    qtbot.waitUntil(lambda: window.document.ellipsoidal, timeout=3000)
+    vw, vh = window.view.vtk.width(), window.view.vtk.height()
+    for x, y in [(vw // 2, int(vh * 0.75)), (vw // 3, int(vh * 0.85))]:
+        xin.click(window.view.vtk, x, y)
+    qtbot.waitUntil(lambda: window.view.measurement is not None and len(window.view.measurement.points) == 2,
+                    timeout=5000)
+    m = window.view.measurement
+    assert m.geodesic and "geodesic" in window.measure.text
+    p = np.array(m.points)
+    crs = window.document.crs
+    lon, lat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(p[:, 0], p[:, 1])
+    _az, _baz, s = pyproj.Geod(ellps="WGS84").inv(lon[0], lat[0], lon[1], lat[1])
+    assert m.horizontal == pytest.approx(s, rel=1e-6)
+    assert m.value == pytest.approx(float(np.hypot(s, p[1, 2] - p[0, 2])), rel=1e-6)
+    # The projection's grid length differs by UTM's scale factor (about 4e-4 near the central meridian).
+    grid = float(np.hypot(*(p[1, :2] - p[0, :2])))
+    assert abs(grid / s - 1.0) > 1e-5
+
+
 def test_profile_heights_agree_with_raster(qtbot, window, xin, sample) -> None:  # noqa: F811
     import rasterio
 

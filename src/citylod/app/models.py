@@ -174,7 +174,8 @@ class Measurement:
 MEASURE_KINDS = ("distance", "height", "area")
 
 
-def measure(kind: str, points: npt.ArrayLike, *, geographic: bool = False) -> Measurement:
+def measure(kind: str, points: npt.ArrayLike, *, geographic: bool = False, crs: Any = None,
+            ellipsoidal: bool = False) -> Measurement:
     """Measure picked points (N, 3) float64 in the data's CRS.
 
     Parameters
@@ -185,11 +186,22 @@ def measure(kind: str, points: npt.ArrayLike, *, geographic: bool = False) -> Me
     geographic
         The CRS is geographic: x = longitude, y = latitude in degrees, z in metres. Lengths and areas are
         then geodesics on WGS84 (geographiclib ``Inverse`` and ``PolygonArea``); otherwise planar.
+    crs, ellipsoidal
+        With ``ellipsoidal`` and a projected ``crs`` (pyproj), the points are taken to longitude/latitude of
+        the CRS's own datum and measured as geodesics too: the true length on the ellipsoid rather than the
+        projection's grid length (they differ by the scale factor, e.g. up to 4e-4 in UTM).
     """
     if kind not in MEASURE_KINDS:
         raise ValueError(f"kind must be one of {', '.join(MEASURE_KINDS)}, got {kind!r}")
     p = np.asarray(points, np.float64).reshape(-1, 3)
     pts = tuple(tuple(float(v) for v in row) for row in p)
+    if ellipsoidal and not geographic and crs is not None and len(p):
+        import pyproj
+
+        to_lonlat = pyproj.Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True)
+        lon, lat = to_lonlat.transform(p[:, 0], p[:, 1])
+        p = np.column_stack([lon, lat, p[:, 2]])
+        geographic = True
     if geographic:
         from geographiclib.geodesic import Geodesic
 
@@ -507,6 +519,8 @@ class Document:
         self.store: Any = None
         self.state = FeatureState()
         self.results: list[str] = []
+        #: Measure on the ellipsoid (geodesics) even in a projected CRS; Tools > Ellipsoidal distances.
+        self.ellipsoidal = False
         self.semantic: Any = None
         # In the GUI the semantic overlay's height map (hundreds of ms for a city) is built on a worker
         # thread and attached by poll_semantics() on the GUI thread; scripts and tests attach at once.

@@ -197,6 +197,11 @@ class MainWindow(QMainWindow):
         self._action("measure_area", "Measure &area", lambda: self.start_measure("area"), "G", t)
         self._action("profile", "Height &profile", lambda: self.start_measure("profile"), "P", t)
         self._action("escape", "End measurement", self._escape, "Esc", t)
+        ell = self._action("ellipsoidal", "&Ellipsoidal distances (geodesic)", lambda: None, None, t)
+        ell.setCheckable(True)
+        ell.setToolTip("measure lengths and areas on the CRS's ellipsoid (GeographicLib) instead of the "
+                       "projection's plane")
+        ell.toggled.connect(self._set_ellipsoidal)
         t.addSeparator()
         self._action("clear_state", "Clear highlight / hide / isolate", self.document.clear_state, None, t)
         h = mb.addMenu("&Help")
@@ -268,6 +273,10 @@ class MainWindow(QMainWindow):
     def _on_picked(self, object_id: str | None) -> None:
         if object_id is not None:
             self.statusBar().showMessage(f"picked {object_id}", 4000)
+
+    def _set_ellipsoidal(self, on: bool) -> None:
+        self.document.ellipsoidal = bool(on)
+        self.statusBar().showMessage("measuring on the ellipsoid" if on else "measuring in the projection", 3000)
 
     def start_measure(self, kind: str | None) -> None:
         self.view.start_measure(kind)

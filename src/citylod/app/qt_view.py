@@ -392,7 +392,8 @@ class SceneView(QWidget):
             self.measure_points = []
         self.measure_points.append(np.asarray(point, np.float64))
         self.measurement = measure("distance" if kind == "profile" else kind, np.array(self.measure_points),
-                                   geographic=self.document.geographic)
+                                   geographic=self.document.geographic, crs=self.document.crs,
+                                   ellipsoidal=self.document.ellipsoidal)
         if kind == "profile" and len(self.measure_points) == 2:
             with timed("SceneView.profile"):
                 self.document.profile(*self.measure_points)
