@@ -24,7 +24,6 @@ from shapely.validation import explain_validity
 
 from citylod.core.errors import InputError
 from citylod.core.fileio import atomic_write, atomic_write_text
-from citylod.io.city.citygml import _check_prolog as check_xml_prolog
 from citylod.io.gpkg import (
     add_feature_table,
     decode_geometry,
@@ -33,6 +32,7 @@ from citylod.io.gpkg import (
     init_geopackage,
     register_srs,
 )
+from citylod.io.xmlsafe import check_xml_prolog
 
 __all__ = ["ACTIONS", "EditPolygon", "PolygonLayer", "load_polygons", "save_polygons"]
 

@@ -28,6 +28,7 @@ import numpy.typing as npt
 from lxml import etree
 
 from citylod.core.errors import InputError
+from citylod.io.xmlsafe import check_xml_prolog
 
 __all__ = ["Appearances", "SurfaceAppearance", "check_image", "read_appearances", "ring_key"]
 
@@ -165,6 +166,7 @@ def _citygml(path: Path) -> Appearances:
     textures: list[tuple[str, dict[str, F64]]] = []  # (image uri, ring id -> uv list)
     ring_owner: dict[str, str] = {}  # ring id -> polygon id
     materials: list[tuple[tuple[float, float, float], list[str]]] = []
+    check_xml_prolog(path)
     try:
         for _, el in etree.iterparse(str(path), events=("end",), resolve_entities=False, no_network=True,
                                      huge_tree=False, remove_comments=True):

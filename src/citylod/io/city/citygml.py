@@ -31,34 +31,9 @@ from citylod.io.city.model import (
     repair_polygon,
 )
 from citylod.io.crs import crs_from_srs_name
+from citylod.io.xmlsafe import check_xml_prolog
 
 __all__ = ["read_citygml"]
-
-
-# --------------------------------------------------------------------------------------------------------
-# Hardened XML
-
-_PROLOG_LIMIT = 1 << 20
-_ENTITY_RE = re.compile(rb"<!ENTITY", re.IGNORECASE)
-_DOCTYPE_RE = re.compile(rb"<!DOCTYPE", re.IGNORECASE)
-_EXTERNAL_RE = re.compile(rb"<!DOCTYPE\s+[^\s\[>]+\s+(SYSTEM|PUBLIC)\b", re.IGNORECASE)
-
-
-def _check_prolog(path: Path) -> None:
-    """Refuse a DOCTYPE that declares entities or names an external DTD (entity bombs, XXE).
-
-    A DOCTYPE can only stand in the prolog, and ``<!ENTITY`` cannot appear literally in element content
-    ('<' must be escaped there), so a search of the first megabyte is enough. UTF-16 files are read with
-    their zero bytes removed, which keeps ASCII markup readable.
-    """
-    with open(path, "rb") as fh:
-        head = fh.read(_PROLOG_LIMIT).replace(b"\x00", b"")
-    doctype = _DOCTYPE_RE.search(head)
-    if doctype is None:
-        return
-    if _ENTITY_RE.search(head, doctype.start()) or _EXTERNAL_RE.search(head, doctype.start()):
-        raise InputError("refused: the XML declares entities or an external DTD (possible entity-expansion "
-                         "or external-entity attack)", path)
 
 
 def _local(tag: Any) -> str:
@@ -475,7 +450,7 @@ def read_citygml(path: str | PathLike[str], *, lod: int = 2) -> CityModel:
     p = Path(path)
     if not p.is_file():
         raise InputError("no such file", p)
-    _check_prolog(p)
+    check_xml_prolog(p)
     objects: list[CityObject] = []
     warnings: list[str] = []
     srs: list[str] = []
