@@ -15,11 +15,9 @@ Design points, each measured or required:
 * **Upload once, pool actors**: a tile's VTK geometry is built the first time it is shown and kept
   while the tile is resident; when the cache evicts it its actors go back to a pool and carry the next
   tile. Actors are never created per frame.
-* **One actor per tile, not a merged composite** (measured with ``citylod.bench.actors`` on llvmpipe,
-  numbers there): with tiles of 32 768 triangles, per-tile actors drew a changing 80 % of 64 tiles in
-  142 ms against 165 ms for a ``vtkCompositePolyDataMapper`` over a multiblock (8 % slower only with
-  256 tiny tiles); and a composite cannot give each tile its own texture, which the orthophoto-textured
-  DSM tiles need.
+* **One actor per tile, not a merged composite** (``citylod.bench.actors`` measures both): per-tile
+  actors drew a changing subset of tiles faster than a ``vtkCompositePolyDataMapper`` over a multiblock,
+  and a composite cannot give each tile its own texture, which the orthophoto-textured DSM tiles need.
 * **Skirts** (Wahl et al. 2004) are drawn by the surface's actor (a second, unpickable actor per tile
   would double the per-actor cost, which is what llvmpipe spends most on besides triangles); their
   cells carry the flag :data:`SKIRT_ARRAY`, and :func:`is_skirt_cell` tells a picker to look past them.
@@ -370,7 +368,7 @@ class TilesetLayer:
         if mode == "level" or (mode in ("auto", "rgb") and mesh.texture is None and mesh.colors is None):
             # One colour per tile: the sun's diffuse light is baked into per-triangle colours, drawn
             # unlit. Same image as VTK's per-fragment lighting of faceted meshes (a directional light, no
-            # specular), at half the fill cost on llvmpipe (measured 13.4 → 7.3 ms on a full-screen tile).
+            # specular), at about half the fill cost on llvmpipe.
             base = level_color(level) if mode == "level" else _SURFACE_RGB
             rgb = baked_face_colors(mesh.positions, np.concatenate([mesh.surface, mesh.skirt]), tile.matrix,
                                     base)

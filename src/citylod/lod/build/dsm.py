@@ -89,9 +89,7 @@ from citylod.lod.kernels.octree import bounds as xyz_bounds
 _MAX_REFINE_PASSES = 4
 _REFINE_GAIN = 0.9  # a refinement pass is kept when it lowers the certified error by 10 % or more
 # Default executor where workers cannot be forked: threads below this many raster samples, spawned worker
-# processes above (measured on 2 cores:
-# 2049² city 4.2 s on threads against 6.3 s on processes; 4097² city 22-23 s against 19-20 s; 4097² natural
-# terrain 9.6-10 s against 7.0-7.3 s).
+# processes above, where their start-up pays for itself (docs/PERFORMANCE_LOG.md has the measurements).
 _THREADS_BELOW_SAMPLES = 6_000_000
 # A coarse tile whose full grid misses its target by more than 2× is built at once at 0.8× the full grid's
 # error when that TIN certifies within this factor of it (else the target-driven path runs).
@@ -910,7 +908,7 @@ def _save_tin(out_dir: str, key: str, vij: np.ndarray, faces: np.ndarray, vz: np
 
 def _journal_dir(out_dir: str | Path) -> Path:
     # Stage results go to append-only journals (one file per thread), not a file or two per tile: creating
-    # a file costs 0.4-0.9 ms of serialised kernel time on ext4 here, 1.2 s of the 2049² city's build.
+    # files is serialised in the kernel and was a large share of a build.
     return Path(out_dir) / ".journal"
 
 
@@ -1113,11 +1111,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
 
     # The default executor: worker processes forked from this one where that is safe (Linux, no other
     # thread here). They start at once with everything imported, and each task has a GIL of its own: on
-    # threads, the Python around the kernels (a third of a tile's time) kept two threads at 1.45× of one.
-    # Measured (fresh process, 2 cores): the 513² sample 0.79 s against 0.89 s on threads, the 2049² city
-    # 3.4–3.6 s against 3.8–4.1 s, the 4097² city 14.2–14.3 s against 17 s on spawned processes.
-    # Otherwise a raster below _THREADS_BELOW_SAMPLES builds on threads (no worker has to start: ≈1.1 s
-    # each, imports and numba's cache), larger ones on spawned processes.
+    # threads, the Python around the kernels (a third of a tile's time) holds the GIL. Otherwise a raster
+    # below _THREADS_BELOW_SAMPLES builds on threads (no worker has to start: imports and numba's cache),
+    # larger ones on spawned processes.
     default = workers is None and scheduler is None
     fork = default and fork_is_safe()
     threads = default and not fork and info.width * info.height < _THREADS_BELOW_SAMPLES
@@ -1186,11 +1182,9 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     )
 
 
-# The tiles of a level with many go to the executor four to a task: a process-pool task costs the builder
-# ≈ 0.5 ms of CPU (its queue and result threads), on the cores the workers need. The 2049² city (682 tasks →
-# 202): the builder's CPU per build 0.34–0.46 s → 0.22–0.31 s; the 4097² natural terrain (2730 → 822)
-# 1.1–1.3 s → 0.55–0.63 s, in alternating builds. Levels with few tiles (the long ones at the top) stay one
-# to a task, so that they start first and spread over the workers.
+# The tiles of a level with many go to the executor four to a task: every process-pool task costs the
+# builder CPU in its queue and result threads, on the cores the workers need. Levels with few tiles (the
+# long ones at the top) stay one to a task, so that they start first and spread over the workers.
 _BATCH = 4
 _BATCH_FROM = 64  # tiles in a level, from which it is batched
 

@@ -33,8 +33,8 @@ class Completions(Generic[T]):
 
     Each future's done-callback queues it, so taking the next one costs the same however many are
     pending. ``concurrent.futures.wait(pending, FIRST_COMPLETED)`` installs and removes a waiter on
-    every pending future at each call: O(n²) lock operations under the GIL for n tasks, which on a
-    point build held the GIL for ≈ 50 ms that the build threads waited for.
+    every pending future at each call: O(n²) lock operations under the GIL for n tasks, which the build
+    threads wait for.
     """
 
     def __init__(self) -> None:

@@ -1,10 +1,9 @@
 """The DSM build's kernels compiled ahead of time, so that a process runs them without starting numba.
 
 A fresh process that calls its first numba kernel starts numba's runtime (its typing and lowering
-registries, ≈ 0.3 s here) and loads every cached kernel it calls (≈ 15 ms each, eleven in a DSM build,
-twelve with ``metric="hausdorff"``):
-≈ 0.45–0.6 s of every ``citylod build dsm``, on one core before the workers fork, a sixth of the 2049²
-city's build and two thirds of the 513² sample's. :func:`build` compiles the same kernels, with the
+registries) and loads every cached kernel it calls (eleven in a DSM build, twelve with
+``metric="hausdorff"``), on one core before the workers fork: a large share of a small build
+(docs/PERFORMANCE_LOG.md has the numbers). :func:`build` compiles the same kernels, with the
 argument types a build passes them, into one extension module with numba's ahead-of-time compiler
 (``numba.pycc``); importing it takes under a millisecond and starts nothing. ``make`` runs it (``citylod
 build-kernels``) into a folder per machine and source (:func:`kernel_dir`).

@@ -25,9 +25,9 @@ defer_blas_probe()  # before any kernel loads: numba starts without importing sc
 
 # Helpers that take arrays but allocate, return and keep none are compiled with ``_nrt=False``. Otherwise
 # numba increfs every array argument of a (non-inlined) function on entry and decrefs it on exit, each an
-# atomic operation behind a call: with up to a dozen arrays per call and several calls per inserted vertex,
-# that was 16 % of the leaf kernels' time (perf), 4 % after. Inlining the helpers instead doubled the cold
-# compile (30 -> 58 s). The caller holds the references for the duration of the call.
+# atomic operation behind a call, and with up to a dozen arrays per call and several calls per inserted
+# vertex that was a large share of the leaf kernels' time. Inlining the helpers instead doubled the cold
+# compile. The caller holds the references for the duration of the call.
 
 NO_NRT: dict[str, Any] = {"_nrt": False}  # (a keyword numba's type stubs do not list)
 
