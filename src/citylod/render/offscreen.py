@@ -84,11 +84,14 @@ class OffscreenRenderer:
         Size of drawn points.
     workers
         Loader threads.
+    texture_budget_bytes
+        Cap on the tiles' GL texture memory (Buchholz's priority); None: only ``cache_bytes`` limits it.
     """
 
     def __init__(self, sources: Sequence[str | os.PathLike[str]], *, size: tuple[int, int] = (1280, 720),
                  tau_px: float = 1.0, color_by: str = "auto", cache_bytes: int = 2 << 30, edl: bool = False,
-                 point_size_px: float = 2.0, workers: int = 2, origin: npt.ArrayLike | None = None) -> None:
+                 point_size_px: float = 2.0, workers: int = 2, origin: npt.ArrayLike | None = None,
+                 texture_budget_bytes: int | None = None) -> None:
         tilesets, cities = _tileset_sources(sources)
         if cities:
             raise CitylodError(f"{cities[0]}: city stores are drawn through the semantic hook; pass them "
@@ -100,7 +103,7 @@ class OffscreenRenderer:
         self.renderer = _vtk.vtkOpenGLRenderer()
         self.window.AddRenderer(self.renderer)
         self.scene = Scene(self.renderer, cache_bytes=cache_bytes, tau_px=tau_px, color_by=color_by,
-                           workers=workers, origin=origin)
+                           workers=workers, origin=origin, texture_budget_bytes=texture_budget_bytes)
         for t in tilesets:
             layer = self.scene.add(t)
             layer.point_size_px = point_size_px
