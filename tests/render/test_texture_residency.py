@@ -61,3 +61,23 @@ def test_a_flight_never_holds_more_texture_memory_than_the_budget(tiles: Path) -
     for f, g in zip(capped, free, strict=True):
         if not f["refused"]:
             assert f["sse"] <= max(g["sse"], 1.0) + 1e-9
+
+
+def test_render_command_takes_a_texture_budget(tiles: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from citylod.cli import main
+
+    lo, hi = open_tileset(tiles).bounds
+    cam = default_flight(lo, hi, n=15)[10]  # an orbit view: more atlases than the budget below holds
+    (tmp_path / "cam.json").write_text(json.dumps(cam.to_dict()))
+    args = [str(tiles), "--camera", str(tmp_path / "cam.json"), "--size", "480x270"]
+    assert main(["render", *args, "-o", str(tmp_path / "free.png")]) == 0
+    assert main(["render", *args, "-o", str(tmp_path / "capped.png"),
+                 "--texture-budget", str(3 * ATLAS_BYTES / 2**20)]) == 0
+    assert (tmp_path / "free.png").read_bytes() != (tmp_path / "capped.png").read_bytes()  # coarser atlases
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        main(["render", *args, "-o", str(tmp_path / "bad.png"), "--texture-budget", "-5"])
+    assert exc.value.code == 2 and "more than 0 MB" in capsys.readouterr().err
+    assert not (tmp_path / "bad.png").exists()

@@ -271,8 +271,10 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
     if out.suffix.lower() != ".png":
         raise CitylodError(f"output must be a .png file, got {out.name!r}")
     n = len(cameras)
+    budget_mb = getattr(args, "texture_budget", None)
     with OffscreenRenderer(tilesets, size=tuple(args.size), tau_px=args.tau,
-                           color_by=getattr(args, "color_by", "auto") or "auto") as r:
+                           color_by=getattr(args, "color_by", "auto") or "auto",
+                           texture_budget_bytes=None if budget_mb is None else int(budget_mb * 2**20)) as r:
         if hook is not None:
             hook(r.scene, city=city, highlight=highlight, hide=hide)
         water = None
