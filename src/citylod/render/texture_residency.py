@@ -25,14 +25,11 @@ every tile actor (shown, hidden or pooled), independent of the plan: the quantit
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from citylod.core.camera import View
 from citylod.lod.runtime.selection import Selection
 from citylod.lod.runtime.texture_budget import ROLES, TextureNeed, TexturePlan, plan_textures
-
-if TYPE_CHECKING:
-    from citylod.render.tileset_actor import Scene
 
 __all__ = ["TextureResidency", "gl_texture_bytes", "texture_nbytes"]
 
@@ -52,9 +49,10 @@ def _prepared_texture_bytes(prepared: Any) -> int:
     return n
 
 
-def gl_texture_bytes(scene: Scene) -> int:
+def gl_texture_bytes(scene: Any) -> int:
     """Bytes of the GL textures the scene's tile actors hold now (shown, hidden and pooled), read from the
-    GL texture objects themselves (width, height, components, mipmaps), not from any plan."""
+    GL texture objects themselves (width, height, components, mipmaps), not from any plan. ``scene`` is a
+    :class:`~citylod.render.tileset_actor.Scene`, typed loosely because the scene imports this module."""
     total = 0
     for tex in scene.tile_textures():
         obj = tex.GetTextureObject()
@@ -70,7 +68,7 @@ class TextureResidency:
     ``refused`` holds the keys whose load the last plan did not admit; ``last_plan`` is that plan.
     """
 
-    def __init__(self, scene: Scene, budget_bytes: int) -> None:
+    def __init__(self, scene: Any, budget_bytes: int) -> None:
         if budget_bytes < 0:
             raise ValueError(f"budget_bytes must be >= 0, got {budget_bytes}")
         self.scene = scene
