@@ -81,3 +81,24 @@ def test_render_command_takes_a_texture_budget(tiles: Path, tmp_path: Path, caps
         main(["render", *args, "-o", str(tmp_path / "bad.png"), "--texture-budget", "-5"])
     assert exc.value.code == 2 and "more than 0 MB" in capsys.readouterr().err
     assert not (tmp_path / "bad.png").exists()
+
+
+def test_interactive_frames_stay_under_the_budget_while_tiles_stream_in(tiles: Path) -> None:
+    """Scene.update never waits for loads: tiles arrive between frames, some while the next plan is made.
+    After every frame the GL textures stay within the budget."""
+    lo, hi = open_tileset(tiles).bounds
+    budget = 6 * ATLAS_BYTES
+    frames = 0
+    with OffscreenRenderer([tiles], size=SIZE, tau_px=1.0, cache_bytes=1 << 30, texture_budget_bytes=budget) as r:
+        for cam in default_flight(lo, hi, n=15):
+            view = r.scene.view(cam, SIZE)
+            r.scene.set_camera(cam)
+            for step in range(6):
+                r.scene.update(view)
+                r.draw()
+                frames += 1
+                assert gl_texture_bytes(r.scene) <= budget
+                if step % 2:  # every other frame, let the loads finish; else plan while they are under way
+                    assert r.scene.loader.wait_idle(60)
+        assert r.scene.uploads > 4  # tiles did stream in and get drawn
+    assert frames == 90

@@ -99,7 +99,9 @@ class TextureResidency:
     def needs(self, sels: Sequence[Selection], view: View) -> list[TextureNeed]:
         """The frame's textured tiles with their roles (see the module docstring)."""
         out: list[TextureNeed] = []
-        resident = set(self.scene.cache)
+        # Loads already under way arrive whatever this plan says: they count as resident, so that what the
+        # plan admits next fits beside them (the budget holds between frames too, not only when resolved).
+        resident = set(self.scene.cache) | set(self.scene.loader.busy_keys())
         for index, (layer, sel) in enumerate(zip(self.scene.layers, sels, strict=True)):
             needed = {n.key for n in sel.render} | set(sel.request) | {layer.root.key}
             for key in sel.request:
@@ -137,9 +139,9 @@ class TextureResidency:
         admit, and hand the cache the priority order for its own evictions."""
         needs = self.needs(sels, view)
         plan = plan_textures(needs, self.budget_bytes)
-        for key in plan.evict:
-            self.scene.cache.remove(key)
-            self.scene._layer_of(key)._release(key)
+        for key in plan.evict:  # a load still under way is evicted by the next plan, once it has arrived
+            if self.scene.cache.remove(key):
+                self.scene._layer_of(key)._release(key)
         refused = {t.key for t in needs if not t.resident and t.key not in plan.keep}
         by_key = {t.key: t for t in needs}
         for t in [by_key[k] for k in refused]:
