@@ -162,3 +162,35 @@ def test_cityjsonseq_textures_reach_the_tileset(tmp_path: Path) -> None:
     assert textured and all(m.uv is not None for m in textured)
     ids = {i for f in features for i in f["CityObjects"]}
     assert report.objects == len(ids) == 4
+
+
+def test_hostile_cityjsonseq_appearances_are_warnings(tmp_path: Path) -> None:
+    """A feature's textures pointing outside the model's folder or declaring a huge image are refused with a
+    warning naming them; the surfaces keep their texture coordinates and fall back to their material."""
+    (tmp_path / "model").mkdir()
+    (tmp_path / "secret.png").write_bytes(encode_png(np.zeros((4, 4, 3), np.uint8)))
+    (tmp_path / "model" / "huge.png").write_bytes(_png_header(30_000, 30_000))
+    header = {"type": "CityJSON", "version": "2.0", "CityObjects": {}, "vertices": [],
+              "transform": {"scale": [0.01, 0.01, 0.01], "translate": [500000.0, 5400000.0, 0.0]},
+              "metadata": {"referenceSystem": "https://www.opengis.net/def/crs/EPSG/0/32632"}}
+    lines = [json.dumps(header)]
+    for k, uri in enumerate(("../secret.png", "huge.png")):
+        feature = {"type": "CityJSONFeature", "id": f"b{k}", "vertices": [[0, 0, 0], [1000, 0, 0], [1000, 1000, 0],
+                                                                          [0, 1000, 0]],
+                   "CityObjects": {f"b{k}": {"type": "Building", "geometry": [{
+                       "type": "MultiSurface", "lod": "2", "boundaries": [[[0, 1, 2, 3]]],
+                       "texture": {"t": {"values": [[[0, 0, 1, 2, 3]]]}},
+                       "material": {"m": {"values": [0]}}}]}},
+                   "appearance": {"textures": [{"type": "PNG", "image": uri}],
+                                  "materials": [{"name": "red", "diffuseColor": [0.8, 0.1, 0.1]}],
+                                  "vertices-texture": [[0, 0], [1, 0], [1, 1], [0, 1]]}}
+        lines.append(json.dumps(feature))
+    src = tmp_path / "model" / "hostile.city.jsonl"
+    src.write_text("\n".join(lines) + "\n")
+    apps = read_appearances(src)
+    assert len(apps.warnings) == 2
+    assert "../secret.png" in apps.warnings[0] and "outside" in apps.warnings[0]
+    assert "huge.png" in apps.warnings[1] and "2574 MB" in apps.warnings[1]  # OpenImageIO refuses the header
+    assert len(apps.surfaces) == 1  # both features have the same square, offset only in id
+    only = next(iter(apps.surfaces.values()))
+    assert only.image is None and only.rgb == (0.8, 0.1, 0.1) and len(only.uv) == 4
