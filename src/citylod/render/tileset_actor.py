@@ -603,10 +603,11 @@ class Scene:
         Raise τ under memory pressure (:class:`~citylod.lod.runtime.cache.TauController`) in :meth:`update`.
     texture_budget_bytes
         Cap on the GL texture memory of the tiles (None: only the cache budget limits it), kept with
-        Buchholz's priority (:class:`~citylod.render.texture_residency.TextureResidency`).
+        Buchholz's priority (:class:`~citylod.render.texture_residency.TextureResidency`) by :meth:`update`
+        and :meth:`resolve`; full-resolution baselines (:meth:`load`) bypass it.
     texture_anisotropy
         Largest anisotropic filtering of tile textures; 1 (OpenGL's default) is isotropic trilinear
-        mipmapping. VTK's default of 4 costs up to 50× the fill time of oblique façades on llvmpipe
+        mipmapping. VTK's default of 4 costs up to 55× the fill time of oblique façades on llvmpipe
         (docs/PERFORMANCE_LOG.md) for a slightly sharper grazing view.
     """
 
