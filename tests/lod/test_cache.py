@@ -259,3 +259,11 @@ def test_eviction_order_hook_evicts_the_given_keys_first_and_never_in_use_ones()
     cache.touch([])
     assert cache.put("f", "f", 100)
     assert cache.evict() == ["c"]
+
+
+def test_peek_does_not_change_the_lru_order() -> None:
+    cache = TileCache(200)
+    assert cache.put("a", 1, 100) and cache.put("b", 2, 100)
+    assert cache.peek("a") == 1 and cache.peek("zz", 5) == 5
+    assert cache.put("c", 3, 100)
+    assert cache.evict() == ["a"]  # a stayed least recently used

@@ -88,7 +88,7 @@ class TextureResidency:
         return self._estimate[index]
 
     def _bytes(self, key: str, layer: Any, index: int) -> int:
-        prepared = self.scene.cache.get(key) if key in self.scene.cache else None
+        prepared = self.scene.cache.peek(key)  # peek: planning must not reorder the cache's LRU
         if prepared is not None:
             n = _prepared_texture_bytes(prepared)
             if n > self._estimate.get(index, 0):

@@ -104,6 +104,12 @@ class TileCache:
             self._entries.move_to_end(key)
             return entry.value
 
+    def peek(self, key: str, default: Any = None) -> Any:
+        """The value of ``key`` without marking it recently used (for bookkeeping that must not change the
+        LRU order), or ``default``."""
+        entry = self._entries.get(key)
+        return default if entry is None else entry.value
+
     def info(self, key: str) -> ResidentInfo | None:
         """Measured size of ``key``, or ``None`` when it is not resident."""
         entry = self._entries.get(key)
