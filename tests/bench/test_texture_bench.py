@@ -21,7 +21,7 @@ pytestmark = pytest.mark.render
 def test_textured_flight_report_keeps_error_and_texture_memory(tmp_path: Path) -> None:
     budget_mb = 8 * texture_nbytes(64, 64, 3) / 2**20
     rep = texture_flight(tmp_path, 16, image_px=32, atlas_px=64, budget_mb=budget_mb, frames=6, size=(320, 180),
-                         taus=(1.0, 4.0))
+                         taus=(1.0, 4.0), smaller_budgets_mb=(budget_mb / 4,))
     assert json.loads((tmp_path / "texture_flight.json").read_text())["houses"] == 16
     md = (tmp_path / "texture_flight.md").read_text()
     assert "texture memory MB" in md and md.count("| atlas |") == 2
@@ -36,3 +36,7 @@ def test_textured_flight_report_keeps_error_and_texture_memory(tmp_path: Path) -
         # the budget let the view load what it asked for.
         assert a["max_inner_texel_px_within_budget"] <= float(tau) + 1e-9
     assert rep["atlas"]["1.0"]["frames_refused"] > 0  # the budget binds at τ = 1 px in this flight
+    small = rep["smaller_budgets"][str(budget_mb / 4)]
+    assert 0 < small["max_texture_mb"] <= budget_mb / 4 + 1e-9 and "MB budget" in md
+    # Less texture memory, coarser atlases: the largest texel drawn grows, the geometry does not change.
+    assert small["max_inner_texel_px"] >= rep["atlas"]["1.0"]["max_inner_texel_px"] and small["p99_err_px"] <= 1.0

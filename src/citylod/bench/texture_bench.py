@@ -15,7 +15,8 @@ resolution); and the largest atlas texel on screen: for inner tiles with triangl
 texel size projected at their distance (above τ an atlas texel would be magnified); for leaves, the
 original images' own texels (magnified by the data, not by the atlas).
 
-Run: ``python -m citylod.bench.texture_bench OUT_DIR [HOUSES] [--blocks] [--taus 1,2,4] [--anisotropy A]``;
+Run: ``python -m citylod.bench.texture_bench OUT_DIR [HOUSES] [--blocks] [--taus 1,2,4] [--anisotropy A]
+[--smaller-budgets 64,16]``;
 writes ``texture_flight.json`` and ``texture_flight.md`` (``_blocks`` with ``--blocks``: far atlas tiles as
 coloured blocks) and prints the table. Timings belong in reports, never in tests.
 """
@@ -26,6 +27,7 @@ import json
 import statistics
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -111,12 +113,14 @@ def _summary(frames: list[dict[str, Any]], tau_px: float) -> dict[str, Any]:
 def texture_flight(out_dir: str | Path, houses: int = 1000, *, image_px: int = 256, atlas_px: int = 1024,
                    budget_mb: float = 256.0, frames: int = 24, size: tuple[int, int] = (960, 540),
                    taus: tuple[float, ...] = (1.0, 2.0, 4.0), texture_blocks: bool = False,
-                   anisotropy: float = 1.0) -> dict[str, Any]:
+                   anisotropy: float = 1.0, smaller_budgets_mb: tuple[float, ...] = ()) -> dict[str, Any]:
     """Build both tilesets of a textured sample (reused when present) and fly them; the report dict.
 
     ``budget_mb``: the atlas renderer's GL texture budget (its tile cache holds twice that, geometry and
     decoded images). ``texture_blocks``: the atlas tileset's far tiles are coloured blocks (folder
-    ``atlas_blocks``). ``anisotropy``: the renderers' texture filtering (1 is isotropic)."""
+    ``atlas_blocks``). ``anisotropy``: the renderers' texture filtering (1 is isotropic).
+    ``smaller_budgets_mb``: further atlas renderers under these budgets, flown at the first τ (what a
+    smaller texture memory costs in texel size)."""
     out = Path(out_dir)
     name = "atlas_blocks" if texture_blocks else "atlas"
     model = out / "textured.gml"
@@ -135,26 +139,40 @@ def texture_flight(out_dir: str | Path, houses: int = 1000, *, image_px: int = 2
     budget = int(budget_mb * 2**20)
     orig_frames: list[dict[str, Any]] = []
     atlas_frames: dict[float, list[dict[str, Any]]] = {tau: [] for tau in taus}
-    with OffscreenRenderer([out / "original"], size=size, cache_bytes=64 << 30) as ro, \
-            OffscreenRenderer([out / name], size=size, cache_bytes=2 * budget, texture_budget_bytes=budget) as ra:
-        for r in (ro, ra):
+    small_frames: dict[float, list[dict[str, Any]]] = {mb: [] for mb in smaller_budgets_mb}
+
+    def measured(r: OffscreenRenderer, cam: Any, tau: float, depth_full: np.ndarray) -> dict[str, Any]:
+        f, depth = _frame(r, cam, tau)
+        err = measure_error(depth, depth_full, cam)
+        assert not isinstance(err, tuple)
+        f.update(err_p99_px=err.p99_px, err_max_px=err.max_px, err_near_p99_px=err.near_p99_px)
+        return f
+
+    with ExitStack() as stack:
+        ro = stack.enter_context(OffscreenRenderer([out / "original"], size=size, cache_bytes=64 << 30))
+        ra = stack.enter_context(OffscreenRenderer([out / name], size=size, cache_bytes=2 * budget,
+                                                   texture_budget_bytes=budget))
+        small = {mb: stack.enter_context(OffscreenRenderer(
+            [out / name], size=size, cache_bytes=2 * budget, texture_budget_bytes=int(mb * 2**20)))
+            for mb in smaller_budgets_mb}
+        for r in (ro, ra, *small.values()):
             r.scene.texture_anisotropy = anisotropy
         for cam in cams:
             f, depth_full = _frame(ro, cam, 1.0)
             orig_frames.append(f)
             for tau in taus:
-                f, depth = _frame(ra, cam, tau)
-                err = measure_error(depth, depth_full, cam)
-                assert not isinstance(err, tuple)
-                f.update(err_p99_px=err.p99_px, err_max_px=err.max_px, err_near_p99_px=err.near_p99_px)
-                atlas_frames[tau].append(f)
+                atlas_frames[tau].append(measured(ra, cam, tau, depth_full))
+            for mb, r in small.items():
+                small_frames[mb].append(measured(r, cam, taus[0], depth_full))
     raw_mb = 2 * houses * image_px * image_px * 3 / 2**20
     orig = _summary(orig_frames, 1.0)
     atlas = {str(tau): _summary(fr, tau) for tau, fr in atlas_frames.items()}
+    smaller = {str(mb): {**_summary(fr, taus[0]), "budget_mb": mb} for mb, fr in small_frames.items()}
     report = {"houses": houses, "image_px": image_px, "atlas_px": atlas_px, "budget_mb": budget_mb,
               "texture_blocks": texture_blocks, "anisotropy": anisotropy, "raw_texture_mb": raw_mb,
               "size": list(size), "build_s": {"atlas": t_atlas, "original": t_orig}, "original": orig,
-              "atlas": atlas, "speedup_median": {k: orig["median_ms"] / a["median_ms"] for k, a in atlas.items()}}
+              "atlas": atlas, "speedup_median": {k: orig["median_ms"] / a["median_ms"] for k, a in atlas.items()},
+              "smaller_budgets": smaller}
     stem = f"texture_flight{'_blocks' if texture_blocks else ''}"
     atomic_write_text(out / f"{stem}.json", json.dumps(report, indent=1))
     atomic_write_text(out / f"{stem}.md", table(report) + "\n")
@@ -179,6 +197,12 @@ def table(rep: dict[str, Any]) -> str:
                      f"{a['p99_err_px']:.2f} / {a['p99_near_err_px']:.2f} | {a['max_inner_texel_px_within_budget']:.3f} | "
                      f"{a['frames_with_leaf_magnified']} | {a['max_textures']} | {a['max_texture_mb']:.2f} | "
                      f"{a['frames_refused']} ({a['max_inner_texel_px']:.2f}) |")
+    for mb, a in rep.get("smaller_budgets", {}).items():
+        lines.append(f"| atlas, {float(mb):g} MB budget | {a['tau_px']:g} | {a['median_ms']:.1f} | "
+                     f"{o['median_ms'] / a['median_ms']:.2f}× | "
+                     f"{a['p99_err_px']:.2f} / {a['p99_near_err_px']:.2f} | {a['max_inner_texel_px_within_budget']:.3f} | "
+                     f"{a['frames_with_leaf_magnified']} | {a['max_textures']} | {a['max_texture_mb']:.2f} | "
+                     f"{a['frames_refused']} ({a['max_inner_texel_px']:.2f}) |")
     return "\n".join(lines)
 
 
@@ -187,13 +211,12 @@ def main(argv: list[str] | None = None) -> int:
     blocks = "--blocks" in args
     args = [a for a in args if a != "--blocks"]
     kw: dict[str, Any] = {}
-    for opt in ("--taus", "--anisotropy"):
+    for opt, kwarg in (("--taus", "taus"), ("--anisotropy", "anisotropy"), ("--smaller-budgets", "smaller_budgets_mb")):
         if opt in args:
             i = args.index(opt)
             value = args[i + 1]
             del args[i:i + 2]
-            kw["taus" if opt == "--taus" else "anisotropy"] = (
-                tuple(float(x) for x in value.split(",")) if opt == "--taus" else float(value))
+            kw[kwarg] = float(value) if opt == "--anisotropy" else tuple(float(x) for x in value.split(","))
     rep = texture_flight(args[0], int(args[1]) if len(args) > 1 else 1000, texture_blocks=blocks, **kw)
     print(table(rep))
     return 0
