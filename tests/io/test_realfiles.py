@@ -248,3 +248,66 @@ def test_versioned_compound_urn_of_a_real_file() -> None:
     assert sum(len(o.surfaces) for o in model.objects) == len(xyz)
     got = np.unique(np.round(np.concatenate([o.points() for o in model.objects]), 6), axis=0)
     assert np.array_equal(got, np.unique(np.round(np.concatenate(xyz), 6), axis=0))
+
+
+def test_textured_cityjson_by_others_reaches_the_atlas() -> None:
+    """KIT's FZK-Haus as CityJSON 2.0 with its textures (bertt/cityjson test data, images downsampled): walls
+    whose coordinates are whole periods off [0, 1] (u in [-1, 0]) show their image, and the roofs, whose
+    shingle image repeats 21 × 14 times, fall back to their material with a warning. Checked against the
+    json and the images read here: each wall's region of the tile's atlas has the colours of its image."""
+    import tempfile
+
+    from citylod.io.image import decode_image, read_image
+    from citylod.io.tiles3d import open_tileset
+    from citylod.lod.build.city import build_city_tiles
+
+    path = DATA / "cityjson_textured" / "fzk_haus_lod2_tex.city.json"
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    with tempfile.TemporaryDirectory() as tmp:
+        report = build_city_tiles(path, Path(tmp) / "tiles", progress=False)
+        ts = open_tileset(Path(tmp) / "tiles")
+        content = ts.root.load_content()
+    assert report.objects == len(doc["CityObjects"]) == 1
+    assert any("2 surface(s) repeat their texture" in w for w in report.warnings)
+    table = content.property_tables[0]
+    assert json.loads(table.columns["attributes"][0])["name"] == "KIT FZK-Haus"
+    mesh = next(m for m in content.meshes if m.texture)
+    atlas = decode_image(mesh.texture).astype(float)  # rows top-down, as glTF's uv
+    verts = np.array(doc["vertices"], float) * doc["transform"]["scale"] + doc["transform"]["translate"]
+    tex = np.array(doc["appearance"]["vertices-texture"], float)
+    geom = doc["CityObjects"]["KIT-Test-Building-01"]["geometry"][0]
+    pos = mesh.positions.astype(float) + ts.root.matrix[:3, 3]
+    walls = 0
+    for surface, value in zip(geom["boundaries"][0], geom["texture"]["unnamed"]["values"][0], strict=True):
+        t = value[0]
+        if t[0] is None:
+            continue
+        uv = tex[t[1:]]
+        uv = uv - np.floor(uv.min(axis=0) + 1e-4)
+        if uv.max() > 1.0 + 1e-4:
+            continue  # the repeating roofs
+        ring = verts[surface[0]]
+        # The tile's triangles of this wall: those in its plane (the house's walls lie in distinct planes).
+        c = ring - ring.mean(axis=0)
+        normal = np.cross(c[:-1], c[1:]).sum(axis=0)
+        normal /= np.linalg.norm(normal)
+        tri = pos[mesh.faces]
+        on = (np.abs((tri - ring[0]) @ normal) < 1e-3).all(axis=1)
+        assert on.sum() >= len(ring) - 2
+        hit = np.unique(mesh.faces[on])
+        image = read_image(path.parent / doc["appearance"]["textures"][t[0]]["image"]).astype(float)
+        ih, iw = image.shape[:2]
+        ah, aw = atlas.shape[:2]
+        # Mean colour over the same central window of the surface's uv box, in the image (v up) and in the
+        # atlas (glTF v down): the atlas holds this image there, possibly shrunk.
+        lo, hi = uv.min(axis=0), uv.max(axis=0)
+        a_lo, a_hi = mesh.uv[hit].min(axis=0), mesh.uv[hit].max(axis=0)
+        f0, f1 = 0.3, 0.7
+        img_win = image[int(ih * (1 - (lo[1] + f1 * (hi[1] - lo[1])))):int(ih * (1 - (lo[1] + f0 * (hi[1] - lo[1])))),
+                        int(iw * (lo[0] + f0 * (hi[0] - lo[0]))):int(iw * (lo[0] + f1 * (hi[0] - lo[0])))]
+        at_win = atlas[int(ah * (a_lo[1] + f0 * (a_hi[1] - a_lo[1]))):int(ah * (a_lo[1] + f1 * (a_hi[1] - a_lo[1]))),
+                       int(aw * (a_lo[0] + f0 * (a_hi[0] - a_lo[0]))):int(aw * (a_lo[0] + f1 * (a_hi[0] - a_lo[0])))]
+        assert img_win.size and at_win.size
+        assert np.abs(img_win.reshape(-1, 3).mean(axis=0) - at_win.reshape(-1, 3).mean(axis=0)).max() < 12.0
+        walls += 1
+    assert walls == 4

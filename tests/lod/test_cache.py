@@ -243,3 +243,27 @@ def test_closed_loader_refuses_requests() -> None:
     loader.close()
     with pytest.raises(RuntimeError):
         loader.request([Stub("a")])
+
+
+def test_eviction_order_hook_evicts_the_given_keys_first_and_never_in_use_ones() -> None:
+    cache = TileCache(400)
+    for k in "abcd":
+        assert cache.put(k, k, 100)
+    cache.get("a")  # LRU order now b, c, d, a
+    cache.set_eviction_order(["d", "a", "b"])  # e.g. a texture priority, least important first
+    cache.touch(["d"])  # in use: skipped though first in the order
+    assert cache.put("e", "e", 200)
+    assert cache.evict() == ["a", "b"]
+    assert set(cache) == {"c", "d", "e"}
+    cache.set_eviction_order(None)  # back to LRU
+    cache.touch([])
+    assert cache.put("f", "f", 100)
+    assert cache.evict() == ["c"]
+
+
+def test_peek_does_not_change_the_lru_order() -> None:
+    cache = TileCache(200)
+    assert cache.put("a", 1, 100) and cache.put("b", 2, 100)
+    assert cache.peek("a") == 1 and cache.peek("zz", 5) == 5
+    assert cache.put("c", 3, 100)
+    assert cache.evict() == ["a"]  # a stayed least recently used

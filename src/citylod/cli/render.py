@@ -28,6 +28,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--edits", type=Path, metavar="POLYGONS",
                    help="polygon edits applied while rendering (GeoJSON, KML or GeoPackage with actions)")
     r.add_argument("--color-by", default="auto", help="auto, rgb, classification, elevation, intensity, level")
+    r.add_argument("--texture-budget", type=_megabytes, metavar="MB",
+                   help="cap on the tiles' texture memory; coarser atlases are drawn where it binds")
+
+
+def _megabytes(text: str) -> float:
+    try:
+        mb = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of megabytes: {text!r}") from None
+    if not mb > 0:
+        raise argparse.ArgumentTypeError(f"must be more than 0 MB, got {text!r}")
+    return mb
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:

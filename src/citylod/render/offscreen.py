@@ -84,11 +84,14 @@ class OffscreenRenderer:
         Size of drawn points.
     workers
         Loader threads.
+    texture_budget_bytes
+        Cap on the tiles' GL texture memory (Buchholz's priority); None: only ``cache_bytes`` limits it.
     """
 
     def __init__(self, sources: Sequence[str | os.PathLike[str]], *, size: tuple[int, int] = (1280, 720),
                  tau_px: float = 1.0, color_by: str = "auto", cache_bytes: int = 2 << 30, edl: bool = False,
-                 point_size_px: float = 2.0, workers: int = 2, origin: npt.ArrayLike | None = None) -> None:
+                 point_size_px: float = 2.0, workers: int = 2, origin: npt.ArrayLike | None = None,
+                 texture_budget_bytes: int | None = None) -> None:
         tilesets, cities = _tileset_sources(sources)
         if cities:
             raise CitylodError(f"{cities[0]}: city stores are drawn through the semantic hook; pass them "
@@ -100,7 +103,7 @@ class OffscreenRenderer:
         self.renderer = _vtk.vtkOpenGLRenderer()
         self.window.AddRenderer(self.renderer)
         self.scene = Scene(self.renderer, cache_bytes=cache_bytes, tau_px=tau_px, color_by=color_by,
-                           workers=workers, origin=origin)
+                           workers=workers, origin=origin, texture_budget_bytes=texture_budget_bytes)
         for t in tilesets:
             layer = self.scene.add(t)
             layer.point_size_px = point_size_px
@@ -268,8 +271,10 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
     if out.suffix.lower() != ".png":
         raise CitylodError(f"output must be a .png file, got {out.name!r}")
     n = len(cameras)
+    budget_mb = getattr(args, "texture_budget", None)
     with OffscreenRenderer(tilesets, size=tuple(args.size), tau_px=args.tau,
-                           color_by=getattr(args, "color_by", "auto") or "auto") as r:
+                           color_by=getattr(args, "color_by", "auto") or "auto",
+                           texture_budget_bytes=None if budget_mb is None else int(budget_mb * 2**20)) as r:
         if hook is not None:
             hook(r.scene, city=city, highlight=highlight, hide=hide)
         water = None

@@ -47,6 +47,7 @@ from citylod.lod.runtime.loader import TileLoader, resolve_layers
 from citylod.lod.runtime.selection import Budget, Selection, select
 from citylod.render import _vtk
 from citylod.render.colors import COLOR_MODES, classification_rgb, intensity_rgb, level_color, ramp_rgb
+from citylod.render.texture_residency import TextureResidency
 from citylod.render.tile_data import PreparedMesh, PreparedTile, prepare_tile
 
 __all__ = ["DEFAULT_POINT_BUDGET", "SKIRT_ARRAY", "FrameStats", "Scene", "TilesetLayer", "camera_to_vtk", "is_skirt_cell",
@@ -463,6 +464,7 @@ class TilesetLayer:
         slot.user_matrix = user
         while len(slot.meshes) < len(prepared.meshes):
             props = _MeshProps(self.scene._count_actor)
+            props.texture.SetMaximumAnisotropicFiltering(self.scene.texture_anisotropy)
             slot.meshes.append(props)
             self.scene.renderer.AddActor(props.actor)
             self.scene._actor_created(props.actor)
@@ -599,11 +601,20 @@ class Scene:
         One of :data:`citylod.render.colors.COLOR_MODES`.
     adaptive_tau
         Raise τ under memory pressure (:class:`~citylod.lod.runtime.cache.TauController`) in :meth:`update`.
+    texture_budget_bytes
+        Cap on the GL texture memory of the tiles (None: only the cache budget limits it), kept with
+        Buchholz's priority (:class:`~citylod.render.texture_residency.TextureResidency`) by :meth:`update`
+        and :meth:`resolve`; full-resolution baselines (:meth:`load`) bypass it.
+    texture_anisotropy
+        Largest anisotropic filtering of tile textures; 1 (OpenGL's default) is isotropic trilinear
+        mipmapping. VTK's default of 4 costs up to 55× the fill time of oblique façades on llvmpipe
+        (docs/PERFORMANCE_LOG.md) for a slightly sharper grazing view.
     """
 
     def __init__(self, renderer: Any = None, *, origin: npt.ArrayLike | None = None,
                  cache_bytes: int = 1 << 30, workers: int = 2, tau_px: float = 1.0, color_by: str = "auto",
-                 adaptive_tau: bool = False) -> None:
+                 adaptive_tau: bool = False, texture_budget_bytes: int | None = None,
+                 texture_anisotropy: float = 1.0) -> None:
         if color_by not in COLOR_MODES:
             raise CitylodError(f"unknown colour mode {color_by!r}; choose one of {', '.join(COLOR_MODES)}")
         self.renderer = renderer if renderer is not None else _vtk.vtkRenderer()
@@ -632,6 +643,9 @@ class Scene:
         # Semantic overlays (citylod.render.semantic) style every tile actor, present and future.
         self._tile_actors: list[Any] = []
         self._actor_hooks: list[Callable[[Any], None]] = []
+        self.texture_anisotropy = float(texture_anisotropy)
+        self.textures = None if texture_budget_bytes is None else TextureResidency(self, texture_budget_bytes)
+        self._frame_view: View | None = None
         self._setup_renderer()
 
     def _setup_renderer(self) -> None:
@@ -726,10 +740,19 @@ class Scene:
             m.mapper.SetInputData(_EMPTY)
             m.data = m.mesh = None
             m.texture.SetInputData(None)
+            window = self.renderer.GetRenderWindow()
+            if window is not None:
+                m.texture.ReleaseGraphicsResources(window)  # the GL texture leaves with the tile
         if slot.points is not None:
             slot.points.mapper.SetInputData(_EMPTY)
             slot.points.data = None
         self._free.append(slot)
+
+    def tile_textures(self) -> Iterable[Any]:
+        """Every tile actor's ``vtkTexture`` (shown, hidden and pooled), for counting texture memory."""
+        for slot in [s for layer in self.layers for s in layer._slots.values()] + self._free:
+            for m in slot.meshes:
+                yield m.texture
 
     @property
     def slots_in_use(self) -> int:
@@ -789,7 +812,13 @@ class Scene:
             return 0
         # Interleave the layers' request lists so one large layer cannot starve the others.
         merged: list[Any] = []
-        lists = [list(s.request_nodes) for s in sels]
+        if self.textures is not None and self._frame_view is not None:
+            # Buchholz's texture budget: loads it does not admit wait, and their parents stay drawn.
+            self.textures.apply(sels, self._frame_view)
+            refused = self.textures.refused
+            lists = [[n for n in s.request_nodes if n.key not in refused] for s in sels]
+        else:
+            lists = [list(s.request_nodes) for s in sels]
         for i in range(max((len(x) for x in lists), default=0)):
             merged.extend(x[i] for x in lists if i < len(x))
         return self.loader.request(merged)
@@ -809,6 +838,7 @@ class Scene:
         if self.tau_controller is not None:
             self.tau_controller.update(self.cache.bytes_used, self.cache.budget_bytes)
         sels = self.select_all(view)
+        self._frame_view = view
         self._pin_and_request(sels)
         self._release_evicted()
         now_s = self.clock()
@@ -827,6 +857,7 @@ class Scene:
         """
         if not self.layers:
             return FrameStats()
+        self._frame_view = view
         try:
             sels = resolve_layers(lambda _frame: self.select_all(view), self.loader,
                                   request=self._pin_and_request, max_iterations=max_rounds, timeout_s=timeout_s)

@@ -1,5 +1,5 @@
 """Appearances of city models: CityGML 2.0/3.0 ``ParameterizedTexture`` and ``X3DMaterial``, CityJSON
-``appearance`` (textures, materials).
+``appearance`` (textures, materials), and the per-feature ``appearance`` of CityJSONSeq streams.
 
 The readers of :mod:`citylod.io.city` produce polygons without their ids, so appearances are tied to the
 model's polygons by geometry: a polygon's key is the set of its exterior ring's vertices rounded to a
@@ -122,7 +122,7 @@ def read_appearances(path: str | os.PathLike[str]) -> Appearances:
     """The appearances of a CityGML or CityJSON file (told apart as :func:`read_city_model` does)."""
     p = Path(path)
     if p.suffix.lower() == ".jsonl":
-        return Appearances()  # CityJSONSeq: appearances per feature are not read yet; materials fall back
+        return _cityjsonseq(p)
     with open(p, "rb") as fh:
         head = fh.read(256).lstrip(b"\xef\xbb\xbf \t\r\n")
     if p.suffix.lower() in (".json", ".cityjson") or head.startswith(b"{"):
@@ -252,25 +252,69 @@ def _cityjson(path: Path) -> Appearances:
     app = doc.get("appearance") or {}
     if not isinstance(app, dict) or not isinstance(doc.get("CityObjects"), dict):
         return out
-    verts = np.asarray(doc.get("vertices", []), np.float64).reshape(-1, 3)
-    tr = doc.get("transform")
-    if isinstance(tr, dict):
-        verts = verts * np.asarray(tr.get("scale", [1, 1, 1]), float) + np.asarray(tr.get("translate", [0, 0, 0]),
-                                                                                   float)
+    _cityjson_objects(doc["CityObjects"], doc.get("vertices", []), doc.get("transform"), app, path, out, {})
+    return out
+
+
+def _cityjson_objects(objects: dict[str, Any], vertices: Any, transform: Any, app: dict[str, Any], path: Path,
+                      out: Appearances, checked: dict[str, Path | None]) -> None:
+    """The appearances of ``objects`` (a CityJSON ``CityObjects`` member) with their ``vertices``, quantised
+    by ``transform``, and the ``appearance`` their texture and material indices point into. ``checked``
+    remembers the images already resolved, so an image shared by many features is checked (and warned
+    about) once."""
+    verts = np.asarray(vertices, np.float64).reshape(-1, 3)
+    if isinstance(transform, dict):
+        verts = verts * np.asarray(transform.get("scale", [1, 1, 1]), float) + np.asarray(
+            transform.get("translate", [0, 0, 0]), float)
     tex_uv = np.asarray(app.get("vertices-texture", []), np.float64).reshape(-1, 2)
     images: list[Path | None] = []
     for t in app.get("textures", []) or []:
-        image, warn = check_image(str(t.get("image", "")), path.parent) if isinstance(t, dict) else (None, None)
-        if warn:
-            out.warnings.append(f"{path.name}: {warn}")
-        images.append(image)
+        uri = str(t.get("image", "")) if isinstance(t, dict) else ""
+        if uri not in checked:
+            image, warn = check_image(uri, path.parent) if uri else (None, None)
+            if warn:
+                out.warnings.append(f"{path.name}: {warn}")
+            checked[uri] = image
+        images.append(checked[uri])
     mats = []
     for m in app.get("materials", []) or []:
         c = m.get("diffuseColor") if isinstance(m, dict) else None
         mats.append(tuple(float(x) for x in c[:3]) if isinstance(c, list) and len(c) >= 3 else None)
-    for obj in doc["CityObjects"].values():
-        for geom in obj.get("geometry", []) or []:
-            _cityjson_geometry(geom, verts, tex_uv, images, mats, out)
+    for obj in objects.values():
+        if isinstance(obj, dict):
+            for geom in obj.get("geometry", []) or []:
+                if isinstance(geom, dict):
+                    _cityjson_geometry(geom, verts, tex_uv, images, mats, out)
+
+
+def _cityjsonseq(path: Path) -> Appearances:
+    """CityJSONSeq (CityJSON 2.0 §"CityJSON Text Sequences"): each CityJSONFeature carries its own vertices
+    and its own ``appearance`` (textures, materials, texture vertices), its indices local to the feature;
+    a feature without one uses the header's. Read a line at a time, as the geometry reader does."""
+    out = Appearances()
+    header: dict[str, Any] | None = None
+    checked: dict[str, Path | None] = {}
+    try:
+        with open(path, "rb") as fh:
+            for line in fh:
+                if not line.strip():
+                    continue
+                doc = json.loads(line)
+                if not isinstance(doc, dict):
+                    continue
+                if header is None:
+                    header = doc
+                    if isinstance(doc.get("CityObjects"), dict) and isinstance(doc.get("appearance"), dict):
+                        _cityjson_objects(doc["CityObjects"], doc.get("vertices", []), doc.get("transform"),
+                                          doc["appearance"], path, out, checked)
+                    continue
+                app = doc.get("appearance")
+                app = app if isinstance(app, dict) else header.get("appearance")
+                if isinstance(app, dict) and isinstance(doc.get("CityObjects"), dict):
+                    _cityjson_objects(doc["CityObjects"], doc.get("vertices", []), header.get("transform"), app,
+                                      path, out, checked)
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise InputError(f"cannot read CityJSONSeq ({str(exc)[:200]})", path) from exc
     return out
 
 

@@ -527,6 +527,10 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
     meshes = [object_mesh(o, apps, image_index, raw.objects[i])
               for i, o in enumerate(tqdm(objects, desc="triangulate", unit="obj", disable=not progress))]
     images = sorted(image_index, key=image_index.__getitem__)
+    repeating = sum(m.repeating for m in meshes)
+    if repeating:
+        warnings.append(f"{repeating} surface(s) repeat their texture over more than one period; an atlas holds "
+                        "each image once, so they are drawn with their material")
     textured = bool(images)
     has_geom = np.array([len(m.faces) > 0 for m in meshes])
     if not has_geom.any():

@@ -43,7 +43,8 @@ class ObjectMesh:
     semantic class of each vertex's surface (a string per vertex, None for none), and the sum of the
     triangle areas in m² (``area``). With appearances: ``image`` (V,) int64 the index of the vertex's texture
     image (-1 none), ``uv`` (V, 2) its texture coordinates (CityGML's, v up; NaN without), ``rgb`` (V, 3) its
-    material colour in 0..1 (NaN without)."""
+    material colour in 0..1 (NaN without). ``repeating``: surfaces whose texture repeats (see
+    :func:`unwrap_uv`) and which were left to their material."""
 
     vertices: F64
     faces: I64
@@ -52,6 +53,7 @@ class ObjectMesh:
     image: npt.NDArray[np.int64] | None = None
     uv: F64 | None = None
     rgb: F64 | None = None
+    repeating: int = 0
 
     @staticmethod
     def empty() -> ObjectMesh:
@@ -110,6 +112,22 @@ def triangulate_polygon(rings: Polygon) -> tuple[F64, I64]:
     return v, idx
 
 
+def unwrap_uv(uv: F64, tol: float = 1e-4) -> F64 | None:
+    """A surface's texture coordinates (K, 2) moved into [0, 1]² by a whole number of repeats, or None when
+    they span more than one repeat of the image.
+
+    Models written for repeating (``wrap``) textures give façades coordinates such as u in [-1, 0]; shifting a
+    surface's coordinates by whole periods shows the same texels, so such a surface can use its image once,
+    as an atlas holds it. A surface spanning several periods (a roof tiled 21 × 14 times with one small
+    shingle image) would need its image repeated in the atlas; it is left to its material instead.
+    """
+    shift = np.floor(uv.min(axis=0) + tol)
+    out = uv - shift
+    if np.any(out.max(axis=0) > 1.0 + tol) or np.any(out.min(axis=0) < -tol):
+        return None
+    return np.clip(out, 0.0, 1.0)
+
+
 def object_mesh(obj: CityObject, appearances: Appearances | None = None,
                 image_index: dict[Path, int] | None = None, source: CityObject | None = None) -> ObjectMesh:
     """All surfaces of ``obj`` triangulated (see :func:`triangulate_polygon`), with per-vertex classes and,
@@ -118,6 +136,7 @@ def object_mesh(obj: CityObject, appearances: Appearances | None = None,
     the same object as read (before projection to metres; default ``obj``)."""
     verts, faces, surf, imgs, uvs, rgbs = [], [], [], [], [], []
     off = 0
+    repeating = 0
     sems = obj.semantics if len(obj.semantics) == len(obj.surfaces) else [None] * len(obj.surfaces)
     src_polys = (source or obj).surfaces
     for poly, src, sem in zip(obj.surfaces, src_polys, sems, strict=True):
@@ -133,6 +152,9 @@ def object_mesh(obj: CityObject, appearances: Appearances | None = None,
         app = appearances.lookup(src[0])
         src_v = np.concatenate([np.asarray(r)[:-1] for r in src if len(r) >= 4])
         uv = app.uv_of(src_v) if app is not None and app.image is not None else None
+        if uv is not None:
+            uv = unwrap_uv(uv)
+            repeating += uv is None
         if uv is not None and image_index is not None and app is not None and app.image is not None:
             imgs.append(np.full(len(v), image_index.setdefault(app.image, len(image_index)), np.int64))
             uvs.append(uv)
@@ -144,7 +166,7 @@ def object_mesh(obj: CityObject, appearances: Appearances | None = None,
     if not faces:
         return ObjectMesh.empty()
     vv, ff = np.concatenate(verts), np.concatenate(faces)
-    mesh = ObjectMesh(vv, ff, surf, float(triangle_areas(vv, ff).sum()))
+    mesh = ObjectMesh(vv, ff, surf, float(triangle_areas(vv, ff).sum()), repeating=repeating)
     if appearances is not None:
         mesh.image, mesh.uv, mesh.rgb = np.concatenate(imgs), np.concatenate(uvs), np.concatenate(rgbs)
     return mesh

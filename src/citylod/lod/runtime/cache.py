@@ -60,6 +60,7 @@ class TileCache:
         self._in_use: frozenset[str] = frozenset()
         self._bytes = 0
         self._evicted: list[str] = []  # evicted since the last evict() call, for the renderer to release
+        self._first_out: dict[str, int] = {}  # eviction-order hook: these keys go first, in this order
         self._lock = threading.RLock()
 
     # -- queries ----------------------------------------------------------------------------------
@@ -102,6 +103,12 @@ class TileCache:
                 return default
             self._entries.move_to_end(key)
             return entry.value
+
+    def peek(self, key: str, default: Any = None) -> Any:
+        """The value of ``key`` without marking it recently used (for bookkeeping that must not change the
+        LRU order), or ``default``."""
+        entry = self._entries.get(key)
+        return default if entry is None else entry.value
 
     def info(self, key: str) -> ResidentInfo | None:
         """Measured size of ``key``, or ``None`` when it is not resident."""
@@ -187,6 +194,16 @@ class TileCache:
             evicted, self._evicted = self._evicted, []
             return evicted
 
+    def set_eviction_order(self, keys: Iterable[str] | None) -> None:
+        """Evict ``keys`` first, in this order, before the least recently used rest (None: plain LRU).
+
+        The hook through which a caller's own priority decides what leaves first, e.g. Buchholz's texture
+        priority (:mod:`citylod.lod.runtime.texture_budget`): pass the resident keys least important
+        first. In-use keys are still never evicted.
+        """
+        with self._lock:
+            self._first_out = {} if keys is None else {k: i for i, k in enumerate(keys)}
+
     def set_budget(self, budget_bytes: int) -> list[str]:
         """Change the budget; evicts what no longer fits (in-use tiles stay) and returns :meth:`evict`."""
         with self._lock:
@@ -201,7 +218,11 @@ class TileCache:
     def _shrink_to(self, target: int, protect: str | None) -> None:
         if self._bytes <= target:
             return
-        for key in list(self._entries):  # LRU first
+        order = list(self._entries)  # LRU first
+        if self._first_out:
+            late = len(self._first_out)
+            order.sort(key=lambda k: self._first_out.get(k, late))  # stable: LRU among the rest
+        for key in order:
             if self._bytes <= target:
                 break
             if key in self._in_use or key == protect:

@@ -106,6 +106,12 @@ class TileLoader:
         with self._cond:
             return frozenset(self._failed)
 
+    def busy_keys(self) -> frozenset[str]:
+        """Keys being decoded or decoded and not yet polled: loads already committed, which will enter the
+        cache whatever the next request says (a budget must count them as resident)."""
+        with self._cond:
+            return frozenset(self._in_flight) | {item[0].key for item in self._done}
+
     def stats(self) -> LoaderStats:
         with self._cond:
             return LoaderStats(**self._counts, pending=len(self._pending), in_flight=len(self._in_flight))
