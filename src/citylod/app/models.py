@@ -497,7 +497,7 @@ class LodSettings:
     motion_factor: float = 4.0
     #: ... and at most this many points per layer while moving: a software or small GPU spends its frame
     #: filling point sprites, so a moving frame needs a bound that does not grow with the budget.
-    motion_point_budget: int = 250_000
+    motion_point_budget: int = 100_000
 
 
 class Document:

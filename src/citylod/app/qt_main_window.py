@@ -41,6 +41,7 @@ from citylod.app.models import (
     missing_crs,
     source_kind,
 )
+from citylod.app.gc_policy import GcPolicy
 from citylod.app.qt_flood import FloodPanel
 from citylod.app.qt_panels import (
     AttributePanel,
@@ -147,6 +148,11 @@ class MainWindow(QMainWindow):
         self._status_timer.setInterval(250)
         self._status_timer.timeout.connect(self._update_status)
         self._status_timer.start()
+        # Python's full garbage collections held the GUI thread for 0.3-0.6 s in the middle of a frame:
+        # they run only while the view is idle (app/gc_policy.py).
+        self.gc_policy = GcPolicy()
+        self.gc_policy.install()
+        self.view.gc_policy = self.gc_policy
 
     # -- menus and shortcuts ----------------------------------------------------------------------
     def _action(self, key: str, text: str, slot: Any, shortcut: str | None = None, menu: Any = None,
@@ -315,6 +321,7 @@ class MainWindow(QMainWindow):
             self._error(str(exc))
             return False
         self._add_recent(p)
+        self.gc_policy.settle()  # the layer's tile tree and store live as long as the window
         if first or (kind == "tileset" and len(self.document.scene.layers) == 1):
             self.view.reset_view()
         self.view.request_render()
@@ -511,6 +518,7 @@ class MainWindow(QMainWindow):
         self._status_timer.stop()
         self.view.shutdown()
         self.document.close()
+        self.gc_policy.uninstall()
         super().closeEvent(event)
 
     def copy_text(self, text: str) -> None:

@@ -82,6 +82,10 @@ class SceneView(QWidget):
     cursor = Signal(object)
     clicked = Signal(object)
 
+    #: Frame time (ms) the tile admission aims at: half the 100 ms a GUI handler may take.
+    FRAME_TARGET_MS = 50.0
+    ADMIT_START, ADMIT_MIN, ADMIT_MAX = 60_000, 5_000, 2_000_000
+
     def __init__(self, document: Document, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.document = document
@@ -115,6 +119,13 @@ class SceneView(QWidget):
         self.window.AddObserver("EndEvent", self._frame_end)
         self._t0 = 0.0
         self.frame_ms = 0.0
+        # Tiles that finished decoding enter the scene (and the GPU) at most ADMIT_* points + triangles
+        # per frame, the amount adapted to the frame time (see _frame_end): a burst of finished tiles
+        # becomes several short frames instead of one long one that holds the GUI thread.
+        self.scene.admit_cost = self.ADMIT_START
+        #: Full garbage collections only while idle (app/gc_policy.py); set by the main window.
+        self.gc_policy: Any = None
+        self._uploads = self.scene.uploads
         self.renders = 0
         self._dirty = True
         self._camera_mtime = 0
@@ -159,6 +170,14 @@ class SceneView(QWidget):
     def _frame_end(self, *_: Any) -> None:
         self.frame_ms = (time.perf_counter() - self._t0) * 1e3
         self.renders += 1
+        if self.scene.uploads != self._uploads:
+            # Multiplicative steps towards FRAME_TARGET_MS: the cost of an upload (VBO building, texture
+            # mipmaps) and of the frame around it depend on the machine and its load, so they are measured,
+            # not assumed.
+            self._uploads = self.scene.uploads
+            step = min(max(self.FRAME_TARGET_MS / max(self.frame_ms, 1.0), 0.25), 2.0)
+            cost = int((self.scene.admit_cost or self.ADMIT_START) * step)
+            self.scene.admit_cost = min(max(cost, self.ADMIT_MIN), self.ADMIT_MAX)
         self.frame.emit(self.frame_ms)
 
     def _after_update(self, *_: Any) -> None:
@@ -188,7 +207,8 @@ class SceneView(QWidget):
             self._dirty = True  # started moving: coarser; stopped: refine to full quality
         if self._store_future is not None and self._store_future.done():
             self._attach_store_actor()
-        newly = self.scene.loader.poll() if self.scene.layers else []
+        # Finished tiles are admitted by the scene's update inside the render, a bounded amount a frame.
+        newly = self.scene.layers and self.scene.loader.stats().ready > 0
         if self.document.poll_semantics():
             self._dirty = True
         mtime = self.renderer.GetActiveCamera().GetMTime()
@@ -200,11 +220,15 @@ class SceneView(QWidget):
         if self._cursor_due and self._cursor_xy is not None:
             self._cursor_due = False
             self.cursor.emit(self.surface_point(*self._cursor_xy))
+        if self.gc_policy is not None:
+            busy = self.navigator.moving or self.document.moving or self._dirty or self.pending() > 0
+            with timed("SceneView.gc"):
+                self.gc_policy.tick(busy)
 
     def pending(self) -> int:
         """Tile requests queued or being decoded."""
         st = self.scene.loader.stats()
-        return int(st.pending + st.in_flight)
+        return int(st.pending + st.in_flight + st.ready)
 
     def is_resolved(self) -> bool:
         """The last frame drew everything selection wanted and nothing is loading."""
@@ -447,6 +471,11 @@ class SceneView(QWidget):
     def _on_document(self, kind: str) -> None:
         if kind in ("layers", "style"):
             self._sync_store_actor()
+        if kind == "layers":
+            for layer in self.scene.layers:
+                # No fade-in of point tiles here: each step of a fade replaces the tile's vertex cells,
+                # and VTK then rebuilds the tile's whole vertex buffer, frame after frame while it fades.
+                layer.smooth_refinement = False
         if kind == "display":
             from citylod.render.hud import set_edl
 

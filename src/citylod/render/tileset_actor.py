@@ -620,6 +620,9 @@ class Scene:
         self.fade_s = 0.3
         self.fade_from = 0.2
         self.clock: Callable[[], float] = time.monotonic
+        # Most drawing cost (points + triangles) of finished tiles that one update() admits and uploads;
+        # None admits all. An interactive view sets it so one frame's uploads stay bounded.
+        self.admit_cost: int | None = None
         self.crs: Any = None
         self.elevation_range = (0.0, 1.0)
         # Counters that tests and the HUD read.
@@ -802,7 +805,7 @@ class Scene:
         """
         if not self.layers:
             return FrameStats()
-        self.loader.poll()
+        self.loader.poll(self.admit_cost)
         if self.frozen:
             return self.last_stats
         view = view or self.view()
