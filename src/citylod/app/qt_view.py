@@ -82,8 +82,8 @@ class SceneView(QWidget):
     cursor = Signal(object)
     clicked = Signal(object)
 
-    #: Frame time (ms) the tile admission aims at: half the 100 ms a GUI handler may take.
-    FRAME_TARGET_MS = 50.0
+    #: Time (ms) a frame may spend uploading newly admitted tiles, on top of drawing the scene.
+    UPLOAD_SLICE_MS = 30.0
     ADMIT_START, ADMIT_MIN, ADMIT_MAX = 60_000, 5_000, 2_000_000
 
     def __init__(self, document: Document, parent: QWidget | None = None) -> None:
@@ -119,13 +119,14 @@ class SceneView(QWidget):
         self.window.AddObserver("EndEvent", self._frame_end)
         self._t0 = 0.0
         self.frame_ms = 0.0
-        # Tiles that finished decoding enter the scene (and the GPU) at most ADMIT_* points + triangles
-        # per frame, the amount adapted to the frame time (see _frame_end): a burst of finished tiles
-        # becomes several short frames instead of one long one that holds the GUI thread.
+        # Tiles that finished decoding enter the scene (and the GPU) at most ``admit_cost`` points +
+        # triangles per frame, adapted to the measured upload time (see _frame_end): a burst of finished
+        # tiles becomes several short frames instead of one long one that holds the GUI thread.
         self.scene.admit_cost = self.ADMIT_START
         #: Full garbage collections only while idle (app/gc_policy.py); set by the main window.
         self.gc_policy: Any = None
         self._uploads = self.scene.uploads
+        self._base_ms: float | None = None
         self.renders = 0
         self._dirty = True
         self._camera_mtime = 0
@@ -170,13 +171,19 @@ class SceneView(QWidget):
     def _frame_end(self, *_: Any) -> None:
         self.frame_ms = (time.perf_counter() - self._t0) * 1e3
         self.renders += 1
-        if self.scene.uploads != self._uploads:
-            # Multiplicative steps towards FRAME_TARGET_MS: the cost of an upload (VBO building, texture
-            # mipmaps) and of the frame around it depend on the machine and its load, so they are measured,
-            # not assumed.
-            self._uploads = self.scene.uploads
-            step = min(max(self.FRAME_TARGET_MS / max(self.frame_ms, 1.0), 0.25), 2.0)
-            cost = int((self.scene.admit_cost or self.ADMIT_START) * step)
+        admitted = self.scene.admitted_cost if self.scene.uploads != self._uploads else 0
+        self._uploads = self.scene.uploads
+        if admitted <= 0:
+            # A frame without uploads: what drawing the scene costs now (smoothed).
+            self._base_ms = self.frame_ms if self._base_ms is None else 0.7 * self._base_ms + 0.3 * self.frame_ms
+        elif self._base_ms is not None:
+            # The uploads took what the frame took beyond the scene's own cost. The cost of an upload
+            # (VBO building, texture mipmaps) depends on the machine and its load, so it is measured: the
+            # next frames admit what fits UPLOAD_SLICE_MS at the measured rate (geometric steps, ≤ 2×).
+            extra = max(self.frame_ms - self._base_ms, 1.0)
+            want = self.UPLOAD_SLICE_MS / extra * admitted
+            old = self.scene.admit_cost or self.ADMIT_START
+            cost = int(min(max(want, old / 2.0), old * 2.0))
             self.scene.admit_cost = min(max(cost, self.ADMIT_MIN), self.ADMIT_MAX)
         self.frame.emit(self.frame_ms)
 

@@ -623,6 +623,7 @@ class Scene:
         # Most drawing cost (points + triangles) of finished tiles that one update() admits and uploads;
         # None admits all. An interactive view sets it so one frame's uploads stay bounded.
         self.admit_cost: int | None = None
+        self.admitted_cost = 0  # what the last update() admitted, same units
         self.crs: Any = None
         self.elevation_range = (0.0, 1.0)
         # Counters that tests and the HUD read.
@@ -805,7 +806,12 @@ class Scene:
         """
         if not self.layers:
             return FrameStats()
-        self.loader.poll(self.admit_cost)
+        admitted = self.loader.poll(self.admit_cost)
+        self.admitted_cost = 0
+        for key in admitted:
+            info = self.cache.info(key)
+            if info is not None:
+                self.admitted_cost += int(info.points) + int(info.triangles)
         if self.frozen:
             return self.last_stats
         view = view or self.view()
