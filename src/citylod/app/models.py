@@ -544,6 +544,10 @@ class Document:
         for cb in list(self._listeners):
             cb(kind)
 
+    def notify(self, kind: str) -> None:
+        """Tell the listeners that ``kind`` changed (after state was restored in bulk, e.g. a project)."""
+        self._emit(kind)
+
     # -- opening ----------------------------------------------------------------------------------
     def open(self, path: str | os.PathLike[str]) -> LayerEntry:
         """Open a tileset (folder or tileset.json) or a city store (.gpkg).

@@ -2,8 +2,9 @@
 
 Opening: tilesets and city stores open at once (:meth:`Document.open`); rasters, LAS/LAZ and city models
 are built first in a subprocess (:class:`~citylod.app.qt_tasks.ProcessTask`, cancellable) and the result
-opens when the build ends. Recent files, window geometry, dock layout, query history and bookmarks persist
-in ``QSettings("citylod", "citylod")``.
+opens when the build ends. Recent files, window geometry, dock layout and query history persist in
+``QSettings("citylod", "citylod")``; bookmarks, the camera, styles and object state go into a project
+file (File > Save project, app/project.py).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
 )
 
+from citylod.app.gc_policy import GcPolicy
 from citylod.app.models import (
     SHORTCUTS,
     Document,
@@ -41,7 +43,6 @@ from citylod.app.models import (
     missing_crs,
     source_kind,
 )
-from citylod.app.gc_policy import GcPolicy
 from citylod.app.qt_flood import FloodPanel
 from citylod.app.qt_panels import (
     AttributePanel,
@@ -61,7 +62,8 @@ from citylod.core.errors import CitylodError
 
 __all__ = ["MainWindow", "settings"]
 
-_FILTER = ("All supported (*.json *.gpkg *.tif *.tiff *.vrt *.las *.laz *.gml *.xml *.cityjson);;"
+_FILTER = ("All supported (*.citylod *.json *.gpkg *.tif *.tiff *.vrt *.las *.laz *.gml *.xml *.cityjson);;"
+           "citylod project (*.citylod);;"
            "Tileset (tileset.json);;City store (*.gpkg);;Raster DSM (*.tif *.tiff *.vrt);;"
            "Point cloud (*.las *.laz);;City model (*.gml *.xml *.json *.cityjson);;All files (*)")
 _MAX_RECENT = 10
@@ -97,7 +99,10 @@ class MainWindow(QMainWindow):
         self.query = QueryPanel(self.document, self.settings)
         self.lod = LodPanel(self.document)
         self.measure = MeasurePanel(self.start_measure, self.view.clear_measure)
-        self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, self.settings)
+        # Bookmarks belong to the project (saved in its file), not to the user's settings.
+        self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, None)
+        self.project_path: Path | None = None
+        self.windows: list[MainWindow] = []  # projects opened from a window that already held data
         self.profile = ProfilePanel(self.document)
         self.points = PointPanel(self.document)
         self.clip = ClipPanel(self.document, self._focus)
@@ -176,6 +181,10 @@ class MainWindow(QMainWindow):
         self._action("open_folder", "Open tileset &folder…", self.open_folder_dialog, None, f)
         self.recent_menu = f.addMenu("Open &recent")
         self._refresh_recent()
+        f.addSeparator()
+        self._action("open_project", "Open pro&ject…", self.open_project_dialog, None, f)
+        self._action("save_project", "&Save project", self.save_project_dialog, "Ctrl+S", f)
+        self._action("save_project_as", "Save project &as…", lambda: self.save_project_dialog(ask=True), None, f)
         f.addSeparator()
         self._action("save_camera", "Save &camera…", self.save_camera_dialog, "Ctrl+Shift+S", f)
         self._action("export", "&Export image…", self.export_dialog, "Ctrl+E", f)
@@ -307,10 +316,74 @@ class MainWindow(QMainWindow):
         for p in paths:
             self.open_path(p)
 
+    # -- projects -----------------------------------------------------------------------------------
+    def save_project(self, path: str | os.PathLike[str]) -> Path | None:
+        """Save sources, display, camera, bookmarks and object state to a project file (app/project.py)."""
+        from citylod.app.project import save_project
+
+        try:
+            out = save_project(path, self.document, self.view.camera(), self.bookmarks.bookmarks)
+        except OSError as exc:
+            self._error(f"{path}: cannot write the project ({exc})")
+            return None
+        self.project_path = out
+        self.setWindowTitle(f"citylod — {out.stem}")
+        self.statusBar().showMessage(f"project saved to {out}", 6000)
+        return out
+
+    def save_project_dialog(self, ask: bool = False) -> None:
+        path: str | Path | None = self.project_path
+        if path is None or ask:
+            path, _ = QFileDialog.getSaveFileName(self, "Save project", str(self.settings.value(
+                "last_dir", str(Path.home()))) + "/project.citylod", "citylod project (*.citylod)")
+        if path:
+            self.save_project(path)
+
+    def open_project(self, path: str | os.PathLike[str]) -> MainWindow | None:
+        """Open a project; in this window when it is empty, else in a new one (returned)."""
+        from citylod.app.project import apply_project, read_project
+
+        try:
+            project = read_project(path)
+        except CitylodError as exc:
+            self._error(str(exc))
+            return None
+        if self.document.entries:
+            win = MainWindow(settings_=self.settings, interactive=self.interactive,
+                             restore_layout=self.restore_layout)
+            win.resize(self.size())
+            win.show()
+            self.windows.append(win)
+            return win if win.open_project(path) is not None else None
+        try:
+            apply_project(self.document, project)
+        except (CitylodError, OSError, ValueError) as exc:
+            self._error(f"{path}: {exc}")
+            return None
+        self.gc_policy.settle()
+        self.bookmarks.set_bookmarks(project.bookmarks)
+        if project.camera is not None:
+            self.view.set_camera(project.camera)
+        else:
+            self.view.reset_view()
+        self.project_path = project.path
+        self.setWindowTitle(f"citylod — {project.path.stem}")
+        self._add_recent(project.path)
+        self.opened.emit(str(project.path))
+        return self
+
+    def open_project_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open project", str(self.settings.value(
+            "last_dir", str(Path.home()))), "citylod project (*.citylod)")
+        if path:
+            self.open_project(path)
+
     @profiled("MainWindow.open_path")
     def open_path(self, path: str | os.PathLike[str]) -> bool:
         """Open a source; raw inputs start a build whose result opens when done. False on an error."""
         p = Path(path)
+        if p.suffix == ".citylod":
+            return self.open_project(p) is not None
         kind = source_kind(p)
         if kind in ("raster", "points", "citymodel"):
             return self.build_and_open(p)

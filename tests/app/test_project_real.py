@@ -1,0 +1,143 @@
+"""Project files through the real menus: save a set-up window with File > Save project (keys, the file
+dialog typed into), open it in a fresh window with File > Open project, and check that the second window
+shows the same thing: layers and their display, camera, bookmarks, highlighted and hidden objects, and the
+same picture. Run under ``xvfb-run -a -s "-screen 0 1600x1200x24"`` (xdotool sends the input)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("PySide6")
+pytest.importorskip("pytestqt")
+
+from tests.app.test_qt import _rgb, _store, sample  # noqa: F401  (the session fixture)
+from tests.app.test_real_input import X, _wait_resolved, pytestmark, window, xin  # noqa: F401
+
+__all__ = ["pytestmark"]
+
+
+def _menu_then_type(xin: X, win, keys: list[str], text: str) -> None:  # noqa: F811
+    """Press ``keys`` (a shortcut, or a menu's mnemonic and an item's), then type ``text`` into the dialog
+    that opens and press Enter. The dialog runs its own event loop inside the key's handler, so a timer in
+    that loop finds it, gives it the focus (Xvfb has no window manager to do so) and sends the keys."""
+    import subprocess
+
+    from PySide6.QtCore import QTimer
+    from PySide6.QtWidgets import QApplication
+
+    done: list[bool] = []
+
+    def answer() -> None:
+        dlg = QApplication.activeModalWidget()
+        if dlg is None:
+            if not done:
+                QTimer.singleShot(200, answer)
+            return
+        dlg.activateWindow()
+        dlg.raise_()
+        for args in (["sleep", "0.3", "key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "15", text],
+                     ["sleep", "0.3", "key", "Return"]):
+            subprocess.run(["xdotool", *args], check=True, timeout=60)
+        done.append(True)
+
+    def give_up() -> None:  # never hang the suite on a dialog that did not get the keys
+        dlg = QApplication.activeModalWidget()
+        if not done and dlg is not None:
+            done.append(False)
+            dlg.reject()
+
+    win.activateWindow()
+    win.raise_()
+    xin.qtbot.wait(200)
+    QTimer.singleShot(300, answer)
+    QTimer.singleShot(30000, give_up)
+    args = ["key", "--clearmodifiers", keys[0]]
+    for k in keys[1:]:
+        args += ["sleep", "0.4", "key", "--clearmodifiers", k]
+    xin._run(*args)
+    xin.qtbot.waitUntil(lambda: bool(done), timeout=35000)
+    assert done == [True], "the dialog did not take the typed text"
+
+
+def _new_window(qtbot, tmp_path: Path):
+    from PySide6.QtCore import QSettings
+
+    from citylod.app.qt_main_window import MainWindow
+
+    settings = QSettings(str(tmp_path / "citylod2.ini"), QSettings.Format.IniFormat)
+    win = MainWindow(settings_=settings, interactive=False)
+    qtbot.addWidget(win)
+    win.move(0, 0)
+    win.resize(1200, 800)
+    win.show()
+    qtbot.waitExposed(win)
+    return win
+
+
+def test_project_saves_and_reopens_the_same_view(qtbot, window, xin, sample, tmp_path) -> None:  # noqa: F811
+    from citylod.core.camera import load_cameras
+
+    store = _store(sample)
+    assert window.open_path(sample["tiles"]) and window.open_path(store)
+    doc = window.document
+    cam = load_cameras(sample["camera"])[0]
+    window.view.set_camera(cam)
+    tallest = doc.tallest_building()
+    others = [o for o in doc.store.ids if o != tallest]
+    doc.highlight([tallest], "#ff3300")
+    doc.hide(others[:3])
+    doc.set_color_by(0, "elevation")
+    doc.set_opacity(0, 0.8)
+    _wait_resolved(qtbot, window)
+    # A bookmark through Ctrl+B and its name dialog.
+    _menu_then_type(xin, window, ["ctrl+b"], "roofs")
+    qtbot.waitUntil(lambda: window.bookmarks.bookmarks.names() == ["roofs"], timeout=5000)
+    # File > Save project (Alt+F, S) and the file dialog.
+    target = tmp_path / "work" / "delft.citylod"
+    target.parent.mkdir()
+    _menu_then_type(xin, window, ["alt+f", "s"], str(target))
+    qtbot.waitUntil(target.is_file, timeout=10000)
+    data = json.loads(target.read_text())
+    assert data["format"] == "citylod-project" and len(data["layers"]) == 2
+    assert window.windowTitle().endswith("delft")
+    before = _rgb(window.view.framebuffer())
+    cam_before = window.view.camera()
+
+    # A fresh window: File > Open project (Alt+F, J).
+    other = _new_window(qtbot, tmp_path)
+    try:
+        _menu_then_type(xin, other, ["alt+f", "j"], str(target))
+        qtbot.waitUntil(lambda: len(other.document.entries) == 2, timeout=10000)
+        odoc = other.document
+        assert [e.path.resolve() for e in odoc.entries] == [e.path.resolve() for e in doc.entries]
+        assert [(e.visible, e.opacity, e.color_by) for e in odoc.entries] == \
+            [(e.visible, e.opacity, e.color_by) for e in doc.entries]
+        assert other.bookmarks.bookmarks.names() == ["roofs"]
+        assert odoc.state.colors == doc.state.colors and odoc.state.hidden == doc.state.hidden
+        _wait_resolved(qtbot, other)
+        got = other.view.camera()
+        np.testing.assert_allclose(got.position, cam_before.position, atol=1e-6)
+        np.testing.assert_allclose(got.focal_point, cam_before.focal_point, atol=1e-6)
+        after = _rgb(other.view.framebuffer())
+        assert after.shape == before.shape
+        # The same picture: nearly every pixel equal (the status text is outside the 3D view).
+        diff = np.abs(after.astype(int) - before.astype(int)).max(axis=2)
+        assert (diff <= 8).mean() > 0.99, f"{(diff > 8).mean():.2%} of the pixels differ"
+        # The restored highlight shows: the tallest building's roof is drawn in its colour in both.
+        red = (before[..., 0] > 180) & (before[..., 1] < 120)
+        assert red.sum() > 50 and (after[red][:, 0] > 180).mean() > 0.95
+    finally:
+        other.close()
+
+
+def test_project_with_a_missing_layer_is_refused_in_one_line(qtbot, window, tmp_path) -> None:  # noqa: F811
+    bad = tmp_path / "bad.citylod"
+    bad.write_text(json.dumps({"format": "citylod-project", "version": 1,
+                               "layers": [{"path": "nowhere/tiles", "kind": "tileset"}]}))
+    assert window.open_project(bad) is None
+    assert window.errors and "bad.citylod" in window.errors[-1] and "does not exist" in window.errors[-1]
+    assert "\n" not in window.errors[-1] and not window.document.entries
