@@ -6,6 +6,7 @@ same picture. Run under ``xvfb-run -a -s "-screen 0 1600x1200x24"`` (xdotool sen
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -20,33 +21,40 @@ from tests.app.test_real_input import X, _wait_resolved, pytestmark, window, xin
 __all__ = ["pytestmark"]
 
 
-def _menu_then_type(xin: X, win, keys: list[str], text: str) -> None:  # noqa: F811
-    """Press ``keys`` (a shortcut, or a menu's mnemonic and an item's), then type ``text`` into the dialog
-    that opens and press Enter. The dialog runs its own event loop inside the key's handler, so a timer in
-    that loop finds it, gives it the focus (Xvfb has no window manager to do so) and sends the keys."""
+def _menu_then_type(xin: X, win, keys: list[str], *texts: str | None) -> None:  # noqa: F811
+    """Press ``keys`` (a shortcut, or a menu's mnemonic and an item's), then answer the dialogs that open,
+    one after the other: type each text into its dialog and press Enter (None: just Enter). A dialog runs
+    its own event loop inside the key's handler, so a timer in that loop finds it, gives it the focus
+    (Xvfb has no window manager to do so) and sends the keys."""
     import subprocess
 
     from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication
 
     done: list[bool] = []
+    seen: list[object] = []
 
     def answer() -> None:
         dlg = QApplication.activeModalWidget()
-        if dlg is None:
-            if not done:
+        if dlg is None or (seen and dlg is seen[-1]):
+            if len(done) < len(texts):
                 QTimer.singleShot(200, answer)
             return
+        seen.append(dlg)
         dlg.activateWindow()
         dlg.raise_()
-        for args in (["sleep", "0.3", "key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "15", text],
-                     ["sleep", "0.3", "key", "Return"]):
+        text = texts[len(done)]
+        steps = [["sleep", "0.3", "key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "15", text]] \
+            if text is not None else [["sleep", "0.3"]]
+        for args in [*steps, ["sleep", "0.3", "key", "Return"]]:
             subprocess.run(["xdotool", *args], check=True, timeout=60)
         done.append(True)
+        if len(done) < len(texts):
+            QTimer.singleShot(200, answer)
 
     def give_up() -> None:  # never hang the suite on a dialog that did not get the keys
         dlg = QApplication.activeModalWidget()
-        if not done and dlg is not None:
+        if len(done) < len(texts) and dlg is not None:
             done.append(False)
             dlg.reject()
 
@@ -59,8 +67,8 @@ def _menu_then_type(xin: X, win, keys: list[str], text: str) -> None:  # noqa: F
     for k in keys[1:]:
         args += ["sleep", "0.4", "key", "--clearmodifiers", k]
     xin._run(*args)
-    xin.qtbot.waitUntil(lambda: bool(done), timeout=35000)
-    assert done == [True], "the dialog did not take the typed text"
+    xin.qtbot.waitUntil(lambda: len(done) >= len(texts), timeout=35000)
+    assert done == [True] * len(texts), "a dialog did not take the typed keys"
 
 
 def _new_window(qtbot, tmp_path: Path):
@@ -141,3 +149,42 @@ def test_project_with_a_missing_layer_is_refused_in_one_line(qtbot, window, tmp_
     assert window.open_project(bad) is None
     assert window.errors and "bad.citylod" in window.errors[-1] and "does not exist" in window.errors[-1]
     assert "\n" not in window.errors[-1] and not window.document.entries
+
+
+def test_export_image_keeps_what_the_view_shows(qtbot, window, xin, sample, tmp_path) -> None:  # noqa: F811
+    """File > Export image (Ctrl+E, the options dialog, the file dialog): the PNG is the view at twice its
+    size with its colours and the highlight, i.e. the view's own picture at a finer pixel grid."""
+    from PIL import Image
+
+    from citylod.core.camera import load_cameras
+
+    store = _store(sample)
+    assert window.open_path(sample["tiles"]) and window.open_path(store)
+    doc = window.document
+    window.view.set_camera(load_cameras(sample["camera"])[0])
+    tallest = doc.tallest_building()
+    doc.highlight([tallest], "#ff3300")
+    doc.set_color_by(0, "elevation")
+    _wait_resolved(qtbot, window)
+    screen = _rgb(window.view.framebuffer())
+    out = tmp_path / "export.png"
+    _menu_then_type(xin, window, ["ctrl+e"], None, str(out))
+    qtbot.waitUntil(out.is_file, timeout=20000)
+    img = np.asarray(Image.open(out).convert("RGB"))
+    h, w = screen.shape[:2]
+    assert img.shape == (2 * h, 2 * w, 3)
+    # Averaged back to the screen's grid it is the screen's picture (same tiles, same colours); the 2D
+    # aids (scale bar, north arrow) are not exported, so compare away from the corners.
+    small = img.reshape(h, 2, w, 2, 3).mean(axis=(1, 3))
+    inner = np.s_[h // 8: h - h // 8, w // 8: w - w // 8]
+    diff = np.abs(small[inner] - screen[inner].astype(float)).max(axis=2)
+    assert np.median(diff) < 12 and (diff < 40).mean() > 0.9, f"median {np.median(diff):.1f}"
+    # The highlighted building is in the export, in its colour, about where it is on the screen.
+    red = lambda a: (a[..., 0] > 170) & (a[..., 1] < 120) & (a[..., 2] < 100)  # noqa: E731
+    assert red(screen).sum() > 100
+    assert abs(red(img).sum() / 4 - red(screen).sum()) < 0.25 * red(screen).sum()
+    # …and the elevation colours (blue to red ramp) are there, not a grey fallback.
+    assert np.std(img.reshape(-1, 3).mean(axis=1)) > 10
+    shutil_copy = os.environ.get("CITYLOD_EXPORT_COPY")
+    if shutil_copy:
+        Image.fromarray(img).save(shutil_copy)

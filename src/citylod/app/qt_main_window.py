@@ -10,7 +10,6 @@ file (File > Save project, app/project.py).
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -531,54 +530,51 @@ class MainWindow(QMainWindow):
         if path:
             self.save_screenshot(path)
 
-    def export_image(self, path: str | os.PathLike[str], width: int, height: int) -> ProcessTask | None:
-        """Render the current view at width × height off screen (``citylod render`` in a subprocess)."""
-        cam = self.view.camera()
-        tilesets = [str(e.path) for e in self.document.entries if e.kind == "tileset"]
-        if cam is None or not tilesets:
-            self._error("nothing to export: open a tileset first")
+    def export_image(self, path: str | os.PathLike[str], scale: int = 2) -> Path | None:
+        """Write the 3D view as drawn now at ``scale``× its size to a PNG: class colours, highlights, hidden
+        objects, class filter and clipping box as on screen (:meth:`SceneView.render_image`)."""
+        from citylod.core.fileio import atomic_write_bytes
+        from citylod.io.image import encode_png
+
+        if not self.document.entries:
+            self._error("nothing to export: open a source first")
             return None
-        cam_file = Path(tempfile.mkstemp(prefix="citylod_camera_", suffix=".json")[1])
-        cam.save(cam_file)
-        mode = "level" if self.document.lod.color_by_level else self.document.entries[0].color_by
-        import sys
-
-        argv = [sys.executable, "-m", "citylod.cli", "render", *tilesets, "-o", str(path), "--camera",
-                str(cam_file), "--size", f"{width}x{height}", "--tau", f"{self.document.lod.tau_px:g}",
-                "--color-by", mode]
-        task = ProcessTask(argv, path, f"Rendering {width}×{height}…", self)
-
-        def done(ok: bool, out: str, msg: str) -> None:
-            cam_file.unlink(missing_ok=True)
-            if ok:
-                self.statusBar().showMessage(f"image written to {out}", 8000)
-            elif msg != "cancelled":
-                self._error(f"export failed: {msg}")
-
-        task.finished.connect(done)
-        self.tasks.append(task)
-        task.start()
-        return task
+        rgb = self.view.render_image(scale)
+        try:
+            out = atomic_write_bytes(path, encode_png(rgb, level=6))
+        except OSError as exc:
+            self._error(f"{path}: cannot write the image ({exc})")
+            return None
+        self.statusBar().showMessage(f"image {rgb.shape[1]}×{rgb.shape[0]} written to {out}", 8000)
+        return out
 
     def export_dialog(self) -> None:
         dlg = QDialog(self)
         dlg.setWindowTitle("Export image")
         form = QFormLayout(dlg)
-        w, h = QSpinBox(), QSpinBox()
-        for s, v in ((w, self.view.vtk.width() * 2), (h, self.view.vtk.height() * 2)):
-            s.setRange(16, 16384)
-            s.setValue(v)
-        form.addRow("width", w)
-        form.addRow("height", h)
+        scale = QSpinBox()
+        scale.setRange(1, 8)
+        scale.setValue(2)
+        size = QLabel()
+
+        def show_size(k: int) -> None:
+            ratio = self.view.vtk.devicePixelRatioF()
+            size.setText(f"{round(self.view.vtk.width() * ratio) * k} × {round(self.view.vtk.height() * ratio) * k} px")
+
+        scale.valueChanged.connect(show_size)
+        show_size(scale.value())
+        form.addRow("scale (× the view)", scale)
+        form.addRow("size", size)
         box = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel)
         box.accepted.connect(dlg.accept)
         box.rejected.connect(dlg.reject)
         form.addRow(box)
         if dlg.exec() != QDialog.DialogCode.Accepted:
             return
-        path, _ = QFileDialog.getSaveFileName(self, "Export image", "citylod.png", "PNG (*.png)")
+        path, _ = QFileDialog.getSaveFileName(self, "Export image", str(self.settings.value(
+            "last_dir", str(Path.home()))) + "/citylod.png", "PNG (*.png)")
         if path:
-            self.export_image(path, w.value(), h.value())
+            self.export_image(path, scale.value())
 
     # -- closing --------------------------------------------------------------------------------------
     def closeEvent(self, event: Any) -> None:

@@ -127,6 +127,7 @@ class SceneView(QWidget):
         self.gc_policy: Any = None
         self._uploads = self.scene.uploads
         self._base_ms: float | None = None
+        self._exporting = False
         self.renders = 0
         self._dirty = True
         self._camera_mtime = 0
@@ -190,7 +191,7 @@ class SceneView(QWidget):
     def _after_update(self, *_: Any) -> None:
         self.document.apply_opacity()
         cam = self.camera()
-        if cam is not None:
+        if cam is not None and not self._exporting:
             w, h = self.renderer.GetSize()
             dist = float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
             self.hud.update(cam, 2.0 * dist * np.tan(np.radians(cam.fovy_deg) / 2.0) / max(h, 1), (w, h))
@@ -583,6 +584,43 @@ class SceneView(QWidget):
         arr = _vtk.vtk_to_numpy(img.GetPointData().GetScalars()).reshape(h, w, 3)[::-1].copy()
         qimg = QImage(arr.data, w, h, 3 * w, QImage.Format.Format_RGB888).copy()
         return qimg
+
+    def render_image(self, scale: int = 2) -> npt.NDArray[np.uint8]:
+        """The view as it is drawn now, ``scale`` times its size in each direction: (H, W, 3) RGB, row 0 at
+        the top.
+
+        Everything the view shows is kept because the view's own renderer draws it: class and elevation
+        colours, highlights and hidden objects (the semantic shader), class filter, clipping box, EDL and
+        the measurement line. ``vtkRenderLargeImage`` renders the view in ``scale``² tiles through narrowed
+        cameras; the LOD selection is frozen meanwhile so every tile draws the same tiles as the screen
+        (a tile's narrow camera would otherwise ask for finer tiles that are not loaded). The 2D aids
+        (scale bar, north arrow, texts) are left out: their sizes are screen pixels."""
+        scale = int(min(max(scale, 1), 8))
+        self.render_now()
+        huds = [self.hud.bar_shadow, self.hud.bar, self.hud.arrow, self.hud.bar_text, self.hud.north_text,
+                self._measure_text]
+        shown = [p.GetVisibility() for p in huds]
+        frozen = self.scene.frozen
+        self._exporting = True
+        self.scene.frozen = True
+        try:
+            for p in huds:
+                p.VisibilityOff()
+            big = _vtk.vtkRenderLargeImage()
+            big.SetInput(self.renderer)
+            big.SetMagnification(scale)
+            big.Update()
+            img = big.GetOutput()
+            w, h, _ = img.GetDimensions()
+            arr = _vtk.vtk_to_numpy(img.GetPointData().GetScalars())
+            rgb = arr.reshape(h, w, -1)[::-1, :, :3].copy()
+        finally:
+            self.scene.frozen = frozen
+            self._exporting = False
+            for p, on in zip(huds, shown, strict=True):
+                p.SetVisibility(on)
+            self.request_render()
+        return np.ascontiguousarray(rgb, np.uint8)
 
     def escape(self) -> None:
         """Esc: end a running measurement (its result stays), else clear the measurement overlay."""
