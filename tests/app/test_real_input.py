@@ -232,6 +232,33 @@ def test_ellipsoidal_distance_switch_from_the_menu(qtbot, window, xin, sample) -
     assert abs(grid / s - 1.0) > 1e-5
 
 
+def test_profile_distance_on_the_ellipsoid(qtbot, window, xin, sample) -> None:  # noqa: F811
+    """Tools → Ellipsoidal distances (through the menu), then a profile drawn with two clicks: the plot's
+    distance axis is the geodesic length along the line (pyproj's Geod on WGS84, computed here from the
+    plotted positions), not the projection's grid length."""
+    import pyproj
+
+    _start_tool(qtbot, window, xin, sample, "p", "profile")
+    xin.key(window.view.vtk, "alt+t")
+    qtbot.waitUntil(lambda: window.menuBar().activeAction() is not None, timeout=3000)
+    xin.key(window.menuBar(), "e")
+    qtbot.waitUntil(lambda: window.document.ellipsoidal, timeout=3000)
+    vw, vh = window.view.vtk.width(), window.view.vtk.height()
+    for x, y in ((vw // 4, int(vh * 0.8)), (3 * vw // 4, int(vh * 0.6))):
+        xin.click(window.view.vtk, x, y)
+    qtbot.waitUntil(lambda: window.document.last_profile is not None, timeout=5000)
+    prof = window.document.last_profile
+    d, _z = window.profile.plotted()
+    assert prof.ellipsoidal and "ellipsoid" in window.profile.axes.get_xlabel()
+    lon, lat = pyproj.Transformer.from_crs(window.document.crs, "EPSG:4326", always_xy=True).transform(
+        prof.xyz[:, 0], prof.xyz[:, 1])
+    geod = pyproj.Geod(ellps="WGS84")
+    steps = [geod.inv(lon[i], lat[i], lon[i + 1], lat[i + 1])[2] for i in range(len(lon) - 1)]
+    np.testing.assert_allclose(d, np.concatenate([[0.0], np.cumsum(steps)]), rtol=1e-7, atol=1e-6)
+    grid = float(np.hypot(*(prof.xyz[-1, :2] - prof.xyz[0, :2])))
+    assert abs(grid / d[-1] - 1.0) > 1e-5  # UTM's scale factor: the axis is not the grid length
+
+
 def test_profile_heights_agree_with_raster(qtbot, window, xin, sample) -> None:  # noqa: F811
     import rasterio
 

@@ -18,6 +18,7 @@ Nothing here imports Qt; VTK only through :mod:`citylod.render`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -52,6 +53,7 @@ __all__ = [
     "format_cursor",
     "format_status",
     "frame_box",
+    "geodesic_distances",
     "measure",
     "overview_camera",
     "parse_progress",
@@ -172,6 +174,29 @@ class Measurement:
 
 
 MEASURE_KINDS = ("distance", "height", "area")
+
+
+def geodesic_distances(xyz: npt.ArrayLike, crs: Any, geographic: bool = False) -> npt.NDArray[np.float64]:
+    """Distance (N,) in metres from the first of the points (N, 3) along the polyline through them, on the
+    ellipsoid of ``crs`` (pyproj's ``Geod``, Karney's algorithm): the profile's axis when the project CRS
+    is geographic or Tools > Ellipsoidal distances is on. ``geographic``: x, y are already longitude and
+    latitude in degrees; else they are taken there by ``crs``'s own geodetic CRS.
+
+    >>> import pyproj
+    >>> d = geodesic_distances([[4.0, 52.0, 0.0], [4.0, 53.0, 0.0]], pyproj.CRS("EPSG:4326"), True)
+    >>> round(float(d[-1]))  # one degree of latitude at 52.5°N on WGS84
+    111277
+    """
+    import pyproj
+
+    p = np.asarray(xyz, np.float64).reshape(-1, 3)
+    crs = pyproj.CRS(crs)
+    if geographic:
+        lon, lat = p[:, 0], p[:, 1]
+    else:
+        lon, lat = pyproj.Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True).transform(p[:, 0], p[:, 1])
+    _f, _b, step = crs.get_geod().inv(lon[:-1], lat[:-1], lon[1:], lat[1:])
+    return np.concatenate([[0.0], np.cumsum(np.abs(np.asarray(step, np.float64)))])
 
 
 def measure(kind: str, points: npt.ArrayLike, *, geographic: bool = False, crs: Any = None,
@@ -925,7 +950,11 @@ class Document:
         :class:`~citylod.render.profile.Profile`, also kept as :attr:`last_profile`); emits ``profile``."""
         from citylod.render.profile import surface_profile
 
-        self.last_profile = surface_profile(self.scene, a, b, samples)
+        prof = surface_profile(self.scene, a, b, samples)
+        if self.geographic or (self.ellipsoidal and self.crs is not None):
+            prof = dataclasses.replace(prof, distance=geodesic_distances(prof.xyz, self.crs, self.geographic),
+                                       ellipsoidal=True)
+        self.last_profile = prof
         self._emit("profile")
         return self.last_profile
 
