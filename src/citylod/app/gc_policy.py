@@ -40,25 +40,34 @@ class GcPolicy:
         self.idle_s = float(idle_s)
         self.every_s = float(every_s)
         self.clock = clock
-        self._saved = gc.get_threshold()
         self._busy_since_idle = clock()
         self._last_full = clock()
         self.full_collections = 0
         self.installed = False
 
+    #: Installed policies in the process (several windows): the first saves CPython's thresholds, the
+    #: last to go restores them.
+    _active = 0
+    _saved_thresholds: tuple[int, ...] = ()
+
     def install(self) -> None:
         """Take over full collections (idempotent)."""
         if not self.installed:
-            self._saved = gc.get_threshold()
-            gc.set_threshold(*self.THRESHOLDS)
+            if GcPolicy._active == 0:
+                GcPolicy._saved_thresholds = gc.get_threshold()
+                gc.set_threshold(*self.THRESHOLDS)
+            GcPolicy._active += 1
             self.installed = True
         self.settle()
 
     def uninstall(self) -> None:
+        """Give full collections back to CPython once no window holds a policy."""
         if self.installed:
-            gc.set_threshold(*self._saved)
-            gc.unfreeze()
             self.installed = False
+            GcPolicy._active -= 1
+            if GcPolicy._active == 0:
+                gc.set_threshold(*GcPolicy._saved_thresholds)
+                gc.unfreeze()
 
     def settle(self) -> None:
         """Freeze what is alive now (after start-up or opening a source); constant time."""
