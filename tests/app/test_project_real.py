@@ -28,8 +28,9 @@ def _menu_then_type(xin: X, win, keys: list[str], *texts: str | None) -> None:  
     (Xvfb has no window manager to do so) and sends the keys."""
     import subprocess
 
+    import shiboken6
     from PySide6.QtCore import QTimer
-    from PySide6.QtWidgets import QApplication
+    from PySide6.QtWidgets import QAbstractSpinBox, QApplication, QLineEdit
 
     done: list[bool] = []
     seen: list[object] = []
@@ -43,12 +44,27 @@ def _menu_then_type(xin: X, win, keys: list[str], *texts: str | None) -> None:  
         seen.append(dlg)
         dlg.activateWindow()
         dlg.raise_()
+        # Xvfb has no window manager to give the new dialog the keyboard: a real click into its text field
+        # (the file name, or the first editable field) does.
+        field = dlg.findChild(QLineEdit, "fileNameEdit") or dlg.findChild(QAbstractSpinBox) \
+            or dlg.findChild(QLineEdit)
+        target = field if field is not None else dlg
+        g = target.mapToGlobal(target.rect().center())
         text = texts[len(done)]
-        steps = [["sleep", "0.3", "key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "15", text]] \
-            if text is not None else [["sleep", "0.3"]]
+        steps = [["sleep", "0.3", "mousemove", "--sync", str(g.x()), str(g.y()), "click", "1"]]
+        if text is not None:
+            steps += [["sleep", "0.2", "key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "15", text]]
         for args in [*steps, ["sleep", "0.3", "key", "Return"]]:
             subprocess.run(["xdotool", *args], check=True, timeout=60)
+        index = len(done)
         done.append(True)
+
+        def closed() -> None:  # the keys went elsewhere: fail, and never leave the dialog open
+            if shiboken6.isValid(dlg) and dlg.isVisible():  # a static dialog is deleted once closed
+                done[index] = False
+                dlg.reject()
+
+        QTimer.singleShot(8000, closed)
         if len(done) < len(texts):
             QTimer.singleShot(200, answer)
 
@@ -68,6 +84,7 @@ def _menu_then_type(xin: X, win, keys: list[str], *texts: str | None) -> None:  
         args += ["sleep", "0.4", "key", "--clearmodifiers", k]
     xin._run(*args)
     xin.qtbot.waitUntil(lambda: len(done) >= len(texts), timeout=35000)
+    xin.qtbot.wait(300)
     assert done == [True] * len(texts), "a dialog did not take the typed keys"
 
 
