@@ -205,3 +205,68 @@ def test_export_image_keeps_what_the_view_shows(qtbot, window, xin, sample, tmp_
     shutil_copy = os.environ.get("CITYLOD_EXPORT_COPY")
     if shutil_copy:
         Image.fromarray(img).save(shutil_copy)
+
+
+def test_export_points_keeps_class_colours_and_highlight(qtbot, window, xin, sample, tmp_path) -> None:  # noqa: F811
+    """File > Export points (Alt+F, P, the file dialog): a LAS that laspy reads back with each point's drawn
+    colour — its class colour, or the highlight colour inside the highlighted building's proxy (checked
+    with shapely against the footprint) — and its class."""
+    import laspy
+    import shapely
+
+    from citylod.core.camera import load_cameras
+    from citylod.lod.build.points import build_points
+    from citylod.render.colors import classification_rgb
+
+    store = _store(sample)
+    from citylod.semantics.store import CityStore
+
+    with CityStore.open(store) as cs:
+        px = cs.proxies
+        i = int(np.argmax(px.zmax))
+        foot, top, crs = px.footprints[i], float(px.zmax[i] - px.inflate), cs.crs
+        zmin, zmax, inflate = float(px.zmin[i]), float(px.zmax[i]), float(px.inflate)
+    x0, y0, x1, y1 = foot.bounds
+    rng = np.random.default_rng(5)
+    n = 4000
+    las_in = tmp_path / "pts.las"
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.scales, header.offsets = np.array([0.01] * 3), np.array([x0, y0, 0.0])
+    las = laspy.LasData(header)
+    # Half on the roof of the tallest building, half on the ground around it.
+    las.x = np.concatenate([rng.uniform(x0, x1, n // 2), rng.uniform(x0 - 40, x1 + 40, n // 2)])
+    las.y = np.concatenate([rng.uniform(y0, y1, n // 2), rng.uniform(y0 - 40, y1 + 40, n // 2)])
+    las.z = np.concatenate([np.full(n // 2, top - 0.2), np.full(n // 2, 0.3)])
+    las.classification = np.concatenate([np.full(n // 2, 6, np.uint8), np.full(n // 2, 2, np.uint8)])
+    las.write(str(las_in))
+    tiles = tmp_path / "points_tiles"
+    build_points([las_in], tiles, crs=crs, progress=False, workers=1)
+    assert window.open_path(tiles) and window.open_path(store)
+    doc = window.document
+    doc.set_color_by(0, "classification")
+    window.view.set_camera(load_cameras(sample["camera"])[0])
+    window.view.reset_view()
+    tallest = doc.store.proxies.object_ids[i]
+    doc.highlight([tallest], "#ff0000")
+    _wait_resolved(qtbot, window)
+    out = tmp_path / "export.las"
+    _menu_then_type(xin, window, ["alt+f", "p"], str(out))
+    qtbot.waitUntil(out.is_file, timeout=20000)
+    got = laspy.read(str(out))
+    assert len(got.points) > 0.5 * n
+    xyz = np.column_stack([got.x, got.y, got.z])
+    rgb = np.column_stack([got.red, got.green, got.blue]) // 257
+    cls = np.asarray(got.classification)
+    # The proxy: the footprint grown by the store's inflate distance, from its lower to its upper
+    # contour. Points within 5 cm of its outline are left out of the check (either side is right).
+    def within(poly, lo, hi):
+        return shapely.contains_xy(poly, xyz[:, 0], xyz[:, 1]) & (xyz[:, 2] >= lo) & (xyz[:, 2] <= hi)
+
+    inside = within(foot.buffer(inflate - 0.05), zmin + 0.05, zmax - 0.05)
+    outside = ~within(foot.buffer(inflate + 0.05), zmin - 0.05, zmax + 0.05)
+    assert inside.sum() > 100 and outside.sum() > 100
+    # Outside the highlighted building: the class colour the view draws.
+    np.testing.assert_array_equal(rgb[outside], classification_rgb(cls[outside]))
+    # Inside: the highlight's red (blended fully: alpha 1).
+    assert (rgb[inside] == [255, 0, 0]).all(axis=1).all()
+    assert set(np.unique(cls)) <= {2, 6}

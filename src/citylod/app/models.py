@@ -736,6 +736,83 @@ class Document:
                         prop.SetOpacity(e.opacity)
 
     # -- points ---------------------------------------------------------------------------------------
+    def drawn_points(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+        """The points the view draws now, with the colours it draws them in: positions (N, 3) float64 in the
+        data's CRS, RGB (N, 3) uint8 and ASPRS class (N,) uint8 (0 where a tile has none).
+
+        Over the drawn tiles of every visible point layer, with the layer's colour mode (classification,
+        elevation, …), the class filter and the clipping box applied; points inside a hidden object's proxy
+        are left out (or outside the isolated ones), and points inside a highlighted object's proxy take
+        its colour, blended by its alpha, as the semantic shader tints them."""
+        xyz, rgb, cls = [], [], []
+        for e in self.entries:
+            layer = e.layer
+            if layer is None or not e.visible or not layer.visible:
+                continue
+            mode = layer.effective_color_by
+            for key in sorted(layer.shown_keys):
+                slot = layer._slots.get(key)
+                pts = None if slot is None or slot.prepared is None else slot.prepared.points
+                if pts is None or not len(pts.positions):
+                    continue
+                tile = layer.node(key).tile
+                world = pts.positions.astype(np.float64) @ tile.matrix[:3, :3].T + tile.matrix[:3, 3]
+                colours = layer._point_rgb(pts, mode, slot.level, tile)
+                if colours is None:  # colour by level: one colour per tile
+                    from citylod.render.colors import level_color
+
+                    colours = np.tile((np.asarray(level_color(slot.level)) * 255).round().astype(np.uint8),
+                                      (len(world), 1))
+                c = pts.classification if pts.classification is not None else np.zeros(len(world), np.uint8)
+                keep = np.ones(len(world), bool)
+                if self.class_filter is not None and pts.classification is not None:
+                    keep &= np.isin(pts.classification, np.fromiter(self.class_filter, np.int64))
+                if self.clip_box is not None:
+                    lo, hi = self.clip_box
+                    keep &= np.all((world >= lo) & (world <= hi), axis=1)
+                xyz.append(world[keep])
+                rgb.append(np.asarray(colours, np.uint8)[keep])
+                cls.append(np.asarray(c, np.uint8)[keep])
+        if not xyz:
+            return np.empty((0, 3)), np.empty((0, 3), np.uint8), np.empty(0, np.uint8)
+        p, col, k = np.vstack(xyz), np.vstack(rgb), np.concatenate(cls)
+        st = self.state
+        if self.store is not None and (st.colors or st.hidden or st.isolated is not None) and len(p):
+            idx = self.store.proxies.contains(p)
+            ids = self.store.proxies.object_ids
+            owner = np.array([ids[i] if i >= 0 else "" for i in idx], object)
+            visible = np.array([o == "" or st.is_visible(o) for o in owner], bool)
+            for oid, rgba in st.colors.items():
+                m = owner == oid
+                if m.any():
+                    a = float(rgba[3])
+                    tint = np.asarray(rgba[:3], np.float64) * 255.0
+                    col[m] = np.round(col[m] * (1.0 - a) + tint * a).astype(np.uint8)
+            p, col, k = p[visible], col[visible], k[visible]
+        return p, col, k
+
+    def export_points(self, path: str | os.PathLike[str]) -> int:
+        """Write :meth:`drawn_points` to a LAS 1.4 file (point format 7: RGB and class; the CRS in the
+        header), atomically; returns the number of points."""
+        import laspy
+
+        from citylod.core.fileio import atomic_write
+
+        p, col, k = self.drawn_points()
+        if not len(p):
+            raise CitylodError("no points are drawn: open a point cloud and let it load", path)
+        header = laspy.LasHeader(point_format=7, version="1.4")
+        header.scales = np.array([0.001, 0.001, 0.001])
+        header.offsets = np.floor(p.min(axis=0))
+        if self.crs is not None:
+            header.add_crs(self.crs)
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = p[:, 0], p[:, 1], p[:, 2]
+        las.red, las.green, las.blue = (col[:, i].astype(np.uint16) * 257 for i in range(3))
+        las.classification = k
+        atomic_write(path, lambda tmp: las.write(str(tmp)), suffix=Path(path).suffix or ".las")
+        return len(p)
+
     def set_point_size(self, index: int, size_px: float, round_points: bool | None = None) -> None:
         """Point size in pixels (1–20) and shape (round or square) of a point layer."""
         e = self.entries[index]

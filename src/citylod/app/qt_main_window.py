@@ -187,6 +187,7 @@ class MainWindow(QMainWindow):
         f.addSeparator()
         self._action("save_camera", "Save &camera…", self.save_camera_dialog, "Ctrl+Shift+S", f)
         self._action("export", "&Export image…", self.export_dialog, "Ctrl+E", f)
+        self._action("export_points", "Export &points…", self.export_points_dialog, None, f)
         self._action("screenshot", "Save &window screenshot…", self.screenshot_dialog, None, f)
         f.addSeparator()
         self._action("quit", "&Quit", self.close, "Ctrl+Q", f)
@@ -547,6 +548,22 @@ class MainWindow(QMainWindow):
             return None
         self.statusBar().showMessage(f"image {rgb.shape[1]}×{rgb.shape[0]} written to {out}", 8000)
         return out
+
+    def export_points(self, path: str | os.PathLike[str]) -> int | None:
+        """Write the drawn points with their drawn colours (class colours, highlights) to a LAS file."""
+        try:
+            n = self.document.export_points(path)
+        except (CitylodError, OSError) as exc:
+            self._error(f"{path}: {exc}" if isinstance(exc, OSError) else str(exc))
+            return None
+        self.statusBar().showMessage(f"{n} points written to {path}", 8000)
+        return n
+
+    def export_points_dialog(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(self, "Export points", str(self.settings.value(
+            "last_dir", str(Path.home()))) + "/points.las", "LAS (*.las)")
+        if path:
+            self.export_points(path)
 
     def export_dialog(self) -> None:
         dlg = QDialog(self)
