@@ -18,6 +18,7 @@ Nothing here imports Qt; VTK only through :mod:`citylod.render`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -52,6 +53,7 @@ __all__ = [
     "format_cursor",
     "format_status",
     "frame_box",
+    "geodesic_distances",
     "measure",
     "overview_camera",
     "parse_progress",
@@ -77,8 +79,9 @@ SHORTCUTS: tuple[tuple[str, str], ...] = (
     ("T", "Turntable / fly navigation"),
     ("Esc", "End the measurement / clear the pick"),
     ("Ctrl+B", "Add a camera bookmark"),
+    ("Ctrl+S", "Save the project (layers, styles, camera, bookmarks, object state)"),
     ("Ctrl+Shift+S", "Save the camera as JSON for `citylod render`"),
-    ("Ctrl+E", "Export an image"),
+    ("Ctrl+E", "Export an image of the view as drawn"),
     ("Ctrl+Return", "Run the query"),
     ("F1", "This list of shortcuts"),
     ("Ctrl+Q", "Quit"),
@@ -172,6 +175,29 @@ class Measurement:
 
 
 MEASURE_KINDS = ("distance", "height", "area")
+
+
+def geodesic_distances(xyz: npt.ArrayLike, crs: Any, geographic: bool = False) -> npt.NDArray[np.float64]:
+    """Distance (N,) in metres from the first of the points (N, 3) along the polyline through them, on the
+    ellipsoid of ``crs`` (pyproj's ``Geod``, Karney's algorithm): the profile's axis when the project CRS
+    is geographic or Tools > Ellipsoidal distances is on. ``geographic``: x, y are already longitude and
+    latitude in degrees; else they are taken there by ``crs``'s own geodetic CRS.
+
+    >>> import pyproj
+    >>> d = geodesic_distances([[4.0, 52.0, 0.0], [4.0, 53.0, 0.0]], pyproj.CRS("EPSG:4326"), True)
+    >>> round(float(d[-1]))  # one degree of latitude at 52.5°N on WGS84
+    111277
+    """
+    import pyproj
+
+    p = np.asarray(xyz, np.float64).reshape(-1, 3)
+    crs = pyproj.CRS(crs)
+    if geographic:
+        lon, lat = p[:, 0], p[:, 1]
+    else:
+        lon, lat = pyproj.Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True).transform(p[:, 0], p[:, 1])
+    _f, _b, step = crs.get_geod().inv(lon[:-1], lat[:-1], lon[1:], lat[1:])
+    return np.concatenate([[0.0], np.cumsum(np.abs(np.asarray(step, np.float64)))])
 
 
 def measure(kind: str, points: npt.ArrayLike, *, geographic: bool = False, crs: Any = None,
@@ -497,7 +523,7 @@ class LodSettings:
     motion_factor: float = 4.0
     #: ... and at most this many points per layer while moving: a software or small GPU spends its frame
     #: filling point sprites, so a moving frame needs a bound that does not grow with the budget.
-    motion_point_budget: int = 250_000
+    motion_point_budget: int = 100_000
 
 
 class Document:
@@ -543,6 +569,10 @@ class Document:
     def _emit(self, kind: str) -> None:
         for cb in list(self._listeners):
             cb(kind)
+
+    def notify(self, kind: str) -> None:
+        """Tell the listeners that ``kind`` changed (after state was restored in bulk, e.g. a project)."""
+        self._emit(kind)
 
     # -- opening ----------------------------------------------------------------------------------
     def open(self, path: str | os.PathLike[str]) -> LayerEntry:
@@ -706,6 +736,83 @@ class Document:
                         prop.SetOpacity(e.opacity)
 
     # -- points ---------------------------------------------------------------------------------------
+    def drawn_points(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+        """The points the view draws now, with the colours it draws them in: positions (N, 3) float64 in the
+        data's CRS, RGB (N, 3) uint8 and ASPRS class (N,) uint8 (0 where a tile has none).
+
+        Over the drawn tiles of every visible point layer, with the layer's colour mode (classification,
+        elevation, …), the class filter and the clipping box applied; points inside a hidden object's proxy
+        are left out (or outside the isolated ones), and points inside a highlighted object's proxy take
+        its colour, blended by its alpha, as the semantic shader tints them."""
+        xyz, rgb, cls = [], [], []
+        for e in self.entries:
+            layer = e.layer
+            if layer is None or not e.visible or not layer.visible:
+                continue
+            mode = layer.effective_color_by
+            for key in sorted(layer.shown_keys):
+                slot = layer._slots.get(key)
+                pts = None if slot is None or slot.prepared is None else slot.prepared.points
+                if pts is None or not len(pts.positions):
+                    continue
+                tile = layer.node(key).tile
+                world = pts.positions.astype(np.float64) @ tile.matrix[:3, :3].T + tile.matrix[:3, 3]
+                colours = layer._point_rgb(pts, mode, slot.level, tile)
+                if colours is None:  # colour by level: one colour per tile
+                    from citylod.render.colors import level_color
+
+                    colours = np.tile((np.asarray(level_color(slot.level)) * 255).round().astype(np.uint8),
+                                      (len(world), 1))
+                c = pts.classification if pts.classification is not None else np.zeros(len(world), np.uint8)
+                keep = np.ones(len(world), bool)
+                if self.class_filter is not None and pts.classification is not None:
+                    keep &= np.isin(pts.classification, np.fromiter(self.class_filter, np.int64))
+                if self.clip_box is not None:
+                    lo, hi = self.clip_box
+                    keep &= np.all((world >= lo) & (world <= hi), axis=1)
+                xyz.append(world[keep])
+                rgb.append(np.asarray(colours, np.uint8)[keep])
+                cls.append(np.asarray(c, np.uint8)[keep])
+        if not xyz:
+            return np.empty((0, 3)), np.empty((0, 3), np.uint8), np.empty(0, np.uint8)
+        p, col, k = np.vstack(xyz), np.vstack(rgb), np.concatenate(cls)
+        st = self.state
+        if self.store is not None and (st.colors or st.hidden or st.isolated is not None) and len(p):
+            idx = self.store.proxies.contains(p)
+            ids = self.store.proxies.object_ids
+            owner = np.array([ids[i] if i >= 0 else "" for i in idx], object)
+            visible = np.array([o == "" or st.is_visible(o) for o in owner], bool)
+            for oid, rgba in st.colors.items():
+                m = owner == oid
+                if m.any():
+                    a = float(rgba[3])
+                    tint = np.asarray(rgba[:3], np.float64) * 255.0
+                    col[m] = np.round(col[m] * (1.0 - a) + tint * a).astype(np.uint8)
+            p, col, k = p[visible], col[visible], k[visible]
+        return p, col, k
+
+    def export_points(self, path: str | os.PathLike[str]) -> int:
+        """Write :meth:`drawn_points` to a LAS 1.4 file (point format 7: RGB and class; the CRS in the
+        header), atomically; returns the number of points."""
+        import laspy
+
+        from citylod.core.fileio import atomic_write
+
+        p, col, k = self.drawn_points()
+        if not len(p):
+            raise CitylodError("no points are drawn: open a point cloud and let it load", path)
+        header = laspy.LasHeader(point_format=7, version="1.4")
+        header.scales = np.array([0.001, 0.001, 0.001])
+        header.offsets = np.floor(p.min(axis=0))
+        if self.crs is not None:
+            header.add_crs(self.crs)
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = p[:, 0], p[:, 1], p[:, 2]
+        las.red, las.green, las.blue = (col[:, i].astype(np.uint16) * 257 for i in range(3))
+        las.classification = k
+        atomic_write(path, lambda tmp: las.write(str(tmp)), suffix=Path(path).suffix or ".las")
+        return len(p)
+
     def set_point_size(self, index: int, size_px: float, round_points: bool | None = None) -> None:
         """Point size in pixels (1–20) and shape (round or square) of a point layer."""
         e = self.entries[index]
@@ -921,7 +1028,11 @@ class Document:
         :class:`~citylod.render.profile.Profile`, also kept as :attr:`last_profile`); emits ``profile``."""
         from citylod.render.profile import surface_profile
 
-        self.last_profile = surface_profile(self.scene, a, b, samples)
+        prof = surface_profile(self.scene, a, b, samples)
+        if self.geographic or (self.ellipsoidal and self.crs is not None):
+            prof = dataclasses.replace(prof, distance=geodesic_distances(prof.xyz, self.crs, self.geographic),
+                                       ellipsoidal=True)
+        self.last_profile = prof
         self._emit("profile")
         return self.last_profile
 

@@ -2,14 +2,14 @@
 
 Opening: tilesets and city stores open at once (:meth:`Document.open`); rasters, LAS/LAZ and city models
 are built first in a subprocess (:class:`~citylod.app.qt_tasks.ProcessTask`, cancellable) and the result
-opens when the build ends. Recent files, window geometry, dock layout, query history and bookmarks persist
-in ``QSettings("citylod", "citylod")``.
+opens when the build ends. Recent files, window geometry, dock layout and query history persist in
+``QSettings("citylod", "citylod")``; bookmarks, the camera, styles and object state go into a project
+file (File > Save project, app/project.py).
 """
 
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -31,6 +31,7 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
 )
 
+from citylod.app.gc_policy import GcPolicy
 from citylod.app.models import (
     SHORTCUTS,
     Document,
@@ -60,7 +61,8 @@ from citylod.core.errors import CitylodError
 
 __all__ = ["MainWindow", "settings"]
 
-_FILTER = ("All supported (*.json *.gpkg *.tif *.tiff *.vrt *.las *.laz *.gml *.xml *.cityjson);;"
+_FILTER = ("All supported (*.citylod *.json *.gpkg *.tif *.tiff *.vrt *.las *.laz *.gml *.xml *.cityjson);;"
+           "citylod project (*.citylod);;"
            "Tileset (tileset.json);;City store (*.gpkg);;Raster DSM (*.tif *.tiff *.vrt);;"
            "Point cloud (*.las *.laz);;City model (*.gml *.xml *.json *.cityjson);;All files (*)")
 _MAX_RECENT = 10
@@ -96,7 +98,10 @@ class MainWindow(QMainWindow):
         self.query = QueryPanel(self.document, self.settings)
         self.lod = LodPanel(self.document)
         self.measure = MeasurePanel(self.start_measure, self.view.clear_measure)
-        self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, self.settings)
+        # Bookmarks belong to the project (saved in its file), not to the user's settings.
+        self.bookmarks = BookmarkPanel(self.view.camera, self.view.set_camera, None)
+        self.project_path: Path | None = None
+        self.windows: list[MainWindow] = []  # projects opened from a window that already held data
         self.profile = ProfilePanel(self.document)
         self.points = PointPanel(self.document)
         self.clip = ClipPanel(self.document, self._focus)
@@ -147,6 +152,11 @@ class MainWindow(QMainWindow):
         self._status_timer.setInterval(250)
         self._status_timer.timeout.connect(self._update_status)
         self._status_timer.start()
+        # Python's full garbage collections held the GUI thread for 0.3-0.6 s in the middle of a frame:
+        # they run only while the view is idle (app/gc_policy.py).
+        self.gc_policy = GcPolicy()
+        self.gc_policy.install()
+        self.view.gc_policy = self.gc_policy
 
     # -- menus and shortcuts ----------------------------------------------------------------------
     def _action(self, key: str, text: str, slot: Any, shortcut: str | None = None, menu: Any = None,
@@ -171,8 +181,13 @@ class MainWindow(QMainWindow):
         self.recent_menu = f.addMenu("Open &recent")
         self._refresh_recent()
         f.addSeparator()
+        self._action("open_project", "Open pro&ject…", self.open_project_dialog, None, f)
+        self._action("save_project", "&Save project", self.save_project_dialog, "Ctrl+S", f)
+        self._action("save_project_as", "Save project &as…", lambda: self.save_project_dialog(ask=True), None, f)
+        f.addSeparator()
         self._action("save_camera", "Save &camera…", self.save_camera_dialog, "Ctrl+Shift+S", f)
         self._action("export", "&Export image…", self.export_dialog, "Ctrl+E", f)
+        self._action("export_points", "Export &points…", self.export_points_dialog, None, f)
         self._action("screenshot", "Save &window screenshot…", self.screenshot_dialog, None, f)
         f.addSeparator()
         self._action("quit", "&Quit", self.close, "Ctrl+Q", f)
@@ -301,10 +316,74 @@ class MainWindow(QMainWindow):
         for p in paths:
             self.open_path(p)
 
+    # -- projects -----------------------------------------------------------------------------------
+    def save_project(self, path: str | os.PathLike[str]) -> Path | None:
+        """Save sources, display, camera, bookmarks and object state to a project file (app/project.py)."""
+        from citylod.app.project import save_project
+
+        try:
+            out = save_project(path, self.document, self.view.camera(), self.bookmarks.bookmarks)
+        except OSError as exc:
+            self._error(f"{path}: cannot write the project ({exc})")
+            return None
+        self.project_path = out
+        self.setWindowTitle(f"citylod — {out.stem}")
+        self.statusBar().showMessage(f"project saved to {out}", 6000)
+        return out
+
+    def save_project_dialog(self, ask: bool = False) -> None:
+        path: str | Path | None = self.project_path
+        if path is None or ask:
+            path, _ = QFileDialog.getSaveFileName(self, "Save project", str(self.settings.value(
+                "last_dir", str(Path.home()))) + "/project.citylod", "citylod project (*.citylod)")
+        if path:
+            self.save_project(path)
+
+    def open_project(self, path: str | os.PathLike[str]) -> MainWindow | None:
+        """Open a project; in this window when it is empty, else in a new one (returned)."""
+        from citylod.app.project import apply_project, read_project
+
+        try:
+            project = read_project(path)
+        except CitylodError as exc:
+            self._error(str(exc))
+            return None
+        if self.document.entries:
+            win = MainWindow(settings_=self.settings, interactive=self.interactive,
+                             restore_layout=self.restore_layout)
+            win.resize(self.size())
+            win.show()
+            self.windows.append(win)
+            return win if win.open_project(path) is not None else None
+        try:
+            apply_project(self.document, project)
+        except (CitylodError, OSError, ValueError) as exc:
+            self._error(f"{path}: {exc}")
+            return None
+        self.gc_policy.settle()
+        self.bookmarks.set_bookmarks(project.bookmarks)
+        if project.camera is not None:
+            self.view.set_camera(project.camera)
+        else:
+            self.view.reset_view()
+        self.project_path = project.path
+        self.setWindowTitle(f"citylod — {project.path.stem}")
+        self._add_recent(project.path)
+        self.opened.emit(str(project.path))
+        return self
+
+    def open_project_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open project", str(self.settings.value(
+            "last_dir", str(Path.home()))), "citylod project (*.citylod)")
+        if path:
+            self.open_project(path)
+
     @profiled("MainWindow.open_path")
     def open_path(self, path: str | os.PathLike[str]) -> bool:
         """Open a source; raw inputs start a build whose result opens when done. False on an error."""
         p = Path(path)
+        if p.suffix == ".citylod":
+            return self.open_project(p) is not None
         kind = source_kind(p)
         if kind in ("raster", "points", "citymodel"):
             return self.build_and_open(p)
@@ -315,6 +394,7 @@ class MainWindow(QMainWindow):
             self._error(str(exc))
             return False
         self._add_recent(p)
+        self.gc_policy.settle()  # the layer's tile tree and store live as long as the window
         if first or (kind == "tileset" and len(self.document.scene.layers) == 1):
             self.view.reset_view()
         self.view.request_render()
@@ -451,54 +531,67 @@ class MainWindow(QMainWindow):
         if path:
             self.save_screenshot(path)
 
-    def export_image(self, path: str | os.PathLike[str], width: int, height: int) -> ProcessTask | None:
-        """Render the current view at width × height off screen (``citylod render`` in a subprocess)."""
-        cam = self.view.camera()
-        tilesets = [str(e.path) for e in self.document.entries if e.kind == "tileset"]
-        if cam is None or not tilesets:
-            self._error("nothing to export: open a tileset first")
+    def export_image(self, path: str | os.PathLike[str], scale: int = 2) -> Path | None:
+        """Write the 3D view as drawn now at ``scale``× its size to a PNG: class colours, highlights, hidden
+        objects, class filter and clipping box as on screen (:meth:`SceneView.render_image`)."""
+        from citylod.core.fileio import atomic_write_bytes
+        from citylod.io.image import encode_png
+
+        if not self.document.entries:
+            self._error("nothing to export: open a source first")
             return None
-        cam_file = Path(tempfile.mkstemp(prefix="citylod_camera_", suffix=".json")[1])
-        cam.save(cam_file)
-        mode = "level" if self.document.lod.color_by_level else self.document.entries[0].color_by
-        import sys
+        rgb = self.view.render_image(scale)
+        try:
+            out = atomic_write_bytes(path, encode_png(rgb, level=6))
+        except OSError as exc:
+            self._error(f"{path}: cannot write the image ({exc})")
+            return None
+        self.statusBar().showMessage(f"image {rgb.shape[1]}×{rgb.shape[0]} written to {out}", 8000)
+        return out
 
-        argv = [sys.executable, "-m", "citylod.cli", "render", *tilesets, "-o", str(path), "--camera",
-                str(cam_file), "--size", f"{width}x{height}", "--tau", f"{self.document.lod.tau_px:g}",
-                "--color-by", mode]
-        task = ProcessTask(argv, path, f"Rendering {width}×{height}…", self)
+    def export_points(self, path: str | os.PathLike[str]) -> int | None:
+        """Write the drawn points with their drawn colours (class colours, highlights) to a LAS file."""
+        try:
+            n = self.document.export_points(path)
+        except (CitylodError, OSError) as exc:
+            self._error(f"{path}: {exc}" if isinstance(exc, OSError) else str(exc))
+            return None
+        self.statusBar().showMessage(f"{n} points written to {path}", 8000)
+        return n
 
-        def done(ok: bool, out: str, msg: str) -> None:
-            cam_file.unlink(missing_ok=True)
-            if ok:
-                self.statusBar().showMessage(f"image written to {out}", 8000)
-            elif msg != "cancelled":
-                self._error(f"export failed: {msg}")
-
-        task.finished.connect(done)
-        self.tasks.append(task)
-        task.start()
-        return task
+    def export_points_dialog(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(self, "Export points", str(self.settings.value(
+            "last_dir", str(Path.home()))) + "/points.las", "LAS (*.las)")
+        if path:
+            self.export_points(path)
 
     def export_dialog(self) -> None:
         dlg = QDialog(self)
         dlg.setWindowTitle("Export image")
         form = QFormLayout(dlg)
-        w, h = QSpinBox(), QSpinBox()
-        for s, v in ((w, self.view.vtk.width() * 2), (h, self.view.vtk.height() * 2)):
-            s.setRange(16, 16384)
-            s.setValue(v)
-        form.addRow("width", w)
-        form.addRow("height", h)
+        scale = QSpinBox()
+        scale.setRange(1, 8)
+        scale.setValue(2)
+        size = QLabel()
+
+        def show_size(k: int) -> None:
+            ratio = self.view.vtk.devicePixelRatioF()
+            size.setText(f"{round(self.view.vtk.width() * ratio) * k} × {round(self.view.vtk.height() * ratio) * k} px")
+
+        scale.valueChanged.connect(show_size)
+        show_size(scale.value())
+        form.addRow("scale (× the view)", scale)
+        form.addRow("size", size)
         box = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel)
         box.accepted.connect(dlg.accept)
         box.rejected.connect(dlg.reject)
         form.addRow(box)
         if dlg.exec() != QDialog.DialogCode.Accepted:
             return
-        path, _ = QFileDialog.getSaveFileName(self, "Export image", "citylod.png", "PNG (*.png)")
+        path, _ = QFileDialog.getSaveFileName(self, "Export image", str(self.settings.value(
+            "last_dir", str(Path.home()))) + "/citylod.png", "PNG (*.png)")
         if path:
-            self.export_image(path, w.value(), h.value())
+            self.export_image(path, scale.value())
 
     # -- closing --------------------------------------------------------------------------------------
     def closeEvent(self, event: Any) -> None:
@@ -511,6 +604,7 @@ class MainWindow(QMainWindow):
         self._status_timer.stop()
         self.view.shutdown()
         self.document.close()
+        self.gc_policy.uninstall()
         super().closeEvent(event)
 
     def copy_text(self, text: str) -> None:

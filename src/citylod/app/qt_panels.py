@@ -478,7 +478,8 @@ class MeasurePanel(QWidget):
 
 
 class BookmarkPanel(QWidget):
-    """Named cameras, persisted in the settings (key ``bookmarks``)."""
+    """Named cameras. The main window keeps them with the project (``settings`` None); given settings, they
+    persist there (key ``bookmarks``)."""
 
     def __init__(self, get_camera: Callable[[], Camera | None], set_camera: Callable[[Camera], None],
                  settings: QSettings | None = None, parent: QWidget | None = None) -> None:
@@ -505,6 +506,11 @@ class BookmarkPanel(QWidget):
     def _refresh(self) -> None:
         self.list.clear()
         self.list.addItems(self.bookmarks.names())
+
+    def set_bookmarks(self, bookmarks: Bookmarks) -> None:
+        """Show the bookmarks of a project that was opened (replacing the current ones)."""
+        self.bookmarks = bookmarks
+        self._save()
 
     def _save(self) -> None:
         if self.settings is not None:

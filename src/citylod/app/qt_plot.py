@@ -44,7 +44,8 @@ class ProfilePanel(QWidget):
         ok = np.isfinite(z)
         if ok.any():
             ax.fill_between(d, np.nanmin(z), z, where=ok, color="#1f5fa8", alpha=0.15, linewidth=0)
-        ax.set_xlabel("distance along the line (m)")
+        ax.set_xlabel("distance along the line on the ellipsoid (m)" if getattr(profile, "ellipsoidal", False)
+                      else "distance along the line (m)")
         ax.set_ylabel("height (m)")
         ax.set_title(f"surface profile, drawn tiles within ±{profile.bound_m:.2f} m", fontsize=9)
         ax.grid(True, alpha=0.3)

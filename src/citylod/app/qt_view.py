@@ -82,6 +82,10 @@ class SceneView(QWidget):
     cursor = Signal(object)
     clicked = Signal(object)
 
+    #: Time (ms) a frame may spend uploading newly admitted tiles, on top of drawing the scene.
+    UPLOAD_SLICE_MS = 30.0
+    ADMIT_START, ADMIT_MIN, ADMIT_MAX = 60_000, 5_000, 2_000_000
+
     def __init__(self, document: Document, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.document = document
@@ -115,6 +119,15 @@ class SceneView(QWidget):
         self.window.AddObserver("EndEvent", self._frame_end)
         self._t0 = 0.0
         self.frame_ms = 0.0
+        # Tiles that finished decoding enter the scene (and the GPU) at most ``admit_cost`` points +
+        # triangles per frame, adapted to the measured upload time (see _frame_end): a burst of finished
+        # tiles becomes several short frames instead of one long one that holds the GUI thread.
+        self.scene.admit_cost = self.ADMIT_START
+        #: Full garbage collections only while idle (app/gc_policy.py); set by the main window.
+        self.gc_policy: Any = None
+        self._uploads = self.scene.uploads
+        self._base_ms: float | None = None
+        self._exporting = False
         self.renders = 0
         self._dirty = True
         self._camera_mtime = 0
@@ -159,12 +172,26 @@ class SceneView(QWidget):
     def _frame_end(self, *_: Any) -> None:
         self.frame_ms = (time.perf_counter() - self._t0) * 1e3
         self.renders += 1
+        admitted = self.scene.admitted_cost if self.scene.uploads != self._uploads else 0
+        self._uploads = self.scene.uploads
+        if admitted <= 0:
+            # A frame without uploads: what drawing the scene costs now (smoothed).
+            self._base_ms = self.frame_ms if self._base_ms is None else 0.7 * self._base_ms + 0.3 * self.frame_ms
+        elif self._base_ms is not None:
+            # The uploads took what the frame took beyond the scene's own cost. The cost of an upload
+            # (VBO building, texture mipmaps) depends on the machine and its load, so it is measured: the
+            # next frames admit what fits UPLOAD_SLICE_MS at the measured rate (geometric steps, ≤ 2×).
+            extra = max(self.frame_ms - self._base_ms, 1.0)
+            want = self.UPLOAD_SLICE_MS / extra * admitted
+            old = self.scene.admit_cost or self.ADMIT_START
+            cost = int(min(max(want, old / 2.0), old * 2.0))
+            self.scene.admit_cost = min(max(cost, self.ADMIT_MIN), self.ADMIT_MAX)
         self.frame.emit(self.frame_ms)
 
     def _after_update(self, *_: Any) -> None:
         self.document.apply_opacity()
         cam = self.camera()
-        if cam is not None:
+        if cam is not None and not self._exporting:
             w, h = self.renderer.GetSize()
             dist = float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
             self.hud.update(cam, 2.0 * dist * np.tan(np.radians(cam.fovy_deg) / 2.0) / max(h, 1), (w, h))
@@ -188,7 +215,8 @@ class SceneView(QWidget):
             self._dirty = True  # started moving: coarser; stopped: refine to full quality
         if self._store_future is not None and self._store_future.done():
             self._attach_store_actor()
-        newly = self.scene.loader.poll() if self.scene.layers else []
+        # Finished tiles are admitted by the scene's update inside the render, a bounded amount a frame.
+        newly = self.scene.layers and self.scene.loader.stats().ready > 0
         if self.document.poll_semantics():
             self._dirty = True
         mtime = self.renderer.GetActiveCamera().GetMTime()
@@ -200,11 +228,15 @@ class SceneView(QWidget):
         if self._cursor_due and self._cursor_xy is not None:
             self._cursor_due = False
             self.cursor.emit(self.surface_point(*self._cursor_xy))
+        if self.gc_policy is not None:
+            busy = self.navigator.moving or self.document.moving or self._dirty or self.pending() > 0
+            with timed("SceneView.gc"):
+                self.gc_policy.tick(busy)
 
     def pending(self) -> int:
         """Tile requests queued or being decoded."""
         st = self.scene.loader.stats()
-        return int(st.pending + st.in_flight)
+        return int(st.pending + st.in_flight + st.ready)
 
     def is_resolved(self) -> bool:
         """The last frame drew everything selection wanted and nothing is loading."""
@@ -447,6 +479,11 @@ class SceneView(QWidget):
     def _on_document(self, kind: str) -> None:
         if kind in ("layers", "style"):
             self._sync_store_actor()
+        if kind == "layers":
+            for layer in self.scene.layers:
+                # No fade-in of point tiles here: each step of a fade replaces the tile's vertex cells,
+                # and VTK then rebuilds the tile's whole vertex buffer, frame after frame while it fades.
+                layer.smooth_refinement = False
         if kind == "display":
             from citylod.render.hud import set_edl
 
@@ -547,6 +584,43 @@ class SceneView(QWidget):
         arr = _vtk.vtk_to_numpy(img.GetPointData().GetScalars()).reshape(h, w, 3)[::-1].copy()
         qimg = QImage(arr.data, w, h, 3 * w, QImage.Format.Format_RGB888).copy()
         return qimg
+
+    def render_image(self, scale: int = 2) -> npt.NDArray[np.uint8]:
+        """The view as it is drawn now, ``scale`` times its size in each direction: (H, W, 3) RGB, row 0 at
+        the top.
+
+        Everything the view shows is kept because the view's own renderer draws it: class and elevation
+        colours, highlights and hidden objects (the semantic shader), class filter, clipping box, EDL and
+        the measurement line. ``vtkRenderLargeImage`` renders the view in ``scale``² tiles through narrowed
+        cameras; the LOD selection is frozen meanwhile so every tile draws the same tiles as the screen
+        (a tile's narrow camera would otherwise ask for finer tiles that are not loaded). The 2D aids
+        (scale bar, north arrow, texts) are left out: their sizes are screen pixels."""
+        scale = int(min(max(scale, 1), 8))
+        self.render_now()
+        huds = [self.hud.bar_shadow, self.hud.bar, self.hud.arrow, self.hud.bar_text, self.hud.north_text,
+                self._measure_text]
+        shown = [p.GetVisibility() for p in huds]
+        frozen = self.scene.frozen
+        self._exporting = True
+        self.scene.frozen = True
+        try:
+            for p in huds:
+                p.VisibilityOff()
+            big = _vtk.vtkRenderLargeImage()
+            big.SetInput(self.renderer)
+            big.SetMagnification(scale)
+            big.Update()
+            img = big.GetOutput()
+            w, h, _ = img.GetDimensions()
+            arr = _vtk.vtk_to_numpy(img.GetPointData().GetScalars())
+            rgb = arr.reshape(h, w, -1)[::-1, :, :3].copy()
+        finally:
+            self.scene.frozen = frozen
+            self._exporting = False
+            for p, on in zip(huds, shown, strict=True):
+                p.SetVisibility(on)
+            self.request_render()
+        return np.ascontiguousarray(rgb, np.uint8)
 
     def escape(self) -> None:
         """Esc: end a running measurement (its result stays), else clear the measurement overlay."""

@@ -44,6 +44,7 @@ from vtkmodules.vtkCommonDataModel import (
 )
 from vtkmodules.vtkCommonMath import vtkMatrix4x4
 from vtkmodules.vtkFiltersCore import vtkImplicitPolyDataDistance, vtkTriangleFilter
+from vtkmodules.vtkFiltersHybrid import vtkRenderLargeImage
 from vtkmodules.vtkFiltersSources import vtkRegularPolygonSource
 from vtkmodules.vtkIOCore import vtkMemoryResourceStream
 from vtkmodules.vtkIOImage import vtkImageReader2, vtkJPEGReader, vtkPNGReader, vtkPNGWriter
@@ -113,6 +114,7 @@ __all__ = [
     "vtkPolyDataMapper2D",
     "vtkProperty",
     "vtkRegularPolygonSource",
+    "vtkRenderLargeImage",
     "vtkRenderStepsPass",
     "vtkRenderWindow",
     "vtkRenderer",

@@ -33,6 +33,8 @@ class Profile:
     distance: F64
     xyz: F64
     bound_m: float
+    #: ``distance`` is measured on the ellipsoid (geodesic from ``a``), not on the projection's plane.
+    ellipsoidal: bool = False
 
     @property
     def heights(self) -> F64:

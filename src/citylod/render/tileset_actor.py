@@ -631,6 +631,10 @@ class Scene:
         self.fade_s = 0.3
         self.fade_from = 0.2
         self.clock: Callable[[], float] = time.monotonic
+        # Most drawing cost (points + triangles) of finished tiles that one update() admits and uploads;
+        # None admits all. An interactive view sets it so one frame's uploads stay bounded.
+        self.admit_cost: int | None = None
+        self.admitted_cost = 0  # what the last update() admitted, same units
         self.crs: Any = None
         self.elevation_range = (0.0, 1.0)
         # Counters that tests and the HUD read.
@@ -831,7 +835,12 @@ class Scene:
         """
         if not self.layers:
             return FrameStats()
-        self.loader.poll()
+        admitted = self.loader.poll(self.admit_cost)
+        self.admitted_cost = 0
+        for key in admitted:
+            info = self.cache.info(key)
+            if info is not None:
+                self.admitted_cost += int(info.points) + int(info.triangles)
         if self.frozen:
             return self.last_stats
         view = view or self.view()

@@ -56,6 +56,14 @@ class LoaderStats:
     refused: int = 0
     pending: int = 0
     in_flight: int = 0
+    ready: int = 0  #: decoded, waiting for :meth:`TileLoader.poll` to admit them
+
+
+def _cost(node: Keyed, measured: ResidentInfo | None) -> tuple[int, int]:
+    """(points, triangles) of a decoded tile: measured when the load function said, else the hints."""
+    if measured is not None:
+        return int(measured.points), int(measured.triangles)
+    return int(getattr(node, "point_count", 0) or 0), int(getattr(node, "triangle_count", 0) or 0)
 
 
 class TileLoader:
@@ -114,7 +122,8 @@ class TileLoader:
 
     def stats(self) -> LoaderStats:
         with self._cond:
-            return LoaderStats(**self._counts, pending=len(self._pending), in_flight=len(self._in_flight))
+            return LoaderStats(**self._counts, pending=len(self._pending), in_flight=len(self._in_flight),
+                               ready=len(self._done))
 
     def request(self, ordered_nodes: Iterable[Keyed]) -> int:
         """Replace the queue with ``ordered_nodes`` (most needed first).
@@ -151,17 +160,28 @@ class TileLoader:
             self._cond.notify_all()
             return len(queue)
 
-    def poll(self) -> list[str]:
-        """Move finished tiles into the cache; returns the keys that became resident, in finish order."""
+    def poll(self, max_cost: int | None = None) -> list[str]:
+        """Move finished tiles into the cache; returns the keys that became resident, in finish order.
+
+        ``max_cost`` bounds the drawing cost (points + triangles) admitted by this call: tiles are taken
+        in finish order until the next would pass it (the first is always taken), the rest wait for the
+        next call. A frame's uploads to the GPU then stay bounded however many tiles finished at once.
+        """
         with self._cond:
-            done, self._done = self._done, []
+            if max_cost is None:
+                done, self._done = self._done, []
+            else:
+                spent, take = 0, 0
+                for node, _value, _nbytes, measured in self._done:
+                    cost = sum(_cost(node, measured))
+                    if take and spent + cost > max_cost:
+                        break
+                    spent += cost
+                    take += 1
+                done, self._done = self._done[:take], self._done[take:]
         resident: list[str] = []
         for node, value, nbytes, measured in done:
-            if measured is not None:
-                points, triangles = measured.points, measured.triangles
-            else:
-                points = int(getattr(node, "point_count", 0) or 0)
-                triangles = int(getattr(node, "triangle_count", 0) or 0)
+            points, triangles = _cost(node, measured)
             ok = self.cache.put(node.key, value, nbytes, points=points, triangles=triangles)
             with self._cond:
                 if ok:
