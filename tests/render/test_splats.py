@@ -115,3 +115,69 @@ def test_close_view_has_no_holes_with_splats(cloud: np.ndarray) -> None:
     holes_points = float(np.mean(~points[core]))
     assert holes_splats <= 0.01, holes_splats
     assert holes_points > 0.5, holes_points  # the same points as 2-pixel dots: mostly background
+
+
+# ------------------------------------------------------------------- splats in the tile renderer
+def _write_las(path, xyz: np.ndarray) -> None:
+    import laspy
+
+    hdr = laspy.LasHeader(point_format=1, version="1.2")
+    hdr.scales = np.array([0.001, 0.001, 0.001])
+    hdr.offsets = ORIGIN.copy()
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    las.classification = np.full(len(xyz), 2, np.uint8)
+    las.write(str(path))
+
+
+@pytest.fixture(scope="module")
+def surface_tiles(cloud: np.ndarray, tmp_path_factory: pytest.TempPathFactory):
+    import warnings
+
+    from citylod.lod.build.points import build_points
+
+    d = tmp_path_factory.mktemp("splat_tiles")
+    _write_las(d / "surface.las", cloud)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # RD New has no vertical datum: said, not an error
+        build_points([d / "surface.las"], d / "ts", crs="EPSG:28992", progress=False, hybrid=False)
+    return d / "ts"
+
+
+#: Looking down steeply at the middle of the surface: every pixel of the frame is surface.
+CLOSE = Camera(position=tuple(ORIGIN + [10.0, 9.0, 5.0]), focal_point=tuple(ORIGIN + [10.0, 11.0, 0.0]),
+               fovy_deg=45.0)
+
+
+def test_render_command_draws_splats_without_holes(surface_tiles, tmp_path) -> None:
+    """``citylod render --splats``: from close, the surface fills the frame (≤ 1 % background), where the
+    same tiles drawn as 2-pixel points leave most of it background."""
+    import json
+
+    from citylod.cli import main
+
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps(CLOSE.to_dict()))
+    share = {}
+    for tag, extra in (("points", []), ("splats", ["--splats"])):
+        rc = main(["render", str(surface_tiles), "--camera", str(cam), "-o", str(tmp_path / f"{tag}.png"),
+                   "--size", "320x240", "--depth", str(tmp_path / f"{tag}.npy"), *extra])
+        assert rc == 0
+        share[tag] = float(np.mean(~np.isfinite(np.load(tmp_path / f"{tag}.npy"))))
+    assert share["splats"] <= 0.01, share
+    assert share["points"] > 0.3, share
+
+
+def test_splat_layer_restyles_back_to_points(surface_tiles) -> None:
+    from citylod.render.offscreen import OffscreenRenderer
+
+    with OffscreenRenderer([surface_tiles], size=(320, 240), point_shape="splat") as r:
+        splat = r.render(CLOSE, depth=True)
+        layer = r.scene.layers[0]
+        assert layer.shown_keys
+        assert all(layer._slots[k].points.actor.GetMapper().IsA("vtkGlyph3DMapper") for k in layer.shown_keys)
+        layer.point_shape = "points"
+        layer.restyle()
+        plain = r.render(CLOSE, depth=True)
+    assert np.mean(~np.isfinite(splat.depth)) <= 0.01
+    assert np.mean(~np.isfinite(plain.depth)) > 0.3
