@@ -256,17 +256,14 @@ class _PointProps:
             self.data.GetPointData().AddArray(keep)
             self.splat_mapper.SetMaskArray("splat_keep")
         if self.actor.GetMapper() is not self.splat_mapper:
+            # Unlit, as points are: a pixel has its point's colour (class, elevation...), and a disk whose
+            # estimated normal is off (edges, crowns) does not show as a dark sliver.
             self.actor.SetMapper(self.splat_mapper)
-        prop = self.actor.GetProperty()
-        prop.LightingOn()
-        prop.SetAmbient(0.35)
-        prop.SetDiffuse(0.65)
 
     def use_points(self) -> None:
         """Back to plain points (after :meth:`use_splats`)."""
         if self.actor.GetMapper() is not self.mapper:
             self.actor.SetMapper(self.mapper)
-            self.actor.GetProperty().LightingOff()
 
     def draw_first(self, k: int) -> None:
         """Draw the first ``k`` points of the tile (clamped to 1..total), those of them ``keep`` allows."""

@@ -20,6 +20,12 @@ does the same on a 2D cell grid:
    ``step_m`` is a wall between the two roofs. Wall normals are the boundary direction, taken from the
    gradient of the smoothed building mask (Gao: normal from the boundary, not from the sparse returns).
    Walls become points at the roof's point spacing, or quads (one per edge; both of Gao's variants).
+   With building footprints (``CompleteOptions.footprints``, e.g. the BGT) the outer walls stand on the
+   footprints' outline instead (:func:`footprint_edges`): the roof's returns overhang the wall by the
+   eaves, which the scan alone cannot tell from wall.
+
+The in-memory point build decodes its input once and completes the decoded records
+(:func:`complete_records`); the out-of-core build scans the files in a pre-pass (:func:`complete_inputs`).
 
 Added points keep the class they stand for (2 ground, 6 building) and carry the LAS *synthetic* flag,
 which the point build keeps as a per-point ``SYNTHETIC`` glTF attribute, so they can be hidden, coloured
@@ -92,6 +98,9 @@ class CompleteOptions:
         Building components smaller than this are noise, not buildings.
     seed
         Jitter of the added points (reproducible builds).
+    eave_m
+        Walls from the roof edge stand this far inside the roof's outermost returns: the eaves' overhang
+        (the roof overhangs the wall; 0: at the roof edge, as Gao places them).
     footprints
         A GeoPackage / OGR SQLite file of building footprints in the points' CRS (e.g. the BGT): outer
         walls then stand on the footprints' outlines (see :func:`footprint_edges`) instead of under the
@@ -107,6 +116,7 @@ class CompleteOptions:
     min_building_m2: float = 4.0
     seed: int = 0
     footprints: str | None = None
+    eave_m: float = 0.0
 
     def __post_init__(self) -> None:
         if self.walls not in WALL_MODES:
@@ -470,9 +480,10 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
             bottom = bottom_of[cy, cx]
             x0c, y0c = x_lo[cy, cx], y_lo[cy, cx]
             if sel is outer:
-                # At the outermost roof return of the cell: walls stand under the eaves.
+                # At the outermost roof return of the cell, less the eaves' overhang ``eave_m``.
                 ext = {(0, 1): _B_XHI, (0, -1): _B_XLO, (1, 0): _B_YHI, (-1, 0): _B_YLO}[(dy, dx)]
                 e = np.where(has[cy, cx], p[ext][cy, cx], (x0c if dy == 0 else y0c) + (c if dx + dy > 0 else 0))
+                e = e - (dx + dy) * opts.eave_m
                 nrm_x = -gx[cy, cx]
                 nrm_y = -gy[cy, cx]
             else:
