@@ -212,10 +212,12 @@ class RoofGrid:
         there is none."""
         from scipy import ndimage
 
-        size = 2 * int(round(radius / self.cell)) + 1
-        s = ndimage.uniform_filter(self.sums[0], size, mode="constant")
-        n = ndimage.uniform_filter(self.sums[1], size, mode="constant")
-        ij = np.floor((np.asarray(xy)[:, :2] - self.lo) / self.cell).astype(np.int64)
+        half = int(round(radius / self.cell))
+        size = 2 * half + 1
+        # Padded by the window, so a point just outside the outermost return still sees the returns.
+        s = ndimage.uniform_filter(np.pad(self.sums[0], half), size, mode="constant")
+        n = ndimage.uniform_filter(np.pad(self.sums[1], half), size, mode="constant")
+        ij = np.floor((np.asarray(xy)[:, :2] - self.lo) / self.cell).astype(np.int64) + half
         ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < s.shape[1]) & (ij[:, 1] < s.shape[0])
         out = np.full(len(ij), np.nan)
         nn = n[ij[ok, 1], ij[ok, 0]]
