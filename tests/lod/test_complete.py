@@ -343,3 +343,34 @@ def test_in_memory_build_completes_from_its_own_decode(cloud: tuple[Path, np.nda
         n += len(p.positions)
         syn += int(p.extra.get("synthetic", np.zeros(0, np.uint8)).sum())
     assert n == len(pts) + len(aug.xyz) and syn == len(aug.xyz)
+
+
+@pytest.mark.realdata
+def test_delft_walls_on_the_bgt_footprints() -> None:
+    """Delft AHN3 with the BGT footprints: the walls the footprints place stand on their outlines (shapely's
+    distance to the union's boundary), reach no higher than the scanned roof, and the roof-edge walls
+    stand outside them by about the eaves (median within 0.1-0.5 m: docs/PERFORMANCE_LOG.md)."""
+    import shapely
+
+    from citylod.io.footprints import read_footprints
+    from tests.paths import DELFT
+
+    files = sorted(DELFT.glob("ahn3_cropped_*.laz"))
+    if len(files) != 2 or not (DELFT / "bgt_pand.sqlite").is_file():
+        pytest.skip(f"real data not found in {DELFT}")
+    union = shapely.union_all(read_footprints(DELFT / "bgt_pand.sqlite"))
+    outline = union.boundary
+    fp = augment(files, CompleteOptions(footprints=str(DELFT / "bgt_pand.sqlite")))
+    w = fp.xyz[fp.kind == KIND_WALL]
+    d = shapely.distance(outline, shapely.points(w[:, 0], w[:, 1]))
+    on = d <= 0.01
+    # Near the footprints every wall is on them (the roof-edge walls there are replaced); farther out are
+    # the roof-edge walls of buildings the file does not cover (the points reach beyond the model's area).
+    assert on[d <= 1.0].mean() >= 0.99 and on.sum() > 100_000
+    assert np.all(np.isfinite(w)) and w[on, 2].max() <= 30.0
+    plain = augment(files, CompleteOptions())
+    pw = plain.xyz[plain.kind == KIND_WALL]
+    pts = shapely.points(pw[:, 0], pw[:, 1])
+    dd = shapely.distance(outline, pts) * np.where(shapely.contains(union, pts), -1.0, 1.0)
+    near = np.abs(dd) < 1.5
+    assert 0.1 <= np.median(dd[near]) <= 0.5
