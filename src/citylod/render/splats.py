@@ -12,6 +12,11 @@ lit with its own normal (VTK's per-fragment lighting). Botsch et al. also blend 
 (normalised accumulation in a deferred pass); VTK gives no such pass without custom shaders, so the
 nearest disk wins in the z-buffer: edges between disks can show, holes cannot.
 
+The tile renderer (``TilesetLayer.point_shape = "splat"``: ``citylod render --splats``, ``add_lod_layer(...,
+point_shape="splat")``, the app's point shape) uses :func:`glyph_mapper` and :func:`add_splat_arrays` on each
+tile's own points, drawn unlit like its points; the estimate runs once per uploaded tile, on the thread
+that uploads it (a KD-tree over the tile's points).
+
 VTK comes from :mod:`citylod.render._vtk`; nothing here imports Qt.
 """
 
