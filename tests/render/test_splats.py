@@ -4,7 +4,6 @@ the true surface's silhouette rendered in the same window."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from citylod.core.camera import Camera
 from citylod.render import _vtk
@@ -79,15 +78,8 @@ def _drawn(actor: object, camera: Camera) -> np.ndarray:
     return np.isfinite(d)
 
 
-@pytest.fixture(scope="module")
-def cloud() -> np.ndarray:
-    rng = np.random.default_rng(3)
-    n = 8_000  # 20 points/m², AHN-like
-    xy = rng.uniform(0.0, 20.0, (n, 2))
-    return np.column_stack([xy, _height(xy[:, 0], xy[:, 1])]) + ORIGIN
-
-
-def test_splat_normals_follow_the_surface(cloud: np.ndarray) -> None:
+def test_splat_normals_follow_the_surface(surface_cloud: np.ndarray) -> None:
+    cloud = surface_cloud
     s = estimate_splats(cloud)
     x, y = (cloud - ORIGIN)[:, 0], (cloud - ORIGIN)[:, 1]
     # The analytic normal of z = h(x, y): (-h_x, -h_y, 1), normalised.
@@ -99,7 +91,8 @@ def test_splat_normals_follow_the_surface(cloud: np.ndarray) -> None:
     assert np.median(cos) > np.cos(np.radians(5)) and np.percentile(cos, 95) > np.cos(np.radians(15))
 
 
-def test_close_view_has_no_holes_with_splats(cloud: np.ndarray) -> None:
+def test_close_view_has_no_holes_with_splats(surface_cloud: np.ndarray) -> None:
+    cloud = surface_cloud
     # Close: 6 m from the surface, one pixel ≈ 2 cm where the points are ≈ 22 cm apart.
     # The camera in the scene frame (the data shifted by ORIGIN), as the renderer places it.
     cam = Camera(position=(10.0, 2.0, 5.0), focal_point=(10.0, 8.0, 0.0), fovy_deg=45.0)
@@ -128,20 +121,6 @@ def _write_las(path, xyz: np.ndarray) -> None:
     las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     las.classification = np.full(len(xyz), 2, np.uint8)
     las.write(str(path))
-
-
-@pytest.fixture(scope="module")
-def surface_tiles(cloud: np.ndarray, tmp_path_factory: pytest.TempPathFactory):
-    import warnings
-
-    from citylod.lod.build.points import build_points
-
-    d = tmp_path_factory.mktemp("splat_tiles")
-    _write_las(d / "surface.las", cloud)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # RD New has no vertical datum: said, not an error
-        build_points([d / "surface.las"], d / "ts", crs="EPSG:28992", progress=False, hybrid=False)
-    return d / "ts"
 
 
 #: Looking down steeply at the middle of the surface: every pixel of the frame is surface.

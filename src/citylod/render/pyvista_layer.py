@@ -84,6 +84,8 @@ def add_lod_layer(plotter: Any, *sources: str | os.PathLike[str], tau_px: float 
         w, h = plotter.window_size
         camera = overview_camera(*scene.bounds, aspect=w / max(h, 1))
     scene.set_camera(camera)
+    # PyVista resets an unset camera to its own view of the bounds at the first render; this one is set.
+    plotter.camera_set = True
     scene.attach()
     return LodLayer(plotter, scene)
 
