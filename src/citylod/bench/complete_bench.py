@@ -416,7 +416,8 @@ def pictures(tilesets: dict[str, str | PathLike[str]], camera: Camera, out: Path
              size: tuple[int, int] = (960, 540), point_shapes: Sequence[str] | None = None) -> Path:
     """The same view of several tilesets side by side, coloured by elevation, as one JPEG ``out``; each panel
     is also kept as ``<out stem>_<name>.png``. ``point_shapes`` (one per tileset): "points" or "splat"."""
-    from PIL import Image
+    from citylod.core.fileio import atomic_write_bytes
+    from citylod.io.image import encode_image
 
     panels = []
     shapes = list(point_shapes or ["points"] * len(tilesets))
@@ -425,7 +426,7 @@ def pictures(tilesets: dict[str, str | PathLike[str]], camera: Camera, out: Path
             rgb = r.render(camera).rgb
         save_png(out.with_name(f"{out.stem}_{name}.png"), rgb)
         panels.append(rgb)
-    Image.fromarray(np.concatenate(panels, axis=1)).save(out, quality=85)
+    atomic_write_bytes(out, encode_image(np.ascontiguousarray(np.concatenate(panels, axis=1)), "jpg", 85))
     return out
 
 
