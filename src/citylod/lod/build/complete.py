@@ -98,6 +98,8 @@ class CompleteOptions:
         Building components smaller than this are noise, not buildings.
     seed
         Jitter of the added points (reproducible builds).
+    wall_density
+        Wall points per m² as a fraction of the roof's (1: the roof's spacing, as Gao samples them).
     eave_m
         Walls from the roof edge stand this far inside the roof's outermost returns: the eaves' overhang
         (the roof overhangs the wall; 0: at the roof edge, as Gao places them).
@@ -117,6 +119,7 @@ class CompleteOptions:
     seed: int = 0
     footprints: str | None = None
     eave_m: float = 0.0
+    wall_density: float = 1.0
 
     def __post_init__(self) -> None:
         if self.walls not in WALL_MODES:
@@ -647,7 +650,7 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions()) -> A
             footprints = read_footprints(opts.footprints)
         edges = wall_edges(grid, dtm, mask, opts, footprints)
         has = grid.planes[_B_N] > 0
-        w_sp = grid.cell / np.sqrt(max(1.0, float(np.median(grid.planes[_B_N][has]))))
+        w_sp = grid.cell / np.sqrt(max(1.0, float(np.median(grid.planes[_B_N][has]))) * opts.wall_density)
         if opts.walls == "points":
             wxyz, wn, wk = _wall_points(edges, w_sp, rng)
             pieces.append((wxyz, wn, wk, BUILDING))
