@@ -265,3 +265,112 @@ def test_an_area_too_large_for_the_grid_is_refused(tmp_path: Path) -> None:
 
     with pytest.raises(InputError, match="cells"):
         scan_grid([tmp_path / "x.las"], np.array([0.0, 0.0]), np.array([100_000.0, 100_000.0]), 0.5)
+
+
+# ------------------------------------------------------------------------------ footprints
+INSET = 0.4  # the footprint lies this far inside the roof's outline: the roof overhangs it (eaves)
+
+
+def _write_footprints(path: Path, half: np.ndarray) -> None:
+    """An OGR SQLite file (as the BGT ships) with one polygon: the house's rectangle of half extents
+    ``half``, in RD New coordinates."""
+    import sqlite3
+
+    import shapely
+
+    corners = _from_house(np.array([[-1, -1], [1, -1], [1, 1], [-1, 1], [-1, -1]]) * half) + [X0, Y0]
+    conn = sqlite3.connect(path)
+    conn.execute("CREATE TABLE geometry_columns (f_table_name VARCHAR, f_geometry_column VARCHAR, "
+                 "geometry_type INTEGER, coord_dimension INTEGER, srid INTEGER, geometry_format VARCHAR)")
+    conn.execute("INSERT INTO geometry_columns VALUES ('pand', 'GEOMETRY', 3, 2, 28992, 'WKB')")
+    conn.execute("CREATE TABLE pand (ogc_fid INTEGER PRIMARY KEY, GEOMETRY BLOB)")
+    conn.execute("INSERT INTO pand (GEOMETRY) VALUES (?)", (shapely.to_wkb(shapely.Polygon(corners)),))
+    conn.commit()
+    conn.close()
+
+
+def test_footprint_walls_stand_on_the_footprint(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    path, _ = cloud
+    fp = tmp_path / "pand.sqlite"
+    _write_footprints(fp, HALF - INSET)
+    aug = augment([path], CompleteOptions(footprints=str(fp)))
+    walls = aug.xyz[aug.kind == KIND_WALL] - [X0, Y0, 0]
+    # Distance to the footprint's outline, from the rectangle (not from the augmentation).
+    uv = np.abs(_to_house(walls[:, :2]))
+    inner = HALF - INSET
+    out = np.hypot(np.maximum(uv[:, 0] - inner[0], 0), np.maximum(uv[:, 1] - inner[1], 0))
+    d = np.where(np.all(uv <= inner, axis=1), np.min(inner - uv, axis=1), out)
+    assert len(walls) > 0 and d.max() <= 0.01
+    assert walls[:, 2].min() >= -0.05 and walls[:, 2].max() <= ROOF_Z + 0.05
+    # From the roof edge alone the walls stand about INSET outside the footprint: the option moves them.
+    plain = augment([path])
+    pw = plain.xyz[plain.kind == KIND_WALL] - [X0, Y0, 0]
+    uv = np.abs(_to_house(pw[:, :2]))
+    assert np.median(np.max(uv - inner, axis=1)) > 0.25
+
+
+def test_bad_footprint_file_is_one_line_exit_2(cloud: tuple[Path, np.ndarray], tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    from citylod.cli import main
+
+    path, _ = cloud
+    bad = tmp_path / "pand.gpkg"
+    bad.write_bytes(b"not a database" * 100)
+    rc = main(["build", "points", str(path), "-o", str(tmp_path / "ts"), "--crs", "EPSG:28992",
+               "--complete", "--footprints", str(bad)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "pand.gpkg" in err and "Traceback" not in err, err
+    assert not (tmp_path / "ts").exists()
+
+
+def test_in_memory_build_completes_from_its_own_decode(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    """The in-memory build (default for a small cloud) completes the records it decoded: the same added
+    points as the out-of-core pre-pass, flagged, with the input unchanged."""
+    path, pts = cloud
+    rep = build_points([path], tmp_path / "ts", crs="EPSG:28992", progress=False,
+                       complete=CompleteOptions(walls="points"))
+    assert rep.chunks == 1
+    aug = augment([path])
+    ts = open_tileset(tmp_path / "ts")
+    n = syn = 0
+    stack = [ts.root]
+    while stack:
+        t = stack.pop()
+        stack.extend(t.children)
+        if t.children or t.content_uri is None:
+            continue
+        p = t.load_content().points
+        n += len(p.positions)
+        syn += int(p.extra.get("synthetic", np.zeros(0, np.uint8)).sum())
+    assert n == len(pts) + len(aug.xyz) and syn == len(aug.xyz)
+
+
+@pytest.mark.realdata
+def test_delft_walls_on_the_bgt_footprints() -> None:
+    """Delft AHN3 with the BGT footprints: the walls the footprints place stand on their outlines (shapely's
+    distance to the union's boundary), reach no higher than the scanned roof, and the roof-edge walls
+    stand outside them by about the eaves (median within 0.1-0.5 m: docs/PERFORMANCE_LOG.md)."""
+    import shapely
+
+    from citylod.io.footprints import read_footprints
+    from tests.paths import DELFT
+
+    files = sorted(DELFT.glob("ahn3_cropped_*.laz"))
+    if len(files) != 2 or not (DELFT / "bgt_pand.sqlite").is_file():
+        pytest.skip(f"real data not found in {DELFT}")
+    union = shapely.union_all(read_footprints(DELFT / "bgt_pand.sqlite"))
+    outline = union.boundary
+    fp = augment(files, CompleteOptions(footprints=str(DELFT / "bgt_pand.sqlite")))
+    w = fp.xyz[fp.kind == KIND_WALL]
+    d = shapely.distance(outline, shapely.points(w[:, 0], w[:, 1]))
+    on = d <= 0.01
+    # Near the footprints every wall is on them (the roof-edge walls there are replaced); farther out are
+    # the roof-edge walls of buildings the file does not cover (the points reach beyond the model's area).
+    assert on[d <= 1.0].mean() >= 0.99 and on.sum() > 100_000
+    assert np.all(np.isfinite(w)) and w[on, 2].max() <= 30.0
+    plain = augment(files, CompleteOptions())
+    pw = plain.xyz[plain.kind == KIND_WALL]
+    pts = shapely.points(pw[:, 0], pw[:, 1])
+    dd = shapely.distance(outline, pts) * np.where(shapely.contains(union, pts), -1.0, 1.0)
+    near = np.abs(dd) < 1.5
+    assert 0.1 <= np.median(dd[near]) <= 0.5

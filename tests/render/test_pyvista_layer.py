@@ -36,3 +36,26 @@ def test_lod_layer_draws_less_at_a_coarser_tau(sample_built) -> None:
         layer.close()
         pl.close()
     assert 0 < counts[64.0] < counts[0.5]
+
+
+def test_lod_layer_draws_splats_without_holes(surface_tiles) -> None:
+    """``add_lod_layer(..., point_shape="splat")`` in a pyvista.Plotter: from close, the surface fills the
+    frame where the same tiles as points leave most of it background (depth read back from the plotter)."""
+    import pyvista as pv
+
+    from tests.render.test_splats import CLOSE
+
+    empty = {}
+    for shape in ("points", "splat"):
+        pl = pv.Plotter(off_screen=True, window_size=(320, 240))
+        layer = citylod.add_lod_layer(pl, surface_tiles, camera=CLOSE, point_shape=shape)
+        layer.resolve()
+        pl.screenshot(return_img=True)
+        z = np.asarray(pl.get_image_depth(fill_value=np.nan))
+        empty[shape] = float(np.mean(np.isnan(z)))
+        layer.close()
+        pl.close()
+    assert empty["splat"] <= 0.01, empty
+    assert empty["points"] > 0.3, empty
+    with pytest.raises(ValueError, match="point_shape"):
+        citylod.add_lod_layer(pv.Plotter(off_screen=True), surface_tiles, point_shape="cubes")

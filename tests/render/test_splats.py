@@ -4,7 +4,6 @@ the true surface's silhouette rendered in the same window."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from citylod.core.camera import Camera
 from citylod.render import _vtk
@@ -79,15 +78,8 @@ def _drawn(actor: object, camera: Camera) -> np.ndarray:
     return np.isfinite(d)
 
 
-@pytest.fixture(scope="module")
-def cloud() -> np.ndarray:
-    rng = np.random.default_rng(3)
-    n = 8_000  # 20 points/m², AHN-like
-    xy = rng.uniform(0.0, 20.0, (n, 2))
-    return np.column_stack([xy, _height(xy[:, 0], xy[:, 1])]) + ORIGIN
-
-
-def test_splat_normals_follow_the_surface(cloud: np.ndarray) -> None:
+def test_splat_normals_follow_the_surface(surface_cloud: np.ndarray) -> None:
+    cloud = surface_cloud
     s = estimate_splats(cloud)
     x, y = (cloud - ORIGIN)[:, 0], (cloud - ORIGIN)[:, 1]
     # The analytic normal of z = h(x, y): (-h_x, -h_y, 1), normalised.
@@ -99,7 +91,8 @@ def test_splat_normals_follow_the_surface(cloud: np.ndarray) -> None:
     assert np.median(cos) > np.cos(np.radians(5)) and np.percentile(cos, 95) > np.cos(np.radians(15))
 
 
-def test_close_view_has_no_holes_with_splats(cloud: np.ndarray) -> None:
+def test_close_view_has_no_holes_with_splats(surface_cloud: np.ndarray) -> None:
+    cloud = surface_cloud
     # Close: 6 m from the surface, one pixel ≈ 2 cm where the points are ≈ 22 cm apart.
     # The camera in the scene frame (the data shifted by ORIGIN), as the renderer places it.
     cam = Camera(position=(10.0, 2.0, 5.0), focal_point=(10.0, 8.0, 0.0), fovy_deg=45.0)
@@ -115,3 +108,55 @@ def test_close_view_has_no_holes_with_splats(cloud: np.ndarray) -> None:
     holes_points = float(np.mean(~points[core]))
     assert holes_splats <= 0.01, holes_splats
     assert holes_points > 0.5, holes_points  # the same points as 2-pixel dots: mostly background
+
+
+# ------------------------------------------------------------------- splats in the tile renderer
+def _write_las(path, xyz: np.ndarray) -> None:
+    import laspy
+
+    hdr = laspy.LasHeader(point_format=1, version="1.2")
+    hdr.scales = np.array([0.001, 0.001, 0.001])
+    hdr.offsets = ORIGIN.copy()
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    las.classification = np.full(len(xyz), 2, np.uint8)
+    las.write(str(path))
+
+
+#: Looking down steeply at the middle of the surface: every pixel of the frame is surface.
+CLOSE = Camera(position=tuple(ORIGIN + [10.0, 9.0, 5.0]), focal_point=tuple(ORIGIN + [10.0, 11.0, 0.0]),
+               fovy_deg=45.0)
+
+
+def test_render_command_draws_splats_without_holes(surface_tiles, tmp_path) -> None:
+    """``citylod render --splats``: from close, the surface fills the frame (≤ 1 % background), where the
+    same tiles drawn as 2-pixel points leave most of it background."""
+    import json
+
+    from citylod.cli import main
+
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps(CLOSE.to_dict()))
+    share = {}
+    for tag, extra in (("points", []), ("splats", ["--splats"])):
+        rc = main(["render", str(surface_tiles), "--camera", str(cam), "-o", str(tmp_path / f"{tag}.png"),
+                   "--size", "320x240", "--depth", str(tmp_path / f"{tag}.npy"), *extra])
+        assert rc == 0
+        share[tag] = float(np.mean(~np.isfinite(np.load(tmp_path / f"{tag}.npy"))))
+    assert share["splats"] <= 0.01, share
+    assert share["points"] > 0.3, share
+
+
+def test_splat_layer_restyles_back_to_points(surface_tiles) -> None:
+    from citylod.render.offscreen import OffscreenRenderer
+
+    with OffscreenRenderer([surface_tiles], size=(320, 240), point_shape="splat") as r:
+        splat = r.render(CLOSE, depth=True)
+        layer = r.scene.layers[0]
+        assert layer.shown_keys
+        assert all(layer._slots[k].points.actor.GetMapper().IsA("vtkGlyph3DMapper") for k in layer.shown_keys)
+        layer.point_shape = "points"
+        layer.restyle()
+        plain = r.render(CLOSE, depth=True)
+    assert np.mean(~np.isfinite(splat.depth)) <= 0.01
+    assert np.mean(~np.isfinite(plain.depth)) > 0.3

@@ -39,6 +39,7 @@ from citylod.core.errors import CitylodError, InputError
 __all__ = [
     "ASPRS_CLASSES",
     "COLOR_MODES",
+    "POINT_SHAPES",
     "SHORTCUTS",
     "Bookmarks",
     "BuildPlan",
@@ -63,6 +64,8 @@ __all__ = [
 ]
 
 COLOR_MODES = ("auto", "rgb", "classification", "elevation", "intensity", "level")
+#: How point layers draw their points (:meth:`Document.set_point_shape`).
+POINT_SHAPES = ("square", "round", "splat")
 
 #: (key sequence, what it does): the Help → Shortcuts dialog and the actions read this one list.
 SHORTCUTS: tuple[tuple[str, str], ...] = (
@@ -821,6 +824,19 @@ class Document:
         e.layer.point_size_px = float(min(max(size_px, 1.0), 20.0))
         if round_points is not None:
             e.layer.point_round = bool(round_points)
+        e.layer.restyle()
+        self._emit("style")
+
+    def set_point_shape(self, index: int, shape: str) -> None:
+        """Shape of a point layer's points: "square", "round" (sphere-shaded) or "splat" (oriented disks
+        sized by the local spacing, :mod:`citylod.render.splats`; hole-free up close)."""
+        if shape not in POINT_SHAPES:
+            raise ValueError(f"point shape must be one of {', '.join(POINT_SHAPES)}, not {shape!r}")
+        e = self.entries[index]
+        if e.layer is None:
+            return
+        e.layer.point_round = shape == "round"
+        e.layer.point_shape = "splat" if shape == "splat" else "points"
         e.layer.restyle()
         self._emit("style")
 

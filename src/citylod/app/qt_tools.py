@@ -15,6 +15,7 @@ from PySide6.QtCore import Qt, QTimer
 from PySide6.QtGui import QColor, QIcon, QPixmap
 from PySide6.QtWidgets import (
     QCheckBox,
+    QComboBox,
     QDoubleSpinBox,
     QFormLayout,
     QGridLayout,
@@ -28,7 +29,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from citylod.app.models import ASPRS_CLASSES, Document
+from citylod.app.models import ASPRS_CLASSES, POINT_SHAPES, Document
 
 __all__ = ["ClipPanel", "PointPanel"]
 
@@ -53,12 +54,14 @@ class PointPanel(QWidget):
         self.size.setValue(2)
         self.size.setSuffix(" px")
         self.size.valueChanged.connect(lambda _v: self._apply_points())
-        self.round = QCheckBox("round points")
-        self.round.toggled.connect(lambda _on: self._apply_points())
+        self.shape = QComboBox()
+        self.shape.addItems(list(POINT_SHAPES))
+        self.shape.setToolTip("splat: oriented disks sized by the local spacing, hole-free up close")
+        self.shape.currentTextChanged.connect(lambda _t: self._apply_shape())
         self.edl = QCheckBox("Eye-Dome Lighting")
         self.edl.toggled.connect(document.set_edl)
         form.addRow("point size", self.size)
-        form.addRow(self.round)
+        form.addRow("point shape", self.shape)
         form.addRow(self.edl)
         lay.addLayout(form)
         lay.addWidget(QLabel("Classes (uncheck to hide):"))
@@ -75,7 +78,12 @@ class PointPanel(QWidget):
     def _apply_points(self) -> None:
         for i, e in enumerate(self.document.entries):
             if e.layer is not None:
-                self.document.set_point_size(i, self.size.value(), self.round.isChecked())
+                self.document.set_point_size(i, self.size.value())
+
+    def _apply_shape(self) -> None:
+        for i, e in enumerate(self.document.entries):
+            if e.layer is not None:
+                self.document.set_point_shape(i, self.shape.currentText())
 
     def refresh(self) -> None:
         """Add legend rows for classes that appeared in newly loaded tiles; update the counts."""

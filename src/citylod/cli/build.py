@@ -34,6 +34,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                          "ASPRS classes (2 ground, 6 building, 3-5 vegetation); added points are flagged "
                          "synthetic. Unclassified input gets a warning and nothing added")
     pt.add_argument("--no-ground-fill", action="store_true", help="with --complete: walls only")
+    pt.add_argument("--footprints", type=Path, help="with --complete: building footprints (GeoPackage or OGR "
+                    "SQLite, the points' CRS); outer walls stand on their outlines, not under the roof edge")
     pt.add_argument("--workers", type=int)
     pt.add_argument("--scheduler")
     m = bsub.add_parser("model", help="DSM raster to a simplified city mesh (3D Tiles) and buildings (CityJSON)")
@@ -78,8 +80,13 @@ def run(args: argparse.Namespace, progress: bool) -> int:
         from citylod.lod.build.complete import CompleteOptions
         from citylod.lod.build.points import build_points
 
+        if args.footprints is not None:
+            from citylod.io.footprints import read_footprints
+
+            read_footprints(args.footprints)  # a bad file is refused before the build starts
         complete = (None if args.complete is None
-                    else CompleteOptions(walls=args.complete, ground=not args.no_ground_fill))
+                    else CompleteOptions(walls=args.complete, ground=not args.no_ground_fill,
+                                         footprints=None if args.footprints is None else str(args.footprints)))
         report = build_points(
             args.files, args.output, crs=args.crs, hybrid=not args.no_hybrid, workers=args.workers,
             scheduler=args.scheduler, progress=progress, complete=complete,

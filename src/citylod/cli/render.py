@@ -28,6 +28,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--edits", type=Path, metavar="POLYGONS",
                    help="polygon edits applied while rendering (GeoJSON, KML or GeoPackage with actions)")
     r.add_argument("--color-by", default="auto", help="auto, rgb, classification, elevation, intensity, level")
+    r.add_argument("--splats", action="store_true",
+                   help="draw points as oriented disks sized by the local spacing (hole-free up close)")
     r.add_argument("--texture-budget", type=_megabytes, metavar="MB",
                    help="cap on the tiles' texture memory; coarser atlases are drawn where it binds")
 

@@ -82,6 +82,8 @@ class OffscreenRenderer:
         Eye-Dome Lighting (``vtkEDLShading``) for point clouds.
     point_size_px
         Size of drawn points.
+    point_shape
+        "points" or "splat" (oriented disks sized by the local spacing: :mod:`citylod.render.splats`).
     workers
         Loader threads.
     texture_budget_bytes
@@ -91,7 +93,7 @@ class OffscreenRenderer:
     def __init__(self, sources: Sequence[str | os.PathLike[str]], *, size: tuple[int, int] = (1280, 720),
                  tau_px: float = 1.0, color_by: str = "auto", cache_bytes: int = 2 << 30, edl: bool = False,
                  point_size_px: float = 2.0, workers: int = 2, origin: npt.ArrayLike | None = None,
-                 texture_budget_bytes: int | None = None) -> None:
+                 point_shape: str = "points", texture_budget_bytes: int | None = None) -> None:
         tilesets, cities = _tileset_sources(sources)
         if cities:
             raise CitylodError(f"{cities[0]}: city stores are drawn through the semantic hook; pass them "
@@ -107,6 +109,7 @@ class OffscreenRenderer:
         for t in tilesets:
             layer = self.scene.add(t)
             layer.point_size_px = point_size_px
+            layer.point_shape = point_shape
         if edl:
             basic = _vtk.vtkRenderStepsPass()
             self._edl = _vtk.vtkEDLShading()
@@ -169,7 +172,7 @@ def render_images(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[C
                   color_by: str = "auto", cache_bytes: int = 2 << 30, edl: bool = False,
                   point_size_px: float = 2.0, semantic_hook: SemanticHook | None = None,
                   semantic_args: dict[str, Any] | None = None,
-                  progress: bool = False) -> list[tuple[npt.NDArray[np.uint8], npt.NDArray[np.float32] | None]]:
+                  progress: bool = False, point_shape: str = "points") -> list[tuple[npt.NDArray[np.uint8], npt.NDArray[np.float32] | None]]:
     """Render ``sources`` from each camera off screen.
 
     Parameters
@@ -186,6 +189,8 @@ def render_images(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[C
         Also return the distance from the eye per pixel.
     semantic_hook, semantic_args
         ``semantic_hook(scene, **semantic_args)`` is called once before the first frame.
+    point_shape
+        "points" or "splat" (see :class:`OffscreenRenderer`).
 
     Returns
     -------
@@ -205,7 +210,7 @@ def render_images(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[C
 
     out = []
     with OffscreenRenderer(sources, size=size, tau_px=tau_px, color_by=color_by, cache_bytes=cache_bytes,
-                           edl=edl, point_size_px=point_size_px) as r:
+                           edl=edl, point_size_px=point_size_px, point_shape=point_shape) as r:
         if semantic_hook is not None:
             semantic_hook(r.scene, **(semantic_args or {}))
         for cam in tqdm(cameras, desc="render", unit="frame", disable=not progress or len(cameras) < 2):
@@ -274,6 +279,7 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
     budget_mb = getattr(args, "texture_budget", None)
     with OffscreenRenderer(tilesets, size=tuple(args.size), tau_px=args.tau,
                            color_by=getattr(args, "color_by", "auto") or "auto",
+                           point_shape="splat" if getattr(args, "splats", False) else "points",
                            texture_budget_bytes=None if budget_mb is None else int(budget_mb * 2**20)) as r:
         if hook is not None:
             hook(r.scene, city=city, highlight=highlight, hide=hide)

@@ -61,8 +61,12 @@ class LodLayer:
 
 
 def add_lod_layer(plotter: Any, *sources: str | os.PathLike[str], tau_px: float = 1.0,
-                  camera: Camera | None = None, color_by: str = "auto", cache_bytes: int = 1 << 30) -> LodLayer:
+                  camera: Camera | None = None, color_by: str = "auto", cache_bytes: int = 1 << 30,
+                  point_shape: str = "points") -> LodLayer:
     """Add tilesets (folders or ``tileset.json`` paths, any 3D Tiles 1.x) to ``plotter`` with LOD.
+
+    ``point_shape="splat"`` draws point clouds as oriented disks sized by the local spacing
+    (:mod:`citylod.render.splats`), hole-free up close; "points" draws fixed-size points.
 
     The plotter's camera is set to ``camera`` (data CRS) or, by default, to a view of the whole data.
     Before every render the tiles are selected for the plotter's camera and missing ones requested.
@@ -72,12 +76,16 @@ def add_lod_layer(plotter: Any, *sources: str | os.PathLike[str], tau_px: float 
     >>> layer = add_lod_layer(pv.Plotter(off_screen=True), "TILES", tau_px=2.0)  # doctest: +SKIP
     """
     scene = Scene(plotter.renderer, tau_px=tau_px, color_by=color_by, cache_bytes=cache_bytes)
+    if point_shape not in ("points", "splat"):
+        raise ValueError(f"point_shape must be 'points' or 'splat', not {point_shape!r}")
     for source in _as_list(sources):
-        scene.add(source)
+        scene.add(source).point_shape = point_shape
     if camera is None:
         w, h = plotter.window_size
         camera = overview_camera(*scene.bounds, aspect=w / max(h, 1))
     scene.set_camera(camera)
+    # PyVista resets an unset camera to its own view of the bounds at the first render; this one is set.
+    plotter.camera_set = True
     scene.attach()
     return LodLayer(plotter, scene)
 

@@ -12,6 +12,11 @@ lit with its own normal (VTK's per-fragment lighting). Botsch et al. also blend 
 (normalised accumulation in a deferred pass); VTK gives no such pass without custom shaders, so the
 nearest disk wins in the z-buffer: edges between disks can show, holes cannot.
 
+The tile renderer (``TilesetLayer.point_shape = "splat"``: ``citylod render --splats``, ``add_lod_layer(...,
+point_shape="splat")``, the app's point shape) uses :func:`glyph_mapper` and :func:`add_splat_arrays` on each
+tile's own points, drawn unlit like its points; the estimate runs once per uploaded tile, on the thread
+that uploads it (a KD-tree over the tile's points).
+
 VTK comes from :mod:`citylod.render._vtk`; nothing here imports Qt.
 """
 
@@ -31,7 +36,7 @@ F32 = npt.NDArray[np.float32]
 #: Corners of a splat disk: a hexagon's inscribed circle is 0.87 of its radius, an octagon's 0.92.
 SIDES = 8
 
-__all__ = ["SIDES", "Splats", "estimate_splats", "splat_actor"]
+__all__ = ["SIDES", "Splats", "add_splat_arrays", "estimate_splats", "glyph_mapper", "splat_actor"]
 
 
 @dataclass(frozen=True)
@@ -92,6 +97,40 @@ def estimate_splats(xyz: npt.ArrayLike, *, k: int = 8, normals: npt.ArrayLike | 
     return Splats(pts, nrm.astype(np.float32), radius.astype(np.float32))
 
 
+def glyph_mapper() -> Any:
+    """A ``vtkGlyph3DMapper`` drawing every point of its input as a disk of :data:`SIDES` corners, oriented
+    by the point array ``splat_normal`` and scaled by ``splat_radius`` (:func:`add_splat_arrays`); colours
+    from the input's scalars (RGB, direct) when scalar visibility is on."""
+    disk = _vtk.vtkRegularPolygonSource()
+    disk.SetNumberOfSides(SIDES)
+    disk.SetRadius(1.0)
+    disk.SetCenter(0.0, 0.0, 0.0)
+    # vtkGlyph3DMapper's DIRECTION mode turns the glyph's x axis onto the orientation vector.
+    disk.SetNormal(1.0, 0.0, 0.0)
+    disk.GeneratePolylineOff()
+    mapper = _vtk.vtkGlyph3DMapper()
+    mapper.SetSourceConnection(disk.GetOutputPort())
+    mapper.SetOrientationArray("splat_normal")
+    mapper.SetOrientationModeToDirection()
+    mapper.SetScaleArray("splat_radius")
+    mapper.SetScaleModeToScaleByMagnitude()
+    mapper.SetScaleFactor(1.0)
+    mapper.SetColorModeToDirectScalars()
+    mapper.SetScalarModeToUsePointData()
+    return mapper
+
+
+def add_splat_arrays(data: Any, splats: Splats) -> None:
+    """Attach ``splats``' normals and radii to ``data`` (a vtkPolyData of the same points, same order) as
+    the arrays :func:`glyph_mapper` reads."""
+    nrm = _vtk.numpy_to_vtk(np.ascontiguousarray(splats.normals, np.float32), deep=True)
+    nrm.SetName("splat_normal")
+    data.GetPointData().AddArray(nrm)
+    rad = _vtk.numpy_to_vtk(np.ascontiguousarray(splats.radii, np.float32), deep=True)
+    rad.SetName("splat_radius")
+    data.GetPointData().AddArray(rad)
+
+
 def splat_actor(splats: Splats, origin: npt.ArrayLike, rgb: npt.ArrayLike | None = None,
                 color: tuple[float, float, float] = (0.85, 0.85, 0.85)) -> Any:
     """A VTK actor drawing ``splats`` shifted by ``origin`` (the scene origin: float32 never sees large
@@ -101,27 +140,9 @@ def splat_actor(splats: Splats, origin: npt.ArrayLike, rgb: npt.ArrayLike | None
     pts = _vtk.vtkPoints()
     pts.SetData(_vtk.numpy_to_vtk(np.ascontiguousarray(splats.centers - org, np.float32), deep=True))
     data.SetPoints(pts)
-    nrm = _vtk.numpy_to_vtk(np.ascontiguousarray(splats.normals, np.float32), deep=True)
-    nrm.SetName("splat_normal")
-    data.GetPointData().AddArray(nrm)
-    rad = _vtk.numpy_to_vtk(np.ascontiguousarray(splats.radii, np.float32), deep=True)
-    rad.SetName("splat_radius")
-    data.GetPointData().AddArray(rad)
-    disk = _vtk.vtkRegularPolygonSource()
-    disk.SetNumberOfSides(SIDES)
-    disk.SetRadius(1.0)
-    disk.SetCenter(0.0, 0.0, 0.0)
-    # vtkGlyph3DMapper's DIRECTION mode turns the glyph's x axis onto the orientation vector.
-    disk.SetNormal(1.0, 0.0, 0.0)
-    disk.GeneratePolylineOff()
-    mapper = _vtk.vtkGlyph3DMapper()
+    add_splat_arrays(data, splats)
+    mapper = glyph_mapper()
     mapper.SetInputData(data)
-    mapper.SetSourceConnection(disk.GetOutputPort())
-    mapper.SetOrientationArray("splat_normal")
-    mapper.SetOrientationModeToDirection()
-    mapper.SetScaleArray("splat_radius")
-    mapper.SetScaleModeToScaleByMagnitude()
-    mapper.SetScaleFactor(1.0)
     actor = _vtk.vtkActor()
     actor.SetMapper(mapper)
     if rgb is not None:
@@ -129,8 +150,6 @@ def splat_actor(splats: Splats, origin: npt.ArrayLike, rgb: npt.ArrayLike | None
                                 array_type=_vtk.VTK_UNSIGNED_CHAR)
         col.SetName("splat_rgb")
         data.GetPointData().SetScalars(col)
-        mapper.SetColorModeToDirectScalars()
-        mapper.SetScalarModeToUsePointData()
         mapper.ScalarVisibilityOn()
     else:
         mapper.ScalarVisibilityOff()

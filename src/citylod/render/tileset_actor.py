@@ -232,6 +232,39 @@ class _PointProps:
         self.drawn = 0
         self.fade_start_s: float | None = None
         self.keep: npt.NDArray[np.bool_] | None = None
+        # Splat drawing (TilesetLayer.point_shape == "splat"): a glyph mapper over the same data.
+        self.splat_mapper: Any = None
+        self.splat_data: Any = None  # the vtkPolyData whose splat arrays are computed
+
+    def use_splats(self, positions: npt.NDArray[np.float32]) -> None:
+        """Draw the tile's points as oriented disks (:mod:`citylod.render.splats`): normals and radii from
+        the tile's own points (refinement REPLACE: a tile's points are the whole surface at its level),
+        computed once per uploaded tile. The smooth-refinement prefix does not apply to splats."""
+        from citylod.render.splats import add_splat_arrays, estimate_splats, glyph_mapper
+
+        if self.data is None:
+            return
+        if self.splat_mapper is None:
+            self.splat_mapper = glyph_mapper()
+        if self.splat_data is not self.data:
+            add_splat_arrays(self.data, estimate_splats(positions))
+            self.splat_data = self.data
+        self.splat_mapper.SetInputData(self.data)
+        self.splat_mapper.SetMasking(self.keep is not None)
+        if self.keep is not None:
+            keep = _vtk.numpy_to_vtk(self.keep.astype(np.uint8), deep=True)
+            keep.SetName("splat_keep")
+            self.data.GetPointData().AddArray(keep)
+            self.splat_mapper.SetMaskArray("splat_keep")
+        if self.actor.GetMapper() is not self.splat_mapper:
+            # Unlit, as points are: a pixel has its point's colour (class, elevation...), and a disk whose
+            # estimated normal is off (edges, crowns) does not show as a dark sliver.
+            self.actor.SetMapper(self.splat_mapper)
+
+    def use_points(self) -> None:
+        """Back to plain points (after :meth:`use_splats`)."""
+        if self.actor.GetMapper() is not self.mapper:
+            self.actor.SetMapper(self.mapper)
 
     def draw_first(self, k: int) -> None:
         """Draw the first ``k`` points of the tile (clamped to 1..total), those of them ``keep`` allows."""
@@ -329,6 +362,9 @@ class TilesetLayer:
         self.color_by: str | None = None
         self.point_size_px = 2.0
         self.point_round = False  # round (sphere-shaded) points instead of squares
+        #: "points" (squares, or round with ``point_round``) or "splat" (oriented disks sized by the local
+        #: spacing, hole-free at close range: :mod:`citylod.render.splats`).
+        self.point_shape = "points"
         #: ASPRS classes to draw (None: all); points of other classes are left out of the drawn cells.
         self.class_filter: frozenset[int] | None = None
         self.selection: Selection | None = None
@@ -438,6 +474,11 @@ class TilesetLayer:
         else:
             props.data.GetPointData().SetScalars(_rgb_array(rgb))
             props.mapper.ScalarVisibilityOn()
+        if self.point_shape == "splat":
+            props.use_splats(pts.positions)
+            props.splat_mapper.SetScalarVisibility(rgb is not None)
+        else:
+            props.use_points()
 
     def restyle(self) -> None:
         """Apply the current ``color_by`` and point size to every uploaded tile (once, not per frame)."""
@@ -750,6 +791,9 @@ class Scene:
         if slot.points is not None:
             slot.points.mapper.SetInputData(_EMPTY)
             slot.points.data = None
+            if slot.points.splat_mapper is not None:
+                slot.points.splat_mapper.SetInputData(_EMPTY)
+                slot.points.splat_data = None
         self._free.append(slot)
 
     def tile_textures(self) -> Iterable[Any]:

@@ -20,6 +20,12 @@ does the same on a 2D cell grid:
    ``step_m`` is a wall between the two roofs. Wall normals are the boundary direction, taken from the
    gradient of the smoothed building mask (Gao: normal from the boundary, not from the sparse returns).
    Walls become points at the roof's point spacing, or quads (one per edge; both of Gao's variants).
+   With building footprints (``CompleteOptions.footprints``, e.g. the BGT) the outer walls stand on the
+   footprints' outline instead (:func:`footprint_edges`): the roof's returns overhang the wall by the
+   eaves, which the scan alone cannot tell from wall.
+
+The in-memory point build decodes its input once and completes the decoded records
+(:func:`complete_records`); the out-of-core build scans the files in a pre-pass (:func:`complete_inputs`).
 
 Added points keep the class they stand for (2 ground, 6 building) and carry the LAS *synthetic* flag,
 which the point build keeps as a per-point ``SYNTHETIC`` glTF attribute, so they can be hidden, coloured
@@ -92,6 +98,15 @@ class CompleteOptions:
         Building components smaller than this are noise, not buildings.
     seed
         Jitter of the added points (reproducible builds).
+    wall_density
+        Wall points per m² as a fraction of the roof's (1: the roof's spacing, as Gao samples them).
+    eave_m
+        Walls from the roof edge stand this far inside the roof's outermost returns: the eaves' overhang
+        (the roof overhangs the wall; 0: at the roof edge, as Gao places them).
+    footprints
+        A GeoPackage / OGR SQLite file of building footprints in the points' CRS (e.g. the BGT): outer
+        walls then stand on the footprints' outlines (see :func:`footprint_edges`) instead of under the
+        scanned roof's edge; buildings the file lacks keep the walls from the roof edge.
     """
 
     walls: str = "points"
@@ -102,6 +117,9 @@ class CompleteOptions:
     canopy_m: float = 2.0
     min_building_m2: float = 4.0
     seed: int = 0
+    footprints: str | None = None
+    eave_m: float = 0.0
+    wall_density: float = 1.0
 
     def __post_init__(self) -> None:
         if self.walls not in WALL_MODES:
@@ -245,6 +263,16 @@ def scan_grid(files: Sequence[str | PathLike[str]], lo: F64, hi: F64, cell_m: fl
     """
     from citylod.io.las import iter_points, point_fields
 
+    lo2, planes, class_n, class_int = _new_grid(lo, hi, cell_m, files[0] if files else None)
+    for f in files:
+        for pts in iter_points(f, chunk_points=chunk_points, raw=True):
+            X, Y, Z, scales, offsets, inten, cls, *_ = point_fields(pts)
+            _accumulate(X, Y, Z, scales, offsets, cls, inten, float(lo2[0]), float(lo2[1]), 1.0 / cell_m,
+                        planes, class_n, class_int)
+    return CellGrid(lo2, float(cell_m), planes, class_n, class_int)
+
+
+def _new_grid(lo: F64, hi: F64, cell_m: float, source: Any) -> tuple[F64, F64, F64, F64]:
     lo2 = np.asarray(lo, np.float64)[:2]
     hi2 = np.asarray(hi, np.float64)[:2]
     nx = max(1, int(np.ceil((hi2[0] - lo2[0]) / cell_m)) + 1)
@@ -252,14 +280,18 @@ def scan_grid(files: Sequence[str | PathLike[str]], lo: F64, hi: F64, cell_m: fl
     if nx * ny > MAX_CELLS:
         raise InputError(f"completing {hi2[0] - lo2[0]:.0f} × {hi2[1] - lo2[1]:.0f} m at {cell_m} m cells needs "
                          f"{nx * ny:,} cells ({nx * ny * _PLANES * 8 / 1e9:.1f} GB), over the {MAX_CELLS:,} "
-                         "allowed; complete the area in tiles or use larger cells", files[0] if files else None)
-    planes = np.zeros((_PLANES, ny, nx))
-    class_n, class_int = np.zeros(_NCLASS), np.zeros(_NCLASS)
-    for f in files:
-        for pts in iter_points(f, chunk_points=chunk_points, raw=True):
-            X, Y, Z, scales, offsets, inten, cls, *_ = point_fields(pts)
-            _accumulate(X, Y, Z, scales, offsets, cls, inten, float(lo2[0]), float(lo2[1]), 1.0 / cell_m,
-                        planes, class_n, class_int)
+                         "allowed; complete the area in tiles or use larger cells", source)
+    return lo2, np.zeros((_PLANES, ny, nx)), np.zeros(_NCLASS), np.zeros(_NCLASS)
+
+
+def scan_records(recs: np.ndarray, lo: F64, hi: F64, cell_m: float, source: Any = None) -> CellGrid:
+    """:func:`scan_grid` over points already decoded (:data:`citylod.io.las.POINT_DTYPE` records): the
+    in-memory point build decodes its input once and completes it from these records, so the LAZ is not
+    decoded a second time (the decode is most of the completion's cost)."""
+    lo2, planes, class_n, class_int = _new_grid(lo, hi, cell_m, source)
+    one, zero = np.ones(3), np.zeros(3)
+    _accumulate(recs["x"], recs["y"], recs["z"], one, zero, recs["classification"], recs["intensity"],
+                float(lo2[0]), float(lo2[1]), 1.0 / cell_m, planes, class_n, class_int)
     return CellGrid(lo2, float(cell_m), planes, class_n, class_int)
 
 
@@ -406,13 +438,19 @@ class _Edges:
     step: npt.NDArray[np.bool_]
 
 
-def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions) -> _Edges:
+def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions,
+               footprints: Sequence[Any] | None = None) -> _Edges:
     """The walls: boundary edges (roof down to the terrain outside) and roof steps (higher roof down to
-    the lower one), with normals from the boundary direction."""
+    the lower one), with normals from the boundary direction. With ``footprints`` (shapely polygons), outer
+    walls near a footprint come from :func:`footprint_edges` instead."""
     from scipy import ndimage
 
     p = grid.planes
     roof = _roof(grid, mask)
+    near_fp = np.zeros(mask.shape, bool)
+    fp_edges = None
+    if footprints:
+        fp_edges, near_fp = footprint_edges(footprints, grid, dtm, roof, opts)
     has = p[_B_N] > 0
     c = grid.cell
     ny_, nx_ = grid.shape
@@ -435,7 +473,7 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
         nb_roof[yd, xd] = roof[ys, xs]
         nb_dtm = dtm.copy()
         nb_dtm[yd, xd] = dtm[ys, xs]
-        outer = mask & ~nb_mask
+        outer = mask & ~nb_mask & ~near_fp
         step = mask & nb_mask & (roof - nb_roof > opts.step_m)
         for sel, bottom_of in ((outer, nb_dtm), (step, nb_roof)):
             cy, cx = np.nonzero(sel)
@@ -445,9 +483,10 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
             bottom = bottom_of[cy, cx]
             x0c, y0c = x_lo[cy, cx], y_lo[cy, cx]
             if sel is outer:
-                # At the outermost roof return of the cell: walls stand under the eaves.
+                # At the outermost roof return of the cell, less the eaves' overhang ``eave_m``.
                 ext = {(0, 1): _B_XHI, (0, -1): _B_XLO, (1, 0): _B_YHI, (-1, 0): _B_YLO}[(dy, dx)]
                 e = np.where(has[cy, cx], p[ext][cy, cx], (x0c if dy == 0 else y0c) + (c if dx + dy > 0 else 0))
+                e = e - (dx + dy) * opts.eave_m
                 nrm_x = -gx[cy, cx]
                 nrm_y = -gy[cy, cx]
             else:
@@ -466,6 +505,9 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
             nrm_y = np.where(bad, float(dy), nrm_y)
             norm = np.hypot(nrm_x, nrm_y)
             parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, float(sel is step)))
+    if fp_edges is not None and len(fp_edges.x0):
+        fe = fp_edges
+        parts.append((fe.x0, fe.y0, fe.x1, fe.y1, fe.nx, fe.ny, fe.bottom, fe.top, 0.0))
     if not parts:
         z = np.zeros(0)
         return _Edges(z, z, z, z, z, z, z, z, np.zeros(0, bool))
@@ -474,6 +516,67 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
     keep = cols[7] - cols[6] >= opts.min_wall_m
     x0, y0, x1, y1, nx, ny, bottom, top = (a[keep] for a in cols[:8])
     return _Edges(x0, y0, x1, y1, nx, ny, bottom, top, cols[8][keep] > 0)
+
+
+def footprint_edges(footprints: Sequence[Any], grid: CellGrid, dtm: F64, roof: F64, opts: CompleteOptions,
+                    reach_m: float = 1.5) -> tuple[_Edges, npt.NDArray[np.bool_]]:
+    """Outer walls on the outline of the union of ``footprints`` (shapely polygons; walls shared by two
+    footprints, as in a terrace, are inside the union and get none), cut into pieces of at most one cell
+    so the top follows the roof: each piece rises from the terrain half a cell outside to the scanned roof
+    a quarter of a cell inside (the roof above the wall's line, under the eaves). Pieces with no scanned
+    roof there get no wall: the footprint is not backed by the scan. Also returns the cells within
+    ``reach_m`` of a footprint, whose roof-edge walls these replace.
+
+    A footprint is where the wall meets the ground; the roof's outer returns overhang it by the eaves
+    (on Delft's AHN3 against the BGT, median 0.18 m, p75 0.43 m: docs/PERFORMANCE_LOG.md), so walls from
+    the roof edge stand that far outside the real wall."""
+    import shapely
+
+    c = grid.cell
+    union = shapely.union_all([shapely.make_valid(f) for f in footprints])
+    polys = [g for g in getattr(union, "geoms", [union]) if g.geom_type == "Polygon" and not g.is_empty]
+    xs, ys = [], []
+    for poly in polys:
+        poly = shapely.geometry.polygon.orient(poly, 1.0)  # exterior CCW, holes CW: inside on the left
+        for ring in (poly.exterior, *poly.interiors):
+            q = np.asarray(ring.coords)[:, :2]
+            xs.append(q[:-1])
+            ys.append(q[1:])
+    if not xs:
+        z = np.zeros(0)
+        return _Edges(z, z, z, z, z, z, z, z, np.zeros(0, bool)), np.zeros(grid.shape, bool)
+    a, b = np.concatenate(xs), np.concatenate(ys)
+    seg = b - a
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    ok = length > 1e-6
+    a, seg, length = a[ok], seg[ok], length[ok]
+    npc = np.maximum(1, np.ceil(length / c).astype(np.int64))
+    e = np.repeat(np.arange(len(a)), npc)
+    k = np.arange(len(e)) - np.repeat(np.cumsum(npc) - npc, npc)
+    t0, t1 = k / npc[e], (k + 1) / npc[e]
+    p0 = a[e] + t0[:, None] * seg[e]
+    p1 = a[e] + t1[:, None] * seg[e]
+    d = seg[e] / length[e][:, None]
+    n = np.column_stack([d[:, 1], -d[:, 0]])  # right of the direction: outwards
+    mid = (p0 + p1) / 2.0
+    ny_, nx_ = grid.shape
+
+    def cell_of(xy: F64) -> tuple[I64, I64, npt.NDArray[np.bool_]]:
+        ix = np.floor((xy[:, 0] - grid.lo[0]) / c).astype(np.int64)
+        iy = np.floor((xy[:, 1] - grid.lo[1]) / c).astype(np.int64)
+        inside = (ix >= 0) & (iy >= 0) & (ix < nx_) & (iy < ny_)
+        return np.clip(iy, 0, ny_ - 1), np.clip(ix, 0, nx_ - 1), inside
+
+    ri, rj, rin = cell_of(mid - 0.25 * c * n)
+    oi, oj, oin = cell_of(mid + 0.5 * c * n)
+    top = np.where(rin, roof[ri, rj], np.nan)
+    bottom = dtm[oi, oj]
+    keep = oin & np.isfinite(top) & (top - bottom >= opts.min_wall_m)
+    iy, ix = np.mgrid[0:ny_, 0:nx_]
+    near = shapely.contains_xy(union.buffer(reach_m), grid.lo[0] + (ix + 0.5) * c, grid.lo[1] + (iy + 0.5) * c)
+    edges = _Edges(p0[keep, 0], p0[keep, 1], p1[keep, 0], p1[keep, 1], n[keep, 0], n[keep, 1], bottom[keep],
+                   top[keep], np.zeros(int(keep.sum()), bool))
+    return edges, near
 
 
 def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator
@@ -540,9 +643,14 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions()) -> A
         pieces.append((gxyz, gn, np.full(len(gxyz), KIND_GROUND, np.uint8), GROUND))
     quads, qn = np.zeros((0, 4, 3)), np.zeros((0, 3), np.float32)
     if opts.walls != "none" and mask.any():
-        edges = wall_edges(grid, dtm, mask, opts)
+        footprints = None
+        if opts.footprints:
+            from citylod.io.footprints import read_footprints
+
+            footprints = read_footprints(opts.footprints)
+        edges = wall_edges(grid, dtm, mask, opts, footprints)
         has = grid.planes[_B_N] > 0
-        w_sp = grid.cell / np.sqrt(max(1.0, float(np.median(grid.planes[_B_N][has]))))
+        w_sp = grid.cell / np.sqrt(max(1.0, float(np.median(grid.planes[_B_N][has]))) * opts.wall_density)
         if opts.walls == "points":
             wxyz, wn, wk = _wall_points(edges, w_sp, rng)
             pieces.append((wxyz, wn, wk, BUILDING))
@@ -630,23 +738,56 @@ def complete_inputs(paths: Sequence[Path], meta: Any, target: Path, opts: Comple
     """The point build's pre-pass: scan ``paths``, write the added points to ``target`` (a LAS file in the
     build's scratch folder), and return the augmentation with the file list and metadata the build then
     reads (input files first, unchanged)."""
-    from citylod.io.crs import is_geographic
     from citylod.io.las import read_metadata
 
-    if is_geographic(meta.crs):
-        msg = (f"the points are in degrees ({meta.crs.name}): completion needs metric coordinates; "
-               "reproject the files (e.g. to UTM) to complete them")
-        warnings.warn(msg, stacklevel=2)
-        return _empty(msg), list(paths), meta
+    refused = _geographic(meta)
+    if refused:
+        return _empty(refused), list(paths), meta
     aug = augment(paths, opts, lo=meta.lo, hi=meta.hi)
-    if len(aug.xyz) == 0:
+    extra = _write_added(aug, meta, target, paths[0])
+    if extra is None:
         return aug, list(paths), meta
-    t0 = time.perf_counter()
-    target.parent.mkdir(parents=True, exist_ok=True)
-    extra = write_las(aug, target, paths[0])
-    aug.seconds["write"] = time.perf_counter() - t0
     files = [*paths, extra]
     return aug, files, read_metadata(files, crs if crs is not None else meta.crs)
+
+
+def _geographic(meta: Any) -> str | None:
+    from citylod.io.crs import is_geographic
+
+    if not is_geographic(meta.crs):
+        return None
+    msg = (f"the points are in degrees ({meta.crs.name}): completion needs metric coordinates; "
+           "reproject the files (e.g. to UTM) to complete them")
+    warnings.warn(msg, stacklevel=3)
+    return msg
+
+
+def _write_added(aug: Augmentation, meta: Any, target: Path, template: Any) -> Path | None:
+    """Write the added points (kept inside the input's bounds, which the octree's cube was sized to) as
+    ``target``; None when there are none."""
+    if len(aug.xyz) == 0:
+        return None
+    t0 = time.perf_counter()
+    aug.xyz = np.clip(aug.xyz, meta.lo, meta.hi)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    out = write_las(aug, target, template)
+    aug.seconds["write"] = time.perf_counter() - t0
+    return out
+
+
+def complete_records(recs: np.ndarray, meta: Any, target: Path, opts: CompleteOptions) -> tuple[Augmentation, Path | None]:
+    """The in-memory point build's hook, after it decoded its input into ``recs``: complete them
+    (:func:`scan_records`, :func:`augment_grid`) and write the added points to ``target`` (None: nothing
+    added)."""
+    refused = _geographic(meta)
+    if refused:
+        return _empty(refused), None
+    t0 = time.perf_counter()
+    grid = scan_records(recs, meta.lo, meta.hi, opts.cell_m, meta.files[0].path if meta.files else None)
+    t_scan = time.perf_counter() - t0
+    aug = augment_grid(grid, opts)
+    aug.seconds = {"scan": t_scan, **aug.seconds}
+    return aug, _write_added(aug, meta, target, meta.files[0].path)
 
 
 def add_wall_tiles(out_dir: str | PathLike[str], root: Any, aug: Augmentation, block_m: float = 128.0) -> Any:
@@ -682,6 +823,26 @@ def add_wall_tiles(out_dir: str | PathLike[str], root: Any, aug: Augmentation, b
                     children=children, extras={"points": 0, "triangles": 0, "quads": 0})
 
 
-__all__ = ["KIND_GROUND", "KIND_STEP", "KIND_WALL", "MAX_CELLS", "WALL_MODES", "Augmentation", "CellGrid", "CompleteOptions", "add_wall_tiles",
-           "augment", "augment_grid", "building_mask", "complete_inputs", "scan_grid",
-           "terrain", "wall_edges", "wall_mesh", "write_las"]
+__all__ = [
+    "KIND_GROUND",
+    "KIND_STEP",
+    "KIND_WALL",
+    "MAX_CELLS",
+    "WALL_MODES",
+    "Augmentation",
+    "CellGrid",
+    "CompleteOptions",
+    "add_wall_tiles",
+    "augment",
+    "augment_grid",
+    "building_mask",
+    "complete_inputs",
+    "complete_records",
+    "footprint_edges",
+    "scan_grid",
+    "scan_records",
+    "terrain",
+    "wall_edges",
+    "wall_mesh",
+    "write_las",
+]

@@ -67,7 +67,7 @@ from citylod.io.tiles3d import (
     write_content,
     write_tileset,
 )
-from citylod.lod.build.complete import CompleteOptions, add_wall_tiles, complete_inputs
+from citylod.lod.build.complete import CompleteOptions, add_wall_tiles, complete_inputs, complete_records
 from citylod.lod.build.executor import Completions, make_executor, progress_bar, run_tasks
 from citylod.lod.build.planes import find_planes, quad_mesh_arrays, splat_colors
 from citylod.lod.kernels.octree import (
@@ -789,9 +789,10 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
     _prepare_partial(partial, _fingerprint(inputs, crs=meta.crs.to_wkt(), hybrid=hybrid, phi=phi,
                                            max_leaf=max_leaf_points, max_chunk=max_chunk_points,
                                            segment=segment_points, complete=complete))
-    if complete is not None:
+    if complete is not None and not memory:
         # The added points join the input as one more LAS file in the build's scratch folder (removed
         # with it); the same options write the same points, so a resumed build reads the same file.
+        # (An in-memory build completes the records it decoded in pass 1 instead: one decode, not two.)
         aug, paths, meta = complete_inputs(paths, meta, tmp / "complete.las", complete, crs)
     extent = float(np.max(meta.hi - meta.lo))
     cube_size = extent * (1.0 + 1e-9) + 1e-6 if extent > 0 else 1.0
@@ -812,8 +813,10 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
             lo_t = tuple(float(v) for v in cube_lo)
             into: list[tuple[Recs, F64, I64] | None] = [None] * len(segments)
             if memory:  # the whole cloud, each segment decoded into its slice (in order: as on disk)
-                cloud = (np.empty(meta.point_count, POINT_DTYPE), np.empty((meta.point_count, 3)),
-                         np.empty((meta.point_count, 3), np.int64))
+                # With completion, room for added points (ground under canopy fits; walls as points may not,
+                # then the cloud is copied once): the added points are decoded after the input's.
+                cap = meta.point_count + (meta.point_count // 20 + 1024 if complete is not None else 0)
+                cloud = (np.empty(cap, POINT_DTYPE), np.empty((cap, 3)), np.empty((cap, 3), np.int64))
                 ends = np.cumsum([s_[2] for s_ in segments])
                 into = [(cloud[0][e - s_[2]:e], cloud[1][e - s_[2]:e], cloud[2][e - s_[2]:e])
                         for e, s_ in zip(ends, segments, strict=True)]
@@ -823,6 +826,25 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
                 counts[cells] += cnt
                 lo, hi = np.minimum(lo, slo), np.maximum(hi, shi)
                 ihist += sp
+            if memory and complete is not None:
+                n_in = meta.point_count
+                aug, extra = complete_records(cloud[0][:n_in], meta, tmp / "complete.las", complete)
+                n_add = 0 if extra is None else read_metadata([extra], meta.crs).point_count
+                if n_in + n_add > len(cloud[0]):
+                    r0, x0, q0 = cloud
+                    cloud = (np.concatenate([r0[:n_in], np.empty(n_add, POINT_DTYPE)]),
+                             np.concatenate([x0[:n_in], np.empty((n_add, 3))]),
+                             np.concatenate([q0[:n_in], np.empty((n_add, 3), np.int64)]))
+                n_all = n_in + n_add
+                cloud = (cloud[0][:n_all], cloud[1][:n_all], cloud[2][:n_all])
+                if extra is not None:
+                    add = (cloud[0][n_in:], cloud[1][n_in:], cloud[2][n_in:])
+                    _, _, slo, shi, sp = _scan_segment((lo_t[0], lo_t[1], lo_t[2]), cube_size, str(extra), 0,
+                                                       n_add, "", add)
+                    lo, hi = np.minimum(lo, slo), np.maximum(hi, shi)
+                    ihist += sp
+                    paths = [*paths, extra]
+                    meta = read_metadata(paths, crs if crs is not None else meta.crs)
             p99 = _percentile99(ihist)
             if not memory:
                 occupied = np.flatnonzero(counts)  # sparse: the dense grid is 16 MB
