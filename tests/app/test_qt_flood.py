@@ -72,3 +72,34 @@ def test_flood_sliders_and_affected_buildings(qtbot, window, sample, tmp_path: P
     rect = panel.table.visualItemRect(panel.table.item(0, 0))
     qtbot.mouseClick(panel.table.viewport(), Qt.MouseButton.LeftButton, pos=rect.center())
     assert window.document.state.selection == {panel.table.item(0, 0).text()}
+
+
+def test_flood_the_dsm_tileset_in_the_view(qtbot, window, sample) -> None:  # noqa: F811
+    """A click on "Flood the DSM in the view" floods the open tileset's leaves; the extent lies between the
+    source raster's floods at the level ∓ the leaves' error (independent breadth-first fill on the raster)."""
+    from PySide6.QtCore import Qt
+
+    from tests.analysis.test_flood import bfs_flood, edge_cells
+
+    panel = window.flood
+    window.docks["flood"].raise_()
+    qtbot.mouseClick(panel.view_button, Qt.MouseButton.LeftButton)
+    assert panel.summary.text() == "no DSM tileset is open" and panel.scenario is None
+    assert window.open_path(sample["tiles"])
+    _wait_resolved(qtbot, window)
+    qtbot.mouseClick(panel.view_button, Qt.MouseButton.LeftButton)
+    assert panel.scenario is not None
+    eps = panel.scenario.tileset_error_m
+    with rasterio.open(sample["dsm"]) as ds:
+        m = ds.read(1, masked=True)
+    h, valid = np.ma.getdata(m).astype(np.float64), ~np.ma.getmaskarray(m)
+    panel.level.setFocus()
+    with qtbot.waitSignal(panel.updated, timeout=30000):
+        for _ in range(3):
+            qtbot.keyClick(panel.level, Qt.Key.Key_PageUp)
+    res = panel.wait()
+    assert res is not None and res.mask.shape == h.shape
+    seeds = edge_cells(h.shape)
+    lo, hi = bfs_flood(h, valid, seeds, res.level - eps), bfs_flood(h, valid, seeds, res.level + eps)
+    assert res.mask.any() and not (lo & ~res.mask).any() and not (res.mask & ~hi).any()
+    assert "tileset heights" in panel.summary.text()
