@@ -102,7 +102,7 @@ def test_tileset_in_degrees_floods_within_its_error(tmp_path: Path) -> None:
 
 def test_command_line_floods_a_tileset_and_refuses_bad_ones(tmp_path: Path, capsys) -> None:
     h = terrain((80, 80), 3)
-    raster, tiles = built(tmp_path, h)
+    _, tiles = built(tmp_path, h)
     level = float(np.nanpercentile(h, 50))
     out = tmp_path / "o"
     assert main(["-q", "flood", str(tiles), "--level", f"{level}", "--edge", "-o", str(out)]) == 0

@@ -188,6 +188,8 @@ def rasterise_tileset(tileset: str | os.PathLike[str], out_tif: str | os.PathLik
                     worst = max(worst, float(lf.tile.geometric_error))  # type: ignore[attr-defined]
                 assert lf.vr is not None and lf.vc is not None and lf.vz is not None and lf.faces is not None
                 _rasterise(lf.vr, lf.vc, lf.vz, lf.faces, row0, h, v)
+                if lf.r_hi < row1:  # done: its arrays go now, not at the end of the strip
+                    lf.vr = lf.vc = lf.vz = lf.faces = None
             live = [lf for lf in live if lf.r_hi >= row1]  # the others are done: let their arrays go
             h[~v] = np.nan
             ds.write(h, 1, window=Window(0, row0, width, row1 - row0))
@@ -198,7 +200,9 @@ def _load_leaf(lf: _Leaf, to_rc, where: Path) -> None:  # type: ignore[no-untype
     """Decode a leaf, drop its skirts, and snap its vertices to (row, column) integers (checked)."""
     mesh = lf.tile.load()  # type: ignore[attr-defined]
     faces = mesh.faces[~mesh.skirt] if len(mesh.skirt) == len(mesh.faces) else mesh.faces
-    used = np.unique(faces)
+    mark = np.zeros(len(mesh.vertices), bool)
+    mark[faces] = True  # the surface's vertices (skirt vertices hang below them, unused now)
+    used = np.flatnonzero(mark)
     row, col = to_rc(mesh.vertices[used, 0], mesh.vertices[used, 1])
     ir, ic = np.rint(row), np.rint(col)
     off = float(np.max(np.maximum(np.abs(row - ir), np.abs(col - ic)), initial=0.0))
