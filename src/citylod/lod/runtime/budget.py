@@ -159,7 +159,9 @@ class PointBudgetController:
       bind (the view drew all it could: the error says nothing about the budget, and integrating it would
       wind up);
     * **smooth refinement**: while the budget binds it grows by at most ``max_growth`` a frame (new detail
-      arrives over several frames, and new point tiles also fade in on screen); it shrinks at once;
+      arrives over several frames, and new point tiles also fade in on screen); it shrinks at once.
+      ``deadband`` (off by default) keeps the budget while the model asks for less than that relative
+      change: on the real renderer it held a few more frames in the band, on the plant of the tests fewer;
     * **a reachable target**: the budget never exceeds the user's (``base_points``) and τ stays the user's
       (``tau_scale`` 1): a view whose every point at that τ costs less than the target cannot reach it, and
       the budget bench counts those frames apart. (τ/4 was tried, so that sparse views would refine further:
@@ -178,8 +180,8 @@ class PointBudgetController:
     """
 
     def __init__(self, target_ms: float, *, base_points: int, base_tau_px: float = 1.0, window: int = 3,
-                 ki: float = 0.1, clip: float = 0.4, max_growth: float = 1.25, min_points: int | None = None,
-                 tau_scale: float = 1.0, overhead_ms: float = 0.0) -> None:
+                 ki: float = 0.1, clip: float = 0.4, max_growth: float = 1.15, min_points: int | None = None,
+                 tau_scale: float = 1.0, overhead_ms: float = 0.0, deadband: float = 0.0) -> None:
         if target_ms <= 0 or base_points <= 0:
             raise ValueError("target_ms and base_points must be > 0")
         self.target_ms = float(target_ms)
@@ -188,6 +190,7 @@ class PointBudgetController:
         self.ki, self.clip, self.max_growth = float(ki), float(clip), float(max_growth)
         self.min_points = int(min_points if min_points is not None else max(1, base_points // 1000))
         self.overhead_ms = float(overhead_ms)
+        self.deadband = float(deadband)
         self._hist: deque[tuple[int, float]] = deque(maxlen=int(window))
         self.correction = 0.0  # log of the PI factor on the feed-forward budget
         self.tau_scale = float(tau_scale)
@@ -226,6 +229,8 @@ class PointBudgetController:
         # no integral to wind up: the model's budget is what costs the target).
         nxt = min(want, self.point_budget * self.max_growth) if budget_limited else want
         nxt = min(nxt, float(self.base_points))
+        if budget_limited and abs(nxt / self.point_budget - 1.0) < self.deadband:
+            return self.point_budget  # a small change is mostly noise, and new tiles cost an upload
         self.point_budget = max(self.min_points, int(nxt))
         return self.point_budget
 
