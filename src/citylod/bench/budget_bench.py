@@ -6,8 +6,8 @@ time times FRACTION (default 0.5) is the target; then, interleaved frame by fram
 changes by 2× within a minute), a fixed-budget renderer (the baseline) and one in budget mode
 (:class:`~citylod.render.frame_budget.FrameBudget`). The baseline is also the most detail budget mode may
 draw (the user's τ and point budget), so it tells the frames on which the target is *reachable*: the
-baseline frame costs at least the band's lower edge (where it does not, the view holds too few points for
-any budget to reach the target). Each baseline frame is drawn twice: how often the two draws agree within
+baseline frame (the faster of its two draws) costs at least the band's lower edge (where it does not, the view
+holds too few points for any budget to reach the target). Each baseline frame is drawn twice: how often the two draws agree within
 ±20 % is the noise floor, what a controller with a perfect model of the frame could at best hold on this
 machine at that moment. It prints the share of budget-mode frames within ±20 % of the target over all
 frames and over the reachable ones, the noise floor, and the load average before and after; with
@@ -50,6 +50,7 @@ def run(frames: int = 60, fraction: float = 0.5) -> dict[str, object]:
         again: list[float] = []
         fixed_pts: list[int] = []
         pts: list[int] = []
+        steered: list[float] = []
         with OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as base, \
                 OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as r:
             mode = FrameBudget(r.scene, target)
@@ -58,14 +59,14 @@ def run(frames: int = 60, fraction: float = 0.5) -> dict[str, object]:
                 fixed.append(base.draw() * 1000.0)
                 again.append(base.draw() * 1000.0)  # the same frame once more: the machine's noise alone
                 pts.append(r.prepare(cam).points)
-                r.draw()
-            steered = list(mode.frame_ms)
+                steered.append(r.draw() * 1000.0)  # measured as the baseline's, not by the mode itself
+            assert len(mode.frame_ms) == len(steered)
     load.append(os.getloadavg()[0])
 
     def share(ts: list[float], t: float) -> float:
         return float(np.mean(np.abs(np.asarray(ts) / t - 1.0) <= 0.2))
 
-    reach = np.asarray(fixed) >= 0.8 * target
+    reach = np.minimum(fixed, again) >= 0.8 * target  # the faster of the two draws (no tile uploads)
     return {"target_ms": target, "fixed_ms": fixed, "budget_ms": steered, "fixed_points": fixed_pts,
             "budget_points": pts, "load": load, "reachable": reach.tolist(),
             "noise_within": float(np.mean(np.abs(np.asarray(again) / np.asarray(fixed) - 1.0) <= 0.2)),

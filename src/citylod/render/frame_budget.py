@@ -1,6 +1,7 @@
 """Budget mode for a scene: hold a target frame time by steering τ and the point budget every frame.
 
-:class:`FrameBudget` times each render of the scene's renderer (VTK ``StartEvent`` to ``EndEvent``). Point
+:class:`FrameBudget` times each render of the scene's renderer (VTK ``StartEvent`` to ``EndEvent``, then waits
+for the GL to finish, so the time is the completed frame's). Point
 layers are steered by a :class:`~citylod.lod.runtime.budget.PointBudgetController` (a cost model fitted
 online and fed forward, a PI controller on its residual, growth limited per frame): it sets their shared
 point budget and scales their τ down where a view holds fewer points than the target allows. Other layers
@@ -49,6 +50,12 @@ class FrameBudget:
         self._t0 = time.perf_counter()
 
     def _end(self, _obj: Any, _event: str) -> None:
+        # The renderer's EndEvent comes when the draw calls are issued, not done: a software GL (llvmpipe)
+        # rasterises on its threads until the window waits for it, so without waiting here the time is the
+        # submission's (a third of the frame on this machine) and steers nothing that the user sees.
+        win = self.scene.renderer.GetRenderWindow()
+        if win is not None:
+            win.WaitForCompletion()
         ms = (time.perf_counter() - self._t0) * 1000.0
         self.frame_ms.append(ms)
         if self.points_ctl is not None:
