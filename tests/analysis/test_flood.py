@@ -372,3 +372,20 @@ def test_polygons_as_other_tools_write_them(tmp_path: Path) -> None:
     g = load_polygons(gj)
     assert g.crs.to_epsg() == 28992 and g.polygons[0].action == "recolor"
     assert g.polygons[0].geometry.area == pytest.approx(50.0)
+
+
+def test_more_bad_input_is_one_line_and_writes_nothing(tmp_path: Path, capsys) -> None:
+    """A source polygon that misses the raster, a raster of no-data only, a seed given as one number."""
+    raster = write_raster(tmp_path / "dsm.tif", dyke(breach=False))
+    out = tmp_path / "out"
+    far = PolygonLayer((EditPolygon(shapely.box(X0 + 500, Y0 + 500, X0 + 510, Y0 + 510), "source"),), pyproj.CRS(UTM))
+    poly = save_polygons(far, tmp_path / "far.geojson")
+    err = _cli_error(capsys, ["flood", str(raster), "-o", str(out), "--level", "1", "--source", str(poly)], out)
+    assert "cover no valid cell" in err and "dsm.tif" in err
+    empty = write_raster(tmp_path / "empty.tif", np.full((6, 6), -9999.0))
+    err = _cli_error(capsys, ["flood", str(empty), "-o", str(out), "--level", "1", "--edge"], out)
+    assert "no valid samples" in err and "empty.tif" in err
+    with pytest.raises(SystemExit) as stop:  # argparse's usage error
+        main(["-q", "flood", str(raster), "-o", str(out), "--level", "1", "--seed", "12"])
+    assert stop.value.code == 2
+    assert "seed must be X,Y" in capsys.readouterr().err and not out.exists()

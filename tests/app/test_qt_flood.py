@@ -6,6 +6,7 @@ windowed path, which tests/analysis checks against an independent flood fill and
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -72,3 +73,41 @@ def test_flood_sliders_and_affected_buildings(qtbot, window, sample, tmp_path: P
     rect = panel.table.visualItemRect(panel.table.item(0, 0))
     qtbot.mouseClick(panel.table.viewport(), Qt.MouseButton.LeftButton, pos=rect.center())
     assert window.document.state.selection == {panel.table.item(0, 0).text()}
+
+
+@pytest.mark.skipif(shutil.which("xdotool") is None, reason="needs xdotool")
+def test_flood_the_dsm_tileset_in_the_view(qtbot, window, sample) -> None:  # noqa: F811
+    """X clicks (xdotool) on "Flood the DSM in the view" flood the open tileset's leaves; the extent lies
+    between the source raster's floods at the level ∓ the leaves' error (independent breadth-first fill on
+    the raster)."""
+    from tests.analysis.test_flood import bfs_flood, edge_cells
+    from tests.app.test_real_input import X
+
+    xin = X(qtbot)
+    panel = window.flood
+    window.move(0, 0)
+    window.docks["flood"].raise_()
+    qtbot.waitExposed(panel.view_button)
+    centre = panel.view_button.rect().center()
+    xin.click(panel.view_button, centre.x(), centre.y())
+    qtbot.waitUntil(lambda: panel.summary.text() == "no DSM tileset is open", timeout=10000)
+    assert panel.scenario is None
+    assert window.open_path(sample["tiles"])
+    _wait_resolved(qtbot, window)
+    xin.click(panel.view_button, centre.x(), centre.y())
+    qtbot.waitUntil(lambda: panel.scenario is not None, timeout=30000)
+    eps = panel.scenario.tileset_error_m
+    with rasterio.open(sample["dsm"]) as ds:
+        m = ds.read(1, masked=True)
+    h, valid = np.ma.getdata(m).astype(np.float64), ~np.ma.getmaskarray(m)
+    for _ in range(3):  # three pages up: 1.5 m above the lowest height
+        xin.key(panel.level, "Page_Up")
+    qtbot.waitUntil(lambda: panel.result is not None and panel.result.level == pytest.approx(
+        panel.level.value() * 0.05), timeout=30000)
+    res = panel.wait()
+    assert res is not None and res.mask.shape == h.shape
+    assert res.level == pytest.approx(panel.scenario.model.min_height + 1.5, abs=0.05)
+    seeds = edge_cells(h.shape)
+    lo, hi = bfs_flood(h, valid, seeds, res.level - eps), bfs_flood(h, valid, seeds, res.level + eps)
+    assert res.mask.any() and not (lo & ~res.mask).any() and not (res.mask & ~hi).any()
+    assert "tileset heights" in panel.summary.text()

@@ -58,6 +58,7 @@ __all__ = [
     "cell_areas",
     "flood_mask",
     "flood_raster",
+    "flood_tileset",
 ]
 
 #: Value of dry and no-data cells in the depth GeoTIFFs.
@@ -112,6 +113,7 @@ class FloodReport:
     buildings_checked: int = 0
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    heights: str = ""  # where the heights came from, when not the raster itself (a tileset)
 
     def summary(self) -> str:
         lines = [f"{self.out_dir}: {len(self.levels)} level(s) in {self.seconds:.2f} s"]
@@ -120,6 +122,7 @@ class FloodReport:
             b = f", {n} of {self.buildings_checked} buildings affected" if self.buildings_checked else ""
             lines.append(f"  level {r.level:g} m: {r.area_m2:,.0f} m² flooded, {r.volume_m3:,.0f} m³, "
                          f"max depth {r.max_depth_m:.2f} m{b}")
+        lines += [f"  heights: {self.heights}"] if self.heights else []
         lines += [f"  warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -351,7 +354,8 @@ def _open_depth(path: Path, info: RasterInfo):  # type: ignore[no-untyped-def]
 def flood_raster(raster: str | os.PathLike[str], levels: Sequence[float], out_dir: str | os.PathLike[str], *,
                  sources: FloodSources, depressions: bool = False, eight: bool = False,
                  city: str | os.PathLike[str] | None = None, touch_m: float | None = None,
-                 strip_rows: int | None = None, progress: bool = False) -> FloodReport:
+                 strip_rows: int | None = None, progress: bool = False,
+                 note: dict[str, object] | None = None) -> FloodReport:
     """Flood a height raster at one or more water levels and write the results to ``out_dir``.
 
     Parameters
@@ -376,6 +380,8 @@ def flood_raster(raster: str | os.PathLike[str], levels: Sequence[float], out_di
         the raster's sample spacing, which absorbs the half-cell misregistration of walls and footprints).
     strip_rows
         Rows per window (default: about 4 M cells per window).
+    note
+        Further entries for ``flood.json`` (where the heights came from, see :func:`flood_tileset`).
 
     Raises
     ------
@@ -455,11 +461,41 @@ def flood_raster(raster: str | os.PathLike[str], levels: Sequence[float], out_di
             _write_affected(affected, city, partial)
             report.affected, report.buildings_checked = affected, checked
         report.seconds = time.perf_counter() - t0
-        _write_summary(report, info, sources, depressions, eight, partial)
+        _write_summary(report, info, sources, depressions, eight, partial, note)
         publish_dir(partial, out, marker=_MARKER)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise
+    return report
+
+
+def flood_tileset(tileset: str | os.PathLike[str], levels: Sequence[float], out_dir: str | os.PathLike[str], *,
+                  sources: FloodSources, strip_rows: int | None = None, **kw: object) -> FloodReport:
+    """Flood a DSM tileset built by ``citylod build dsm``: its leaves are rasterised on the source grid
+    (:func:`citylod.analysis.tileset_heights.rasterise_tileset`, in strips) into a temporary GeoTIFF beside
+    ``out_dir``, which :func:`flood_raster` then floods (same arguments, same outputs).
+
+    The result differs from flooding the source raster by no more than the leaves' certified error ε:
+    flood(source, L − ε) ⊆ flood(tileset, L) ⊆ flood(source, L + ε), depths within ε (the argument is in
+    :mod:`citylod.analysis.tileset_heights`). ``flood.json`` records the tileset and ε; the summary says it.
+    Errors name the tileset, not the temporary raster.
+    """
+    import tempfile
+
+    from citylod.analysis.tileset_heights import rasterise_tileset
+
+    out = Path(out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{out.name}.heights.", dir=out.parent) as tmp:
+        th = rasterise_tileset(tileset, Path(tmp) / "heights.tif", strip_rows=strip_rows)
+        try:
+            report = flood_raster(th.path, levels, out, sources=sources, strip_rows=strip_rows,
+                                  note={"raster": "", "tileset": str(th.tileset), "tileset_leaves": th.leaves,
+                                        "tileset_error_m": th.max_error_m}, **kw)  # type: ignore[arg-type]
+        except InputError as exc:
+            raise type(exc)(exc.message, th.tileset) from None
+    report.heights = (f"the tileset's {th.leaves} leaves, within {th.max_error_m:.3g} m of its source raster "
+                      "(the extent lies between the source's at level ± that)")
     return report
 
 
@@ -610,7 +646,7 @@ def _write_affected(rows: list[AffectedBuilding], city: str | os.PathLike[str], 
 
 
 def _write_summary(report: FloodReport, info: RasterInfo, sources: FloodSources, depressions: bool,
-                   eight: bool, folder: Path) -> None:
+                   eight: bool, folder: Path, note: dict[str, object] | None = None) -> None:
     def write_csv(tmp: Path) -> None:
         with open(tmp, "w", newline="", encoding="utf-8") as fh:
             w = csv.DictWriter(fh, fieldnames=list(asdict(report.levels[0])))
@@ -625,6 +661,6 @@ def _write_summary(report: FloodReport, info: RasterInfo, sources: FloodSources,
                     "polygons": sources.polygons.source if sources.polygons else ""},
         "depressions": depressions, "connectivity": 8 if eight else 4,
         "affected_buildings": len(report.affected), "buildings_checked": report.buildings_checked,
-        "seconds": report.seconds,
+        "seconds": report.seconds, **(note or {}),
     }
     atomic_write(folder / _MARKER, lambda t: t.write_text(json.dumps(doc, indent=1), encoding="utf-8"))

@@ -11,14 +11,17 @@ from __future__ import annotations
 
 import math
 import os
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 import pyproj
 
 from citylod.analysis.flood import AffectedBuilding, FloodModel, FloodSources, cell_areas
+from citylod.analysis.tileset_heights import is_tileset, rasterise_tileset
 from citylod.io.raster import RasterInfo, RasterSource
 
 __all__ = ["FloodResult", "FloodScenario"]
@@ -42,7 +45,9 @@ class FloodScenario:
     Parameters
     ----------
     raster
-        Height raster (read whole: interactive use needs it in memory).
+        Height raster (read whole: interactive use needs it in memory), or a DSM tileset from ``citylod build
+        dsm``: its leaves are rasterised on the source grid into a temporary GeoTIFF first (as ``citylod
+        flood`` does; the extent is within the leaves' error ε of the source's, :attr:`tileset_error_m`).
     sources
         Where water enters.
     city
@@ -56,6 +61,12 @@ class FloodScenario:
     def __init__(self, raster: str | os.PathLike[str], sources: FloodSources, *,
                  city: str | os.PathLike[str] | None = None, levels: Sequence[float] = (),
                  touch_m: float | None = None, **model_kw: object) -> None:
+        self.tileset_error_m: float | None = None
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        if is_tileset(raster):
+            self._tmp = tempfile.TemporaryDirectory(prefix="citylod-flood-")
+            th = rasterise_tileset(raster, Path(self._tmp.name) / "heights.tif")
+            raster, self.tileset_error_m = th.path, th.max_error_m
         src = RasterSource(raster)
         self.info: RasterInfo = src.info
         self.model = FloodModel.from_raster(raster, sources, **model_kw)

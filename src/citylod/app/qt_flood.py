@@ -52,8 +52,13 @@ class FloodPanel(QWidget):
         self._future: Future[FloodResult] | None = None
         self._again = False
         self._highlighted: list[str] = []
-        self.load_button = QPushButton("Load raster…")
+        self.load_button = QPushButton("Load raster or tileset…")
         self.load_button.clicked.connect(self._load_dialog)
+        self.view_button = QPushButton("Flood the DSM in the view")
+        self.view_button.setObjectName("flood_view_dsm")
+        self.view_button.setToolTip("Flood the open DSM tileset from the edge: its leaves on the source grid, "
+                                    "within their certified error of the source raster")
+        self.view_button.clicked.connect(self.load_view_dsm)
         self.level = QSlider(Qt.Orientation.Horizontal)
         self.level.setObjectName("flood_level")
         self.level.setEnabled(False)
@@ -73,6 +78,7 @@ class FloodPanel(QWidget):
         form.addRow("Time", self.time)
         lay = QVBoxLayout(self)
         lay.addWidget(self.load_button)
+        lay.addWidget(self.view_button)
         lay.addLayout(form)
         lay.addWidget(self.summary)
         lay.addWidget(QLabel("Affected buildings"))
@@ -83,9 +89,20 @@ class FloodPanel(QWidget):
 
     # -- loading ----------------------------------------------------------------------------------
     def _load_dialog(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Height raster to flood", "", "Rasters (*.tif *.tiff)")
+        path, _ = QFileDialog.getOpenFileName(self, "Height raster or DSM tileset to flood", "",
+                                              "Rasters or tilesets (*.tif *.tiff *.json)")
         if path:
             self.load(path, FloodSources(edge=True))
+
+    def load_view_dsm(self) -> bool:
+        """Flood the first DSM tileset open in the document from the edge; False (and a note) without one."""
+        for entry in self.document.entries:
+            ts = getattr(entry.layer, "tileset", None)
+            if entry.kind == "tileset" and ts is not None and getattr(ts, "kind", "") == "dsm":
+                self.load(entry.path, FloodSources(edge=True))
+                return True
+        self.summary.setText("no DSM tileset is open")
+        return False
 
     def load(self, raster: str | os.PathLike[str], sources: FloodSources, *, levels: list[float] | None = None,
              city: str | os.PathLike[str] | None = None) -> None:
@@ -158,8 +175,10 @@ class FloodPanel(QWidget):
         assert self.scenario is not None
         self.result = res
         self.water.set_mask(res.mask, self.scenario.model.heights, res.level)
+        eps = self.scenario.tileset_error_m
         self.summary.setText(f"{res.area_m2:,.0f} m² flooded, {res.volume_m3:,.0f} m³, "
-                             f"{len(res.affected)} buildings affected")
+                             f"{len(res.affected)} buildings affected"
+                             + (f" (tileset heights, within {eps:.2g} m)" if eps is not None else ""))
         self.table.setRowCount(len(res.affected))
         for i, a in enumerate(sorted(res.affected, key=lambda a: -a.max_depth_m)):
             for j, v in enumerate((a.object_id, f"{a.max_depth_m:.2f}", f"{a.mean_depth_m:.2f}")):

@@ -1,4 +1,4 @@
-"""``citylod flood RASTER --level L -o OUT_DIR``: flooded area, depth and affected buildings."""
+"""``citylod flood RASTER|TILESET --level L -o OUT_DIR``: flooded area, depth and affected buildings."""
 
 from __future__ import annotations
 
@@ -17,8 +17,9 @@ def _xy(text: str) -> tuple[float, float]:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    f = sub.add_parser("flood", help="flood a DSM/DTM raster from sources at water levels")
-    f.add_argument("raster", type=Path)
+    f = sub.add_parser("flood", help="flood a DSM/DTM raster (or a built DSM tileset) from sources at water levels")
+    f.add_argument("raster", type=Path, help="height raster, or a DSM tileset from `citylod build dsm` (its "
+                                             "leaves are flooded on the source grid)")
     lv = f.add_mutually_exclusive_group(required=True)
     lv.add_argument("--level", type=float, help="water level (raster height units)")
     lv.add_argument("--levels", type=floats, help="a series of water levels, e.g. 1,1.5,2 (one result each)")
@@ -37,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:
-    from citylod.analysis.flood import FloodSources, flood_raster
+    from citylod.analysis.flood import FloodSources, flood_raster, flood_tileset
     from citylod.analysis.polygons import PolygonLayer, load_polygons
 
     layers = [load_polygons(p) for p in args.source]
@@ -48,7 +49,8 @@ def run(args: argparse.Namespace, progress: bool) -> int:
                             ", ".join(str(p) for p in args.source))
     sources = FloodSources(tuple(args.seed), poly, args.edge)
     levels = args.levels if args.levels is not None else [args.level]
-    report = flood_raster(args.raster, levels, args.output, sources=sources, depressions=args.depressions,
+    is_tiles = args.raster.is_dir() or args.raster.suffix.lower() == ".json"
+    report = (flood_tileset if is_tiles else flood_raster)(args.raster, levels, args.output, sources=sources, depressions=args.depressions,
                           eight=args.eight, city=args.city, touch_m=args.touch, progress=progress)
     print(report.summary())
     return 0

@@ -1,8 +1,11 @@
 """Budget mode for a scene: hold a target frame time by steering τ and the point budget every frame.
 
-:class:`FrameBudget` times each render of the scene's renderer (VTK ``StartEvent`` to ``EndEvent``), feeds
-the time with what the frame drew to a :class:`~citylod.lod.runtime.budget.FrameTimeController`, and sets
-the next frame's point budget on point layers and τ on the others. Fixed budgets stay what they were when
+:class:`FrameBudget` times each render of the scene's renderer (VTK ``StartEvent`` to ``EndEvent``, then waits
+for the GL to finish, so the time is the completed frame's). Point
+layers are steered by a :class:`~citylod.lod.runtime.budget.PointBudgetController` (a cost model fitted
+online and fed forward, a PI controller on its residual, growth limited per frame): it sets their shared
+point budget and scales their τ down where a view holds fewer points than the target allows. Other layers
+(meshes) get τ from a :class:`~citylod.lod.runtime.budget.FrameTimeController` (PID on the frame time). Fixed budgets stay what they were when
 the mode is switched off (:meth:`close`). Creates no VTK objects; call from the GL thread. No Qt.
 """
 
@@ -11,7 +14,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from citylod.lod.runtime.budget import FrameTimeController
+from citylod.lod.runtime.budget import FrameTimeController, PointBudgetController
 from citylod.lod.runtime.selection import Budget
 from citylod.render import _vtk
 
@@ -35,7 +38,7 @@ class FrameBudget:
         self._points = [layer for layer in scene.layers if layer.budget is not None and layer.budget.max_points]
         self._others = [layer for layer in scene.layers if layer not in self._points]
         base_points = sum(int(layer.budget.max_points) for layer in self._points) or None
-        self.points_ctl = FrameTimeController(target_ms, base_points=base_points) if base_points else None
+        self.points_ctl = PointBudgetController(target_ms, base_points=base_points) if base_points else None
         self.tau_ctl = FrameTimeController(target_ms, base_tau_px=scene.tau_px) if self._others else None
         self.frame_ms: list[float] = []
         self._t0 = 0.0
@@ -47,6 +50,12 @@ class FrameBudget:
         self._t0 = time.perf_counter()
 
     def _end(self, _obj: Any, _event: str) -> None:
+        # The renderer's EndEvent comes when the draw calls are issued, not done: a software GL (llvmpipe)
+        # rasterises on its threads until the window waits for it, so without waiting here the time is the
+        # submission's (a third of the frame on this machine) and steers nothing that the user sees.
+        win = self.scene.renderer.GetRenderWindow()
+        if win is not None:
+            win.WaitForCompletion()
         ms = (time.perf_counter() - self._t0) * 1000.0
         self.frame_ms.append(ms)
         if self.points_ctl is not None:
@@ -54,12 +63,15 @@ class FrameBudget:
             limited = any(layer.selection is not None and layer.selection.stats.budget_limited
                           for layer in self._points)
             self.points_ctl.update(ms, drawn, limited)
-            share = self.points_ctl.point_budget or 1
+            share = self.points_ctl.point_budget
             total = sum(int(b.max_points) for _, b, _ in self._saved if b is not None and b.max_points) or 1
             for layer, budget, _ in self._saved:
                 if layer in self._points and budget is not None and budget.max_points:
                     layer.budget = Budget(max_bytes=budget.max_bytes, max_triangles=budget.max_triangles,
                                           max_points=max(1, share * int(budget.max_points) // total))
+            for layer, _, tau in self._saved:
+                if layer in self._points:  # a layer without its own τ follows the scene's
+                    layer.tau_px = (tau if tau is not None else self.scene.tau_px) * self.points_ctl.tau_scale
         if self.tau_ctl is not None:
             self.tau_ctl.update(ms)
             for layer in self._others:

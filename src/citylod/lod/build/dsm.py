@@ -1152,6 +1152,8 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     write_tileset(partial, root, metric_crs, extras={"citylod": {
         "kind": "dsm", "source": str(Path(raster).name), "source_crs": info.crs_wkt,
         "leaf_target_m": leaf, "tile_size": tile_size, "levels": levels + 1,
+        # the source grid, so the leaves' vertices map back to raster rows and columns (flooding a tileset)
+        "grid": {"width": info.width, "height": info.height, "transform": [float(v) for v in info.transform[:6]]},
         "error_metric": _METRIC_TEXT["hausdorff" if metric == "hausdorff" and not info.geographic else "vertical"],
     }})
     _replace_dir(partial, out)
