@@ -103,6 +103,8 @@ _BLOCK = 1024
 # certificate meets the target is kept; see build_tile).
 _HAUSDORFF_REACH = 12
 _HAUSDORFF_TOLERANCES = (1.0, 0.5, 0.25)
+# Hausdorff metric: a coarse tile's grid has this many times the lines of its level's (see _grid_stride).
+_HAUSDORFF_REFINE = 16
 
 
 # What a tileset's geometricError means, written into its citylod extras.
@@ -200,12 +202,15 @@ class DsmBuildReport:
 
 
 def _triangulate(heights: np.ndarray, valid: np.ndarray, max_error: float,
-                 must_include: np.ndarray | None, lattice: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
+                 must_include: np.ndarray | None, lattice: bool = False,
+                 plane: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """The TIN kernel's vertices, faces and number of triangles it left above ``max_error`` (0 but for a bug).
-    ``lattice``: seeded on `citylod.lod.kernels.tin.SEED_LATTICE` too (coarse tiles whose target is out of reach)."""
+    ``lattice``: seeded on `citylod.lod.kernels.tin.SEED_LATTICE` too (coarse tiles whose target is out of reach).
+    ``plane``: the grid's metric spacing, for errors measured to the triangles' planes (Hausdorff metric)."""
     from citylod.lod.kernels.tin import SEED_LATTICE, build
 
-    r = build(heights, valid, max_error, must_include=must_include, lattice=SEED_LATTICE if lattice else 0)
+    r = build(heights, valid, max_error, must_include=must_include, lattice=SEED_LATTICE if lattice else 0,
+              plane=plane)
     return r.vertices_ij, r.faces, r.stuck
 
 
@@ -232,11 +237,24 @@ def _tile_grid(job: DsmJob) -> tuple[int, np.ndarray, np.ndarray] | None:
     info = job.source.info
     cells = job.tile_size - 1
     stride = 2 ** (job.levels - job.level)
-    rpos, rex = _grid_positions(job.row * cells * stride, job.tile_size, stride, info.height - 1)
-    cpos, cex = _grid_positions(job.col * cells * stride, job.tile_size, stride, info.width - 1)
+    g = _grid_stride(job)
+    n = cells * (stride // g) + 1
+    rpos, rex = _grid_positions(job.row * cells * stride, n, g, info.height - 1)
+    cpos, cex = _grid_positions(job.col * cells * stride, n, g, info.width - 1)
     if not rex.any() or not cex.any():
         return None
-    return stride, rpos[rex], cpos[cex]
+    return g, rpos[rex], cpos[cex]
+
+
+def _grid_stride(job: DsmJob) -> int:
+    """Full-resolution samples between a tile's grid lines: its level's stride, or under the Hausdorff metric
+    ``_HAUSDORFF_REFINE`` times fewer, so that a coarse TIN's vertices can sit next to a façade or on a tree
+    rather than up to a stride away (a façade between two vertices becomes a slope as wide as their
+    distance, which the Hausdorff distance charges)."""
+    stride = 2 ** (job.levels - job.level)
+    if job.metric == "hausdorff" and stride > 1 and not job.source.info.geographic:
+        return max(1, stride // _HAUSDORFF_REFINE)
+    return stride
 
 
 class _Footprint:
@@ -491,7 +509,9 @@ def build_tile(job: DsmJob) -> TileResult:
     if g is None:
         _journal_result(job.out_dir, key, res)
         return res
-    stride, rpos, cpos = g
+    stride, rpos, cpos = g  # the grid's stride (finer than the level's under the Hausdorff metric)
+    cells *= 2 ** (job.levels - job.level) // stride
+    coarse = job.level < job.levels
     fp = _Footprint(src, rpos, cpos)
     heights, valid = fp.grid()
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
@@ -505,7 +525,7 @@ def build_tile(job: DsmJob) -> TileResult:
     def attempt(tol: float, must: np.ndarray | None, check: bool = True, lattice: bool = False,
                 per_cell: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         nonlocal stuck
-        vij, faces, stuck = _triangulate(heights, valid, tol, must, lattice)
+        vij, faces, stuck = _triangulate(heights, valid, tol, must, lattice, plane)
         vz = heights[vij[:, 0], vij[:, 1]]
         if len(faces) == 0 or not check:
             return math.nan, vij, faces, vz, np.zeros((cells, cells))
@@ -514,8 +534,10 @@ def build_tile(job: DsmJob) -> TileResult:
                                  floor=0.5 * job.target)
         return err, vij, faces, vz, cell_err
 
-    haus = _hausdorff_affine(info, job) if stride > 1 else None
+    haus = _hausdorff_affine(info, job) if coarse else None
+    plane = None
     if haus is not None:
+        plane = (math.hypot(haus[0], haus[2]) * stride, math.hypot(haus[1], haus[3]) * stride)
         heights = _feature_heights(fp, heights, valid, stride, job.target)
         # The TIN kernel simplifies the tile's grid G within a vertical tolerance; the certificate measures
         # the TIN against the raster in 3D. H(TIN, raster) ≤ H(TIN, G) + H(G, raster) ≤ tol + H(G, raster),
@@ -641,7 +663,9 @@ def finish_tile(job: DsmJob) -> TileResult:
     g = _tile_grid(job)
     if g is None:
         raise RuntimeError(f"tile {key}: outside the raster")
-    stride, rpos, cpos = g
+    stride, rpos, cpos = g  # the grid's stride (finer than the level's under the Hausdorff metric)
+    cells *= 2 ** (job.levels - job.level) // stride
+    coarse = job.level < job.levels
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
     if job.stage1_tin is None:
         raise RuntimeError(f"tile {key}: stage 2 without a stage-1 TIN")
@@ -655,8 +679,8 @@ def finish_tile(job: DsmJob) -> TileResult:
     replaced = faces[:0]
     old_center = None
     # A leaf's error is its kernel's bound (see below), not a certificate: nothing of stage 1 is re-evaluated.
-    haus = _hausdorff_affine(info, job) if stride > 1 else None
-    kernel_leaf = stride == 1 and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
+    haus = _hausdorff_affine(info, job) if coarse else None
+    kernel_leaf = not coarse and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
     if job.border_extra:
         vij2, faces2, replaced = _insert_border_vertices(vij, faces, dict(job.border_extra), last_r, last_c)
         if len(replaced):
