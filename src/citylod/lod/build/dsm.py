@@ -98,12 +98,14 @@ _SHORTCUT_SLACK = 1.25
 # built (2049² float64 heights + validity ≈ 38 MB); larger ones are read in cached blocks of _BLOCK cells.
 _WHOLE_FOOTPRINT_SAMPLES = 2049 * 2049
 _BLOCK = 1024
-# Hausdorff metric: rings of raster cells searched around a piece for a closer part of the surface, and the
-# TIN kernel's vertical tolerances tried on a coarse tile, as fractions of its target (the first whose
-# certificate meets the target is kept; see build_tile).
+# Hausdorff metric: rings of raster cells searched around a piece for a closer part of the surface; the TIN
+# kernel's 3D tolerances tried on a coarse tile, as fractions of its target, and the certificate (as a
+# multiple of the target) that stops the search (see build_tile).
 _HAUSDORFF_REACH = 12
-_HAUSDORFF_TOLERANCES = (1.0, 0.5, 0.25)
-# Hausdorff metric: a coarse tile's grid has this many times the lines of its level's (see _grid_stride).
+_HAUSDORFF_TOLERANCES = (1.5, 1.0, 0.5, 0.25)
+_HAUSDORFF_ACCEPT = 1.5
+# Hausdorff metric: a coarse tile's grid has up to this many times the lines of its level's, every
+# full-resolution sample while the grid stays within 16·128 + 1 = 2049 samples a side (see _grid_stride).
 _HAUSDORFF_REFINE = 16
 
 
@@ -539,11 +541,13 @@ def build_tile(job: DsmJob) -> TileResult:
     if haus is not None:
         plane = (math.hypot(haus[0], haus[2]) * stride, math.hypot(haus[1], haus[3]) * stride)
         heights = _feature_heights(fp, heights, valid, stride, job.target)
-        # The TIN kernel simplifies the tile's grid G within a vertical tolerance; the certificate measures
-        # the TIN against the raster in 3D. H(TIN, raster) ≤ H(TIN, G) + H(G, raster) ≤ tol + H(G, raster),
-        # and H(G, raster) is what a coarse grid cannot avoid (a façade between its samples), so the coarsest
-        # tolerance whose certificate meets the target is kept; a finer one only when it lowers the
-        # certificate clearly (a façade-bound tile gains nothing from more triangles).
+        # The TIN kernel simplifies the tile's grid G (every full-resolution sample, up to 2049 a side) within
+        # a 3D tolerance (`citylod.lod.kernels.tin.build`'s ``plane``: distances to the triangles and to the
+        # grid surface, not vertical ones), so vertices sit at façade edges and on tree tops and a façade
+        # costs its slope's offset, not its height. That measure is a guide, not a bound: the certificate
+        # decides. The coarsest tolerance whose certificate is within _HAUSDORFF_ACCEPT × the target is
+        # kept (the issue allows 1.5× per level; a level's count of triangles falls with its tolerance); a
+        # finer one only when it lowers the certificate clearly.
         kept = None
         for frac in _HAUSDORFF_TOLERANCES:
             trial = attempt(frac * job.target, None, per_cell=False)
@@ -552,7 +556,7 @@ def build_tile(job: DsmJob) -> TileResult:
             if kept is not None and trial[0] >= kept[0] * _REFINE_GAIN:
                 break
             kept = trial
-            if trial[0] <= job.target:
+            if trial[0] <= _HAUSDORFF_ACCEPT * job.target:
                 break
         if kept is None:
             _journal_result(job.out_dir, key, res)
