@@ -3,8 +3,8 @@
 The tile tree: leaves sit on the raster's own grid, ``tile_size`` samples a side (129 by default, 128 cells,
 borders shared with neighbours); each coarser level covers 2×2 tiles of the level below on the same number
 of samples (every second sample), so a level-d tile has a sample stride of ``2^(L−d)``. Each tile is one TIN
-whose vertices lie on its grid, simplified to a target that doubles per level (the leaf target defaults to
-half the sample spacing).
+whose vertices lie on its grid (under the Hausdorff metric, a finer one: see below), simplified to a target
+that doubles per level (the leaf target defaults to half the sample spacing).
 
 The guarantee: every coarse tile's TIN is certified against the *full-resolution* raster, exactly, by
 :mod:`citylod.lod.kernels.certify` (vertical L∞ at every sample and every crossing of a TIN edge with a grid edge),
@@ -20,16 +20,17 @@ what the issue allows in place of Wahl's l−2 reference bookkeeping. A tile's f
 window, when it holds up to ``_WHOLE_FOOTPRINT_SAMPLES`` samples (its grid and every certification are then
 taken from memory), and in cached blocks otherwise, so memory does not grow with the raster.
 
-The metric (``metric``). The default, ``"vertical"``, certifies the vertical L∞ distance described above
-for every level; with ``metric="hausdorff"`` a coarse tile's ``geometricError`` bounds the symmetric 3D Hausdorff
-distance between the tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`),
-which charges a façade between two coarse samples about the horizontal distance to it rather than its
-height. Its TIN is the TIN kernel's simplification of the tile's grid at a vertical tolerance (the coarsest of
-1, ½, ¼ × the target whose certificate meets the target), on grid heights that reach features narrower than
-the stride (`_feature_heights`); its skirts are sized from the border's measured vertical error. Leaves keep
-the kernel's vertical bound, which bounds Hausdorff too; geographic rasters are certified vertically.
-Hausdorff becomes the default once its coarse levels meet their targets and its builds their time
-(docs/BENCHMARKS.md has where they stand).
+The metric (``metric``). ``"vertical"`` certifies the vertical L∞ distance described above for every
+level; with ``"hausdorff"`` a coarse tile's ``geometricError`` bounds the symmetric 3D Hausdorff distance
+between the tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`), which
+charges a façade between two vertices about the horizontal offset of the slope that replaces it rather than
+its height. Its TIN is built for that metric: on a grid of every full-resolution sample (up to 2049 a side;
+coarser above, with grid heights raised or lowered to features narrower than its stride,
+`_feature_heights`), the TIN kernel inserts and removes vertices by a 3D error (distances to the triangles
+and to the grid surface, `citylod.lod.kernels.tin.build`'s ``plane``), so vertices sit at façade edges and on
+tree tops wherever a sample is, and the coarsest tolerance whose certificate is within 1.5× the target is
+kept. Its skirts are sized from the border's measured vertical error. Leaves keep the kernel's vertical
+bound, which bounds Hausdorff too; geographic rasters are certified vertically.
 
 Borders, in two stages. Stage 1 (:func:`build_tile`) chooses every tile's TIN. Its border vertices are the
 1D simplification of the border samples (the same on both sides) plus the few the exact 2D bound or a
