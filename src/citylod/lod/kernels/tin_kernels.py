@@ -328,9 +328,9 @@ def _point_error_3d(h: np.ndarray, cellvalid: np.ndarray, x: float, y: float, zr
                     t0x: float, t0y: float, t0z: float, t1x: float, t1y: float, t1z: float, t2x: float, t2y: float, t2z: float, sx: float, sy: float, tol: float, best: float) -> float:
     """3D error at one evaluation point (grid position x = column, y = row, raster height ``zr``, TIN height
     ``zt``) of a TIN triangle (``t0x``..``t2z``, in metres): the larger of dist(raster point, triangle) and
-    dist(TIN point, grid surface), the latter searched over the grid cells within ``tol`` horizontally (a cell
-    farther away is farther than ``tol`` in 3D too, so "> tol" is decided exactly; the value returned above it
-    is the nearest such cell's, an upper bound). Both are at most the vertical error |zt − zr|, which is
+    dist(TIN point, grid surface), the latter searched over the grid cells within ``tol`` horizontally, in
+    rings nearest first (a cell farther away is farther than ``tol`` in 3D too, so "> tol" is decided exactly;
+    the value returned above it is the nearest cell's found, an upper bound). Both are at most the vertical error |zt − zr|, which is
     returned where nothing closer is found. ``best``: a result at most this is not needed exactly."""
     e = abs(zt - zr)
     X = x * sx
@@ -339,32 +339,41 @@ def _point_error_3d(h: np.ndarray, cellvalid: np.ndarray, x: float, y: float, zr
     if d1 > tol and d1 > best:
         return min(d1, e)
     H, W = h.shape
-    kx = int(math.ceil(tol / sx))
-    ky = int(math.ceil(tol / sy))
-    i0 = max(int(math.floor(y)) - ky, 0)
-    i1 = min(int(math.floor(y)) + ky, H - 2)
-    j0 = max(int(math.floor(x)) - kx, 0)
-    j1 = min(int(math.floor(x)) + kx, W - 2)
+    # rings of cells around the point's, nearest first: a cell of ring r is at least (r − 1)·min(sx, sy) away
+    # horizontally, so the search stops at the first ring farther than ``tol`` or than the nearest cell found
+    ci = min(max(int(math.floor(y)), 0), H - 2)
+    cj = min(max(int(math.floor(x)), 0), W - 2)
+    step = min(sx, sy)
     d2 = e * e
     lim = max(tol, best)
     lim *= lim
-    for i in range(i0, i1 + 1):
-        for j in range(j0, j1 + 1):
-            if not cellvalid[i, j]:
+    r = 0
+    while True:
+        gap = max(r - 1, 0) * step
+        if gap > tol or gap * gap >= d2 or (r > ci and r > cj and r > H - 2 - ci and r > W - 2 - cj):
+            break
+        for i in range(ci - r, ci + r + 1):
+            if i < 0 or i > H - 2:
                 continue
-            xa = j * sx
-            xb = xa + sx
-            ya = i * sy
-            yb = ya + sy
-            za, zb, zc, zd = h[i, j], h[i, j + 1], h[i + 1, j], h[i + 1, j + 1]
-            d = point_triangle_sq(X, Y, zt, xa, ya, za, xa, yb, zc, xb, yb, zd)  # lower: (i,j),(i+1,j),(i+1,j+1)
-            if d < d2:
-                d2 = d
-            d = point_triangle_sq(X, Y, zt, xa, ya, za, xb, ya, zb, xb, yb, zd)  # upper: (i,j),(i,j+1),(i+1,j+1)
-            if d < d2:
-                d2 = d
-            if d2 <= lim:
-                return max(d1, math.sqrt(d2))
+            edge = i == ci - r or i == ci + r
+            j = cj - r
+            while j <= cj + r:
+                if 0 <= j <= W - 2 and cellvalid[i, j]:
+                    xa = j * sx
+                    xb = xa + sx
+                    ya = i * sy
+                    yb = ya + sy
+                    za, zb, zc, zd = h[i, j], h[i, j + 1], h[i + 1, j], h[i + 1, j + 1]
+                    d = point_triangle_sq(X, Y, zt, xa, ya, za, xa, yb, zc, xb, yb, zd)  # (i,j),(i+1,j),(i+1,j+1)
+                    if d < d2:
+                        d2 = d
+                    d = point_triangle_sq(X, Y, zt, xa, ya, za, xb, ya, zb, xb, yb, zd)  # (i,j),(i,j+1),(i+1,j+1)
+                    if d < d2:
+                        d2 = d
+                    if d2 <= lim:
+                        return max(d1, math.sqrt(d2))
+                j += 1 if (edge or r == 0) else 2 * r
+        r += 1
     return max(d1, math.sqrt(d2))
 
 
