@@ -514,7 +514,7 @@ def build_tile(job: DsmJob) -> TileResult:
         return res
     stride, rpos, cpos = g  # the grid's stride (finer than the level's under the Hausdorff metric)
     cells *= 2 ** (job.levels - job.level) // stride
-    coarse = job.level < job.levels
+    is_coarse = job.level < job.levels
     fp = _Footprint(src, rpos, cpos)
     heights, valid = fp.grid()
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
@@ -537,7 +537,7 @@ def build_tile(job: DsmJob) -> TileResult:
                                  floor=0.5 * job.target)
         return err, vij, faces, vz, cell_err
 
-    haus = _hausdorff_affine(info, job) if coarse else None
+    haus = _hausdorff_affine(info, job) if is_coarse else None
     plane = None
     if haus is not None:
         plane = (math.hypot(haus[0], haus[2]) * stride, math.hypot(haus[1], haus[3]) * stride)
@@ -670,7 +670,7 @@ def finish_tile(job: DsmJob) -> TileResult:
         raise RuntimeError(f"tile {key}: outside the raster")
     stride, rpos, cpos = g  # the grid's stride (finer than the level's under the Hausdorff metric)
     cells *= 2 ** (job.levels - job.level) // stride
-    coarse = job.level < job.levels
+    is_coarse = job.level < job.levels
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
     if job.stage1_tin is None:
         raise RuntimeError(f"tile {key}: stage 2 without a stage-1 TIN")
@@ -684,8 +684,8 @@ def finish_tile(job: DsmJob) -> TileResult:
     replaced = faces[:0]
     old_center = None
     # A leaf's error is its kernel's bound (see below), not a certificate: nothing of stage 1 is re-evaluated.
-    haus = _hausdorff_affine(info, job) if coarse else None
-    kernel_leaf = not coarse and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
+    haus = _hausdorff_affine(info, job) if is_coarse else None
+    kernel_leaf = not is_coarse and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
     if job.border_extra:
         vij2, faces2, replaced = _insert_border_vertices(vij, faces, dict(job.border_extra), last_r, last_c)
         if len(replaced):

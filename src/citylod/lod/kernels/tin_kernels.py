@@ -15,9 +15,8 @@ growing downwards is counter-clockwise seen from above in (x east, y north).
 
 from __future__ import annotations
 
-from typing import Any
-
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
