@@ -541,7 +541,8 @@ def build_tile(job: DsmJob) -> TileResult:
     plane = None
     if haus is not None:
         plane = (math.hypot(haus[0], haus[2]) * stride, math.hypot(haus[1], haus[3]) * stride)
-        heights = _feature_heights(fp, heights, valid, stride, job.target)
+        if stride > 1:  # a grid of every sample misses no feature narrower than its stride
+            heights = _feature_heights(fp, heights, valid, stride, job.target)
         # The TIN kernel simplifies the tile's grid G (every full-resolution sample, up to 2049 a side) within
         # a 3D tolerance (`citylod.lod.kernels.tin.build`'s ``plane``: distances to the triangles and to the
         # grid surface, not vertical ones), so vertices sit at façade edges and on tree tops and a façade
