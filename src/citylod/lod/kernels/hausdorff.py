@@ -21,7 +21,12 @@ the bound is never worse than the exact vertical L∞ bound of the same pieces. 
 cell triangles in rings of cells around P's cell (nearest first, stopped once a ring is farther than the
 current bound), and the TIN triangles sharing a vertex with P's own. The pieces cover both surfaces over
 the part of the footprint where both are defined, so the maximum over pieces bounds both directed
-Hausdorff distances, i.e. the symmetric one, over that part.
+Hausdorff distances, i.e. the symmetric one, over that part. A piece whose bound stays above the threshold
+(below) is cut into convex parts (its fan triangles, halved at the longest edge while their bound exceeds it,
+`_subdivided`) and bounded part by part: the argument holds for each convex part, and the parts cover the
+piece, so their maximum bounds it too. This matters where the vertices of one piece lie nearest to different
+triangles (a TIN slope beside a raster façade that continues into a roof): one candidate for all of them
+cannot follow both, parts can.
 
 Cost. A piece whose vertical bound is already at most the running maximum (or ``floor``) cannot raise the
 maximum and is recorded as it is; the candidate search runs only where it can, and stops as soon as the
