@@ -209,7 +209,7 @@ def _triangulate(heights: np.ndarray, valid: np.ndarray, max_error: float,
                  plane: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """The TIN kernel's vertices, faces and number of triangles it left above ``max_error`` (0 but for a bug).
     ``lattice``: seeded on `citylod.lod.kernels.tin.SEED_LATTICE` too (coarse tiles whose target is out of reach).
-    ``plane``: the grid's metric spacing, for errors measured to the triangles' planes (Hausdorff metric)."""
+    ``plane``: the grid's metric spacing, for the kernel's 3D error (Hausdorff metric)."""
     from citylod.lod.kernels.tin import SEED_LATTICE, build
 
     r = build(heights, valid, max_error, must_include=must_include, lattice=SEED_LATTICE if lattice else 0,
