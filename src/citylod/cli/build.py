@@ -22,8 +22,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="certify the leaves against the raster too (default: the TIN kernel's exact bound)")
     d.add_argument("--metric", choices=("hausdorff", "vertical"), default="vertical",
                    help="what geometricError bounds: the vertical distance to the raster (default; counts a "
-                        "façade at its full height) or the symmetric 3D Hausdorff distance (coarse levels much "
-                        "lower on cities, builds about 4x longer)")
+                        "façade at its full height) or the symmetric 3D Hausdorff distance (coarse levels within 1.5x "
+                        "their targets on cities, builds about 20x longer)")
     pt = bsub.add_parser("points", help="LAS/LAZ files to a 3D Tiles octree")
     pt.add_argument("files", type=Path, nargs="+")
     pt.add_argument("-o", "--output", type=Path, required=True)

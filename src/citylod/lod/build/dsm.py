@@ -3,8 +3,8 @@
 The tile tree: leaves sit on the raster's own grid, ``tile_size`` samples a side (129 by default, 128 cells,
 borders shared with neighbours); each coarser level covers 2×2 tiles of the level below on the same number
 of samples (every second sample), so a level-d tile has a sample stride of ``2^(L−d)``. Each tile is one TIN
-whose vertices lie on its grid, simplified to a target that doubles per level (the leaf target defaults to
-half the sample spacing).
+whose vertices lie on its grid (under the Hausdorff metric, a finer one: see below), simplified to a target
+that doubles per level (the leaf target defaults to half the sample spacing).
 
 The guarantee: every coarse tile's TIN is certified against the *full-resolution* raster, exactly, by
 :mod:`citylod.lod.kernels.certify` (vertical L∞ at every sample and every crossing of a TIN edge with a grid edge),
@@ -20,16 +20,17 @@ what the issue allows in place of Wahl's l−2 reference bookkeeping. A tile's f
 window, when it holds up to ``_WHOLE_FOOTPRINT_SAMPLES`` samples (its grid and every certification are then
 taken from memory), and in cached blocks otherwise, so memory does not grow with the raster.
 
-The metric (``metric``). The default, ``"vertical"``, certifies the vertical L∞ distance described above
-for every level; with ``metric="hausdorff"`` a coarse tile's ``geometricError`` bounds the symmetric 3D Hausdorff
-distance between the tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`),
-which charges a façade between two coarse samples about the horizontal distance to it rather than its
-height. Its TIN is the TIN kernel's simplification of the tile's grid at a vertical tolerance (the coarsest of
-1, ½, ¼ × the target whose certificate meets the target), on grid heights that reach features narrower than
-the stride (`_feature_heights`); its skirts are sized from the border's measured vertical error. Leaves keep
-the kernel's vertical bound, which bounds Hausdorff too; geographic rasters are certified vertically.
-Hausdorff becomes the default once its coarse levels meet their targets and its builds their time
-(docs/BENCHMARKS.md has where they stand).
+The metric (``metric``). ``"vertical"`` certifies the vertical L∞ distance described above for every
+level; with ``"hausdorff"`` a coarse tile's ``geometricError`` bounds the symmetric 3D Hausdorff distance
+between the tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`), which
+charges a façade between two vertices about the horizontal offset of the slope that replaces it rather than
+its height. Its TIN is built for that metric: on a grid of every full-resolution sample (up to 2049 a side;
+coarser above, with grid heights raised or lowered to features narrower than its stride,
+`_feature_heights`), the TIN kernel inserts and removes vertices by a 3D error (distances to the triangles
+and to the grid surface, `citylod.lod.kernels.tin.build`'s ``plane``), so vertices sit at façade edges and on
+tree tops wherever a sample is, and the coarsest tolerance whose certificate is within 1.5× the target is
+kept. Its skirts are sized from the border's measured vertical error. Leaves keep the kernel's vertical
+bound, which bounds Hausdorff too; geographic rasters are certified vertically.
 
 Borders, in two stages. Stage 1 (:func:`build_tile`) chooses every tile's TIN. Its border vertices are the
 1D simplification of the border samples (the same on both sides) plus the few the exact 2D bound or a
@@ -98,11 +99,15 @@ _SHORTCUT_SLACK = 1.25
 # built (2049² float64 heights + validity ≈ 38 MB); larger ones are read in cached blocks of _BLOCK cells.
 _WHOLE_FOOTPRINT_SAMPLES = 2049 * 2049
 _BLOCK = 1024
-# Hausdorff metric: rings of raster cells searched around a piece for a closer part of the surface, and the
-# TIN kernel's vertical tolerances tried on a coarse tile, as fractions of its target (the first whose
-# certificate meets the target is kept; see build_tile).
+# Hausdorff metric: rings of raster cells searched around a piece for a closer part of the surface; the TIN
+# kernel's 3D tolerances tried on a coarse tile, as fractions of its target, and the certificate (as a
+# multiple of the target) that stops the search (see build_tile).
 _HAUSDORFF_REACH = 12
-_HAUSDORFF_TOLERANCES = (1.0, 0.5, 0.25)
+_HAUSDORFF_TOLERANCES = (1.5, 1.0, 0.5, 0.25)
+_HAUSDORFF_ACCEPT = 1.5
+# Hausdorff metric: a coarse tile's grid has up to this many times the lines of its level's, every
+# full-resolution sample while the grid stays within 16·128 + 1 = 2049 samples a side (see _grid_stride).
+_HAUSDORFF_REFINE = 16
 
 
 # What a tileset's geometricError means, written into its citylod extras.
@@ -200,12 +205,15 @@ class DsmBuildReport:
 
 
 def _triangulate(heights: np.ndarray, valid: np.ndarray, max_error: float,
-                 must_include: np.ndarray | None, lattice: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
+                 must_include: np.ndarray | None, lattice: bool = False,
+                 plane: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """The TIN kernel's vertices, faces and number of triangles it left above ``max_error`` (0 but for a bug).
-    ``lattice``: seeded on `citylod.lod.kernels.tin.SEED_LATTICE` too (coarse tiles whose target is out of reach)."""
+    ``lattice``: seeded on `citylod.lod.kernels.tin.SEED_LATTICE` too (coarse tiles whose target is out of reach).
+    ``plane``: the grid's metric spacing, for the kernel's 3D error (Hausdorff metric)."""
     from citylod.lod.kernels.tin import SEED_LATTICE, build
 
-    r = build(heights, valid, max_error, must_include=must_include, lattice=SEED_LATTICE if lattice else 0)
+    r = build(heights, valid, max_error, must_include=must_include, lattice=SEED_LATTICE if lattice else 0,
+              plane=plane)
     return r.vertices_ij, r.faces, r.stuck
 
 
@@ -232,11 +240,24 @@ def _tile_grid(job: DsmJob) -> tuple[int, np.ndarray, np.ndarray] | None:
     info = job.source.info
     cells = job.tile_size - 1
     stride = 2 ** (job.levels - job.level)
-    rpos, rex = _grid_positions(job.row * cells * stride, job.tile_size, stride, info.height - 1)
-    cpos, cex = _grid_positions(job.col * cells * stride, job.tile_size, stride, info.width - 1)
+    g = _grid_stride(job)
+    n = cells * (stride // g) + 1
+    rpos, rex = _grid_positions(job.row * cells * stride, n, g, info.height - 1)
+    cpos, cex = _grid_positions(job.col * cells * stride, n, g, info.width - 1)
     if not rex.any() or not cex.any():
         return None
-    return stride, rpos[rex], cpos[cex]
+    return g, rpos[rex], cpos[cex]
+
+
+def _grid_stride(job: DsmJob) -> int:
+    """Full-resolution samples between a tile's grid lines: its level's stride, or under the Hausdorff metric
+    ``_HAUSDORFF_REFINE`` times fewer, so that a coarse TIN's vertices can sit next to a façade or on a tree
+    rather than up to a stride away (a façade between two vertices becomes a slope as wide as their
+    distance, which the Hausdorff distance charges)."""
+    stride = 2 ** (job.levels - job.level)
+    if job.metric == "hausdorff" and stride > 1 and not job.source.info.geographic:
+        return max(1, stride // _HAUSDORFF_REFINE)
+    return stride
 
 
 class _Footprint:
@@ -491,7 +512,9 @@ def build_tile(job: DsmJob) -> TileResult:
     if g is None:
         _journal_result(job.out_dir, key, res)
         return res
-    stride, rpos, cpos = g
+    stride, rpos, cpos = g  # the grid's stride (finer than the level's under the Hausdorff metric)
+    cells *= 2 ** (job.levels - job.level) // stride
+    is_coarse = job.level < job.levels
     fp = _Footprint(src, rpos, cpos)
     heights, valid = fp.grid()
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
@@ -505,7 +528,7 @@ def build_tile(job: DsmJob) -> TileResult:
     def attempt(tol: float, must: np.ndarray | None, check: bool = True, lattice: bool = False,
                 per_cell: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         nonlocal stuck
-        vij, faces, stuck = _triangulate(heights, valid, tol, must, lattice)
+        vij, faces, stuck = _triangulate(heights, valid, tol, must, lattice, plane)
         vz = heights[vij[:, 0], vij[:, 1]]
         if len(faces) == 0 or not check:
             return math.nan, vij, faces, vz, np.zeros((cells, cells))
@@ -514,14 +537,19 @@ def build_tile(job: DsmJob) -> TileResult:
                                  floor=0.5 * job.target)
         return err, vij, faces, vz, cell_err
 
-    haus = _hausdorff_affine(info, job) if stride > 1 else None
+    haus = _hausdorff_affine(info, job) if is_coarse else None
+    plane = None
     if haus is not None:
-        heights = _feature_heights(fp, heights, valid, stride, job.target)
-        # The TIN kernel simplifies the tile's grid G within a vertical tolerance; the certificate measures
-        # the TIN against the raster in 3D. H(TIN, raster) ≤ H(TIN, G) + H(G, raster) ≤ tol + H(G, raster),
-        # and H(G, raster) is what a coarse grid cannot avoid (a façade between its samples), so the coarsest
-        # tolerance whose certificate meets the target is kept; a finer one only when it lowers the
-        # certificate clearly (a façade-bound tile gains nothing from more triangles).
+        plane = (math.hypot(haus[0], haus[2]) * stride, math.hypot(haus[1], haus[3]) * stride)
+        if stride > 1:  # a grid of every sample misses no feature narrower than its stride
+            heights = _feature_heights(fp, heights, valid, stride, job.target)
+        # The TIN kernel simplifies the tile's grid G (every full-resolution sample, up to 2049 a side) within
+        # a 3D tolerance (`citylod.lod.kernels.tin.build`'s ``plane``: distances to the triangles and to the
+        # grid surface, not vertical ones), so vertices sit at façade edges and on tree tops and a façade
+        # costs its slope's offset, not its height. That measure is a guide, not a bound: the certificate
+        # decides. The coarsest tolerance whose certificate is within _HAUSDORFF_ACCEPT × the target is
+        # kept (the issue allows 1.5× per level; a level's count of triangles falls with its tolerance); a
+        # finer one only when it lowers the certificate clearly.
         kept = None
         for frac in _HAUSDORFF_TOLERANCES:
             trial = attempt(frac * job.target, None, per_cell=False)
@@ -530,7 +558,7 @@ def build_tile(job: DsmJob) -> TileResult:
             if kept is not None and trial[0] >= kept[0] * _REFINE_GAIN:
                 break
             kept = trial
-            if trial[0] <= job.target:
+            if trial[0] <= _HAUSDORFF_ACCEPT * job.target:
                 break
         if kept is None:
             _journal_result(job.out_dir, key, res)
@@ -641,7 +669,9 @@ def finish_tile(job: DsmJob) -> TileResult:
     g = _tile_grid(job)
     if g is None:
         raise RuntimeError(f"tile {key}: outside the raster")
-    stride, rpos, cpos = g
+    stride, rpos, cpos = g  # the grid's stride (finer than the level's under the Hausdorff metric)
+    cells *= 2 ** (job.levels - job.level) // stride
+    is_coarse = job.level < job.levels
     last_r, last_c = len(rpos) - 1, len(cpos) - 1
     if job.stage1_tin is None:
         raise RuntimeError(f"tile {key}: stage 2 without a stage-1 TIN")
@@ -655,8 +685,8 @@ def finish_tile(job: DsmJob) -> TileResult:
     replaced = faces[:0]
     old_center = None
     # A leaf's error is its kernel's bound (see below), not a certificate: nothing of stage 1 is re-evaluated.
-    haus = _hausdorff_affine(info, job) if stride > 1 else None
-    kernel_leaf = stride == 1 and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
+    haus = _hausdorff_affine(info, job) if is_coarse else None
+    kernel_leaf = not is_coarse and math.isnan(err) and not math.isnan(res.kernel_bound) and not job.certify_leaves
     if job.border_extra:
         vij2, faces2, replaced = _insert_border_vertices(vij, faces, dict(job.border_extra), last_r, last_c)
         if len(replaced):

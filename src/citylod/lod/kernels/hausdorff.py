@@ -21,7 +21,12 @@ the bound is never worse than the exact vertical L∞ bound of the same pieces. 
 cell triangles in rings of cells around P's cell (nearest first, stopped once a ring is farther than the
 current bound), and the TIN triangles sharing a vertex with P's own. The pieces cover both surfaces over
 the part of the footprint where both are defined, so the maximum over pieces bounds both directed
-Hausdorff distances, i.e. the symmetric one, over that part.
+Hausdorff distances, i.e. the symmetric one, over that part. A piece whose bound stays above the threshold
+(below) is cut into convex parts (its fan triangles, halved at the longest edge while their bound exceeds it,
+`_subdivided`) and bounded part by part: the argument holds for each convex part, and the parts cover the
+piece, so their maximum bounds it too. This matters where the vertices of one piece lie nearest to different
+triangles (a TIN slope beside a raster façade that continues into a roof): one candidate for all of them
+cannot follow both, parts can.
 
 Cost. A piece whose vertical bound is already at most the running maximum (or ``floor``) cannot raise the
 maximum and is recorded as it is; the candidate search runs only where it can, and stops as soon as the
@@ -43,6 +48,8 @@ from citylod.lod.kernels.distance import point_triangle_sq
 from citylod.lod.kernels.tin_kernels import NO_NRT
 
 _EPS = 1e-9
+# A piece whose bound exceeds the threshold is split into parts this many halvings deep at most (_subdivided).
+_SPLIT_DEPTH = 10
 
 
 @njit(cache=True, nogil=True, **NO_NRT)
@@ -83,6 +90,130 @@ def _clip(qy, qx, n, y1, x1, y2, x2, sgn, oy, ox):  # pragma: no cover - compile
             oy[m], ox[m] = ay + t * (by - ay), ax + t * (bx - ax)
             m += 1
     return m
+
+
+@njit(cache=True, nogil=True, **NO_NRT)
+def _piece_bound(pxT, pyT, pzT, pzS, n, vmax, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin,
+                 reach, t, faces, fx, fy, fz, ring_start, ring_faces):  # pragma: no cover - compiled
+    """The bound of one convex piece (its vertices in metric offsets; ``pzT``/``pzS`` its heights on T and S;
+    ``vmax`` its vertical bound, ``thr`` where the search may stop): T → S against the raster cell
+    triangles in rings around cell (i, j), S → T against TIN triangle ``t`` and those around its vertices
+    (module docstring)."""
+    # T → S: own cell triangle, the cell's other one, then rings of cells
+    bA = vmax
+    for ring in range(0, reach + 1):
+        if bA <= thr or (ring - 1) * hmin >= bA:
+            break
+        for di in range(-ring, ring + 1):
+            gi = li + di
+            if gi < 0 or gi + 1 >= bh:
+                continue
+            step = 1 if (di == -ring or di == ring) else 2 * ring
+            for dj in range(-ring, ring + 1, max(step, 1)):
+                gj = lj + dj
+                if gj < 0 or gj + 1 >= bw:
+                    continue
+                if not (V[gi, gj] and V[gi, gj + 1] and V[gi + 1, gj] and V[gi + 1, gj + 1]):
+                    continue
+                h00, h01, h10, h11 = F[gi, gj], F[gi, gj + 1], F[gi + 1, gj], F[gi + 1, gj + 1]
+                zlo = min(min(h00, h01), min(h10, h11))
+                zhi = max(max(h00, h01), max(h10, h11))
+                gap = max(zlo - pzT[0], pzT[0] - zhi, 0.0)
+                hg = max(ring - 1, 0) * hmin
+                if gap * gap + hg * hg >= bA * bA:
+                    continue
+                # the cell's corners in metric offsets
+                ry = float(i + di) - tr0
+                rx = float(j + dj) - tc0
+                x00, y00 = ax_ * rx + bx_ * ry, ay_ * rx + by_ * ry
+                x01, y01 = x00 + ax_, y00 + ay_
+                x10, y10 = x00 + bx_, y00 + by_
+                x11, y11 = x10 + ax_, y10 + ay_
+                m = _piece_max(pxT, pyT, pzT, n, x00, y00, h00, x10, y10, h10, x11, y11, h11, bA)
+                if m < bA:
+                    bA = m
+                m = _piece_max(pxT, pyT, pzT, n, x00, y00, h00, x01, y01, h01, x11, y11, h11, bA)
+                if m < bA:
+                    bA = m
+    # S → T: own TIN triangle, then the triangles around its vertices
+    bB = _piece_max(pxT, pyT, pzS, n, fx[t, 0], fy[t, 0], fz[t, 0], fx[t, 1], fy[t, 1],
+                    fz[t, 1], fx[t, 2], fy[t, 2], fz[t, 2], vmax)
+    if bB > thr:
+        for corner in range(3):
+            vtx = faces[t, corner]
+            for q in range(ring_start[vtx], ring_start[vtx + 1]):
+                f = ring_faces[q]
+                if f == t:
+                    continue
+                m = _piece_max(pxT, pyT, pzS, n, fx[f, 0], fy[f, 0], fz[f, 0], fx[f, 1],
+                               fy[f, 1], fz[f, 1], fx[f, 2], fy[f, 2], fz[f, 2], bB)
+                if m < bB:
+                    bB = m
+                    if bB <= thr:
+                        break
+            if bB <= thr:
+                break
+    return min(vmax, max(bA, bB))
+
+
+@njit(cache=True, nogil=True)
+def _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin, reach,
+                t, faces, fx, fy, fz, ring_start, ring_faces, stack):  # pragma: no cover - compiled
+    """The bound of a piece as the maximum of `_piece_bound` over convex parts of it: its fan triangles, each
+    halved at its longest edge while its bound exceeds ``thr`` (``_SPLIT_DEPTH`` times at most). Each part is a
+    convex subset of the piece, on which T and S are the same planes, so each part's bound holds for it and
+    their maximum for the piece. Where parts of a piece lie nearest to different triangles (a TIN slope
+    beside a raster façade that continues into a roof), the single-candidate bound of the whole piece is
+    loose and the parts' is not. ``stack``: (2·_SPLIT_DEPTH + n, 13) scratch."""
+    top = 0
+    for k in range(1, n - 1):
+        for m, v in enumerate((0, k, k + 1)):
+            stack[top, 4 * m] = pxT[v]
+            stack[top, 4 * m + 1] = pyT[v]
+            stack[top, 4 * m + 2] = pzT[v]
+            stack[top, 4 * m + 3] = pzS[v]
+        stack[top, 12] = 0.0
+        top += 1
+    qx = np.empty(3)
+    qy = np.empty(3)
+    qt = np.empty(3)
+    qs = np.empty(3)
+    worst = 0.0
+    while top > 0:
+        top -= 1
+        vm = 0.0
+        for m in range(3):
+            qx[m] = stack[top, 4 * m]
+            qy[m] = stack[top, 4 * m + 1]
+            qt[m] = stack[top, 4 * m + 2]
+            qs[m] = stack[top, 4 * m + 3]
+            vm = max(vm, abs(qt[m] - qs[m]))
+        depth = stack[top, 12]
+        b = _piece_bound(qx, qy, qt, qs, 3, vm, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin,
+                         reach, t, faces, fx, fy, fz, ring_start, ring_faces)
+        if b <= thr or depth >= _SPLIT_DEPTH:
+            worst = max(worst, b)
+            continue
+        # halve at the longest edge (m, m+1): two triangles (mid, m+1, m+2) and (mid, m+2, m)
+        lm = 0
+        ll = -1.0
+        for m in range(3):
+            u = (m + 1) % 3
+            d = (qx[u] - qx[m]) ** 2 + (qy[u] - qy[m]) ** 2
+            if d > ll:
+                ll = d
+                lm = m
+        u = (lm + 1) % 3
+        w = (lm + 2) % 3
+        mx, my, mt, ms = 0.5 * (qx[lm] + qx[u]), 0.5 * (qy[lm] + qy[u]), 0.5 * (qt[lm] + qt[u]), 0.5 * (qs[lm] + qs[u])
+        for half in range(2):
+            a, c = (u, w) if half == 0 else (w, lm)
+            stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3] = mx, my, mt, ms
+            stack[top, 4], stack[top, 5], stack[top, 6], stack[top, 7] = qx[a], qy[a], qt[a], qs[a]
+            stack[top, 8], stack[top, 9], stack[top, 10], stack[top, 11] = qx[c], qy[c], qt[c], qs[c]
+            stack[top, 12] = depth + 1.0
+            top += 1
+    return worst
 
 
 @njit(cache=True, nogil=True)
@@ -133,6 +264,7 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
     pyT = np.empty(12)
     pzT = np.empty(12)
     pzS = np.empty(12)
+    stack = np.empty((2 * _SPLIT_DEPTH + 12, 13))
     ncl = cell_err.shape[0]
     ncc = cell_err.shape[1]
     for t in range(nf):
@@ -214,61 +346,13 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
                         for k in range(n):
                             pxT[k] = ax_ * (wx[k] - tc0) + bx_ * (wy[k] - tr0)
                             pyT[k] = ay_ * (wx[k] - tc0) + by_ * (wy[k] - tr0)
-                        # T → S: own cell triangle, the cell's other one, then rings of cells
-                        bA = vmax
-                        for ring in range(0, reach + 1):
-                            if bA <= thr or (ring - 1) * hmin >= bA:
-                                break
-                            for di in range(-ring, ring + 1):
-                                gi = li + di
-                                if gi < 0 or gi + 1 >= bh:
-                                    continue
-                                step = 1 if (di == -ring or di == ring) else 2 * ring
-                                for dj in range(-ring, ring + 1, max(step, 1)):
-                                    gj = lj + dj
-                                    if gj < 0 or gj + 1 >= bw:
-                                        continue
-                                    if not (V[gi, gj] and V[gi, gj + 1] and V[gi + 1, gj] and V[gi + 1, gj + 1]):
-                                        continue
-                                    h00, h01, h10, h11 = F[gi, gj], F[gi, gj + 1], F[gi + 1, gj], F[gi + 1, gj + 1]
-                                    zlo = min(min(h00, h01), min(h10, h11))
-                                    zhi = max(max(h00, h01), max(h10, h11))
-                                    gap = max(zlo - pzT[0], pzT[0] - zhi, 0.0)
-                                    hg = max(ring - 1, 0) * hmin
-                                    if gap * gap + hg * hg >= bA * bA:
-                                        continue
-                                    # the cell's corners in metric offsets
-                                    ry = float(i + di) - tr0
-                                    rx = float(j + dj) - tc0
-                                    x00, y00 = ax_ * rx + bx_ * ry, ay_ * rx + by_ * ry
-                                    x01, y01 = x00 + ax_, y00 + ay_
-                                    x10, y10 = x00 + bx_, y00 + by_
-                                    x11, y11 = x10 + ax_, y10 + ay_
-                                    m = _piece_max(pxT, pyT, pzT, n, x00, y00, h00, x10, y10, h10, x11, y11, h11, bA)
-                                    if m < bA:
-                                        bA = m
-                                    m = _piece_max(pxT, pyT, pzT, n, x00, y00, h00, x01, y01, h01, x11, y11, h11, bA)
-                                    if m < bA:
-                                        bA = m
-                        # S → T: own TIN triangle, then the triangles around its vertices
-                        bB = _piece_max(pxT, pyT, pzS, n, fx[t, 0], fy[t, 0], fz[t, 0], fx[t, 1], fy[t, 1],
-                                        fz[t, 1], fx[t, 2], fy[t, 2], fz[t, 2], vmax)
-                        if bB > thr:
-                            for corner in range(3):
-                                vtx = faces[t, corner]
-                                for q in range(ring_start[vtx], ring_start[vtx + 1]):
-                                    f = ring_faces[q]
-                                    if f == t:
-                                        continue
-                                    m = _piece_max(pxT, pyT, pzS, n, fx[f, 0], fy[f, 0], fz[f, 0], fx[f, 1],
-                                                   fy[f, 1], fz[f, 1], fx[f, 2], fy[f, 2], fz[f, 2], bB)
-                                    if m < bB:
-                                        bB = m
-                                        if bB <= thr:
-                                            break
-                                if bB <= thr:
-                                    break
-                        bound = min(vmax, max(bA, bB))
+                        bound = _piece_bound(pxT, pyT, pzT, pzS, n, vmax, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0,
+                                             ax_, bx_, ay_, by_, hmin, reach, t, faces, fx, fy, fz, ring_start,
+                                             ring_faces)
+                        if bound > thr:
+                            bound = min(bound, _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j,
+                                                           tr0, tc0, ax_, bx_, ay_, by_, hmin, reach, t, faces, fx,
+                                                           fy, fz, ring_start, ring_faces, stack))
                     if track and bound > cell_err[ci, cj]:
                         cell_err[ci, cj] = bound
                     if bound > best[0]:

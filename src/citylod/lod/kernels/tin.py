@@ -216,8 +216,14 @@ def build(
     decimate: bool = True,
     seed: bool | None = None,
     lattice: int = 0,
+    plane: tuple[float, float] | None = None,
 ) -> TinResult:
-    """`triangulate`, returning a `TinResult` with diagnostics. See `triangulate`."""
+    """`triangulate`, returning a `TinResult` with diagnostics. See `triangulate`.
+
+    ``plane``: (metres per column, per row). Given, a triangle's error is the distance of the samples to its
+    plane (the vertical error times the plane's |n_z|), not the vertical one, so steep triangles along
+    façades stop attracting insertions; there is then no bound (the caller certifies), no seeds and no
+    decimation (both are built on the vertical bound). The DSM builder's Hausdorff metric uses it."""
     h = np.ascontiguousarray(heights, dtype=np.float64)
     if h.ndim != 2 or h.shape[0] < 1 or h.shape[1] < 1:
         raise ValueError(f"heights must be a non-empty 2D grid, got shape {h.shape}")
@@ -248,10 +254,13 @@ def build(
             raise ValueError("must_include holds indices outside the grid")
         forced[mi[:, 0], mi[:, 1]] = True
     fx, fy = kernel(_k.z_ordered, forced)
-    seeded = decimate if seed is None else seed
+    seeded = (decimate if seed is None else seed) and plane is None
+    sx, sy = (0.0, 0.0) if plane is None else (float(plane[0]), float(plane[1]))
+    if plane is not None and not (sx > 0 and sy > 0):
+        raise ValueError(f"plane spacings must be > 0, got {plane}")
     vx, vy, tris, stuck, border_added = kernel(_k.build_tin, hz, np.ascontiguousarray(cv), fx, fy, e, True,
                                                bool(decimate), SEED_DEVIATION * e if seeded else math.inf,
-                                               int(lattice) if seeded else 0)
+                                               int(lattice) if seeded else 0, sx, sy)
     # keep the triangles inside R (centroid cell valid; see the module docstring for why that suffices),
     # and the vertices in some face, in index order, the faces renumbered
     vertices, faces = kernel(_k.live_mesh, vx, vy, tris, cv)

@@ -2,8 +2,9 @@
 then bounded vertex removal (`_decimate`).
 
 The public API, its contracts and the reasoning about correctness live in `citylod.lod.kernels.tin`; this
-module holds only the numba kernels. It must not import anything but numpy, numba and
-`citylod.core.jit` (which only makes numba's start cheaper).
+module holds only the numba kernels. It must not import anything but numpy, numba,
+`citylod.core.jit` (which only makes numba's start cheaper) and the point–triangle distance of
+`citylod.lod.kernels.distance`.
 
 Layout of the triangulation (after mapbox/delatin, itself Garland & Heckbert 1995, algorithm III):
 triangle ``t`` owns half-edges ``3t, 3t+1, 3t+2``; ``tri[e]`` is the vertex where half-edge ``e``
@@ -14,12 +15,14 @@ growing downwards is counter-clockwise seen from above in (x east, y north).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 from numba import njit
 
 from citylod.core.jit import defer_blas_probe
+from citylod.lod.kernels.distance import point_triangle_sq
 
 defer_blas_probe()  # before any kernel loads: numba starts without importing scipy.linalg
 
@@ -319,6 +322,182 @@ def _edge_error(
     return best
 
 
+@njit(cache=True, nogil=True, **NO_NRT)
+def _point_error_3d(h: np.ndarray, cellvalid: np.ndarray, x: float, y: float, zr: float, zt: float,
+                    t0x: float, t0y: float, t0z: float, t1x: float, t1y: float, t1z: float, t2x: float, t2y: float, t2z: float, sx: float, sy: float, tol: float, best: float) -> float:
+    """3D error at one evaluation point (grid position x = column, y = row, raster height ``zr``, TIN height
+    ``zt``) of a TIN triangle (``t0x``..``t2z``, in metres): the larger of dist(raster point, triangle) and
+    dist(TIN point, grid surface), the latter searched over the grid cells within ``tol`` horizontally, in
+    rings nearest first (a cell farther away is farther than ``tol`` in 3D too, so "> tol" is decided exactly;
+    the value returned above it is the nearest cell's found, an upper bound). Both are at most the vertical error |zt − zr|, which is
+    returned where nothing closer is found. ``best``: a result at most this is not needed exactly."""
+    e = abs(zt - zr)
+    X = x * sx
+    Y = y * sy
+    d1 = math.sqrt(point_triangle_sq(X, Y, zr, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z))
+    if d1 > tol and d1 > best:
+        return min(d1, e)
+    H, W = h.shape
+    # rings of cells around the point's, nearest first: a cell of ring r is at least (r − 1)·min(sx, sy) away
+    # horizontally, so the search stops at the first ring farther than ``tol`` or than the nearest cell found
+    ci = min(max(int(math.floor(y)), 0), H - 2)
+    cj = min(max(int(math.floor(x)), 0), W - 2)
+    step = min(sx, sy)
+    d2 = e * e
+    lim = max(tol, best)
+    lim *= lim
+    r = 0
+    while True:
+        gap = max(r - 1, 0) * step
+        if gap > tol or gap * gap >= d2 or (r > ci and r > cj and r > H - 2 - ci and r > W - 2 - cj):
+            break
+        for i in range(ci - r, ci + r + 1):
+            if i < 0 or i > H - 2:
+                continue
+            edge = i == ci - r or i == ci + r
+            j = cj - r
+            while j <= cj + r:
+                if 0 <= j <= W - 2 and cellvalid[i, j]:
+                    xa = j * sx
+                    xb = xa + sx
+                    ya = i * sy
+                    yb = ya + sy
+                    za, zb, zc, zd = h[i, j], h[i, j + 1], h[i + 1, j], h[i + 1, j + 1]
+                    d = point_triangle_sq(X, Y, zt, xa, ya, za, xa, yb, zc, xb, yb, zd)  # (i,j),(i+1,j),(i+1,j+1)
+                    if d < d2:
+                        d2 = d
+                    d = point_triangle_sq(X, Y, zt, xa, ya, za, xb, ya, zb, xb, yb, zd)  # (i,j),(i,j+1),(i+1,j+1)
+                    if d < d2:
+                        d2 = d
+                    if d2 <= lim:
+                        return max(d1, math.sqrt(d2))
+                j += 1 if (edge or r == 0) else 2 * r
+        r += 1
+    return max(d1, math.sqrt(d2))
+
+
+@njit(cache=True, nogil=True, **NO_NRT)
+def _edge_error_3d(
+    h: np.ndarray, cellvalid: np.ndarray, px: int, py: int, qx: int, qy: int, info: np.ndarray, o: int,
+    t0x: float, t0y: float, t0z: float, t1x: float, t1y: float, t1z: float, t2x: float, t2y: float, t2z: float,
+    sx: float, sy: float, tol: float
+) -> float:
+    """`_edge_error` in 3D (``sx``, ``sy``: metres per column and row; ``t0x``..``t2z``: the triangle's
+    vertices in metres): a crossing whose vertical error exceeds ``tol`` is charged `_point_error_3d` instead, the larger
+    of the raster point's distance to the triangle and the TIN point's distance to the grid surface nearby."""
+    H, W = h.shape
+    zp = h[py, px]
+    zq = h[qy, qx]
+    best = 0.0
+    info[o] = -1
+    info[o + 1] = -1
+    info[o + 2] = -1
+    info[o + 3] = -1
+    # columns x = m: the crossed grid edge is vertical, (fy, m)-(fy+1, m)
+    if px != qx:
+        if px < qx:
+            ax, ay, az, bx, by, bz = px, py, zp, qx, qy, zq
+        else:
+            ax, ay, az, bx, by, bz = qx, qy, zq, px, py, zp
+        d = bx - ax
+        dy = by - ay
+        # y = ay + (m - ax) dy / d = fy + rem / d, stepped without divisions
+        fy = ay
+        rem = 0
+        for m in range(ax + 1, bx):
+            rem += dy
+            while rem >= d:
+                rem -= d
+                fy += 1
+            while rem < 0:
+                rem += d
+                fy -= 1
+            if rem == 0:
+                continue  # a grid sample: the triangle's sample scan counts it
+            f = rem / d
+            t = (m - ax) / d
+            ga = h[fy, m]
+            zr = ga + f * (h[fy + 1, m] - ga)
+            e = abs((az - zr) + t * (bz - az))
+            if e > best and e > tol:
+                e = _point_error_3d(h, cellvalid, m, fy + f, zr, az + t * (bz - az), t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z, sx, sy, tol, best)
+            if e > best:
+                best = e
+                info[o] = fy * W + m
+                info[o + 1] = fy * W + m + W
+                info[o + 2] = fy * (W - 1) + m - 1
+                info[o + 3] = fy * (W - 1) + m if m < W - 1 else -1
+    # rows y = m: horizontal grid edge (m, fx)-(m, fx+1)
+    if py != qy:
+        if py < qy:
+            ax, ay, az, bx, by, bz = px, py, zp, qx, qy, zq
+        else:
+            ax, ay, az, bx, by, bz = qx, qy, zq, px, py, zp
+        d = by - ay
+        dx = bx - ax
+        fx = ax
+        rem = 0
+        for m in range(ay + 1, by):
+            rem += dx
+            while rem >= d:
+                rem -= d
+                fx += 1
+            while rem < 0:
+                rem += d
+                fx -= 1
+            if rem == 0:
+                continue
+            f = rem / d
+            t = (m - ay) / d
+            ga = h[m, fx]
+            zr = ga + f * (h[m, fx + 1] - ga)
+            e = abs((az - zr) + t * (bz - az))
+            if e > best and e > tol:
+                e = _point_error_3d(h, cellvalid, fx + f, m, zr, az + t * (bz - az), t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z, sx, sy, tol, best)
+            if e > best:
+                best = e
+                info[o] = m * W + fx
+                info[o + 1] = m * W + fx + 1
+                info[o + 2] = (m - 1) * (W - 1) + fx
+                info[o + 3] = m * (W - 1) + fx if m < H - 1 else -1
+    # diagonals x - y = m: grid edge (fy, fy+m)-(fy+1, fy+m+1), inside one cell
+    sp = px - py
+    sq = qx - qy
+    if sp != sq:
+        if sp < sq:
+            ax, ay, az, bx, by, bz, sa, sb = px, py, zp, qx, qy, zq, sp, sq
+        else:
+            ax, ay, az, bx, by, bz, sa, sb = qx, qy, zq, px, py, zp, sq, sp
+        d = sb - sa
+        dy = by - ay
+        fy = ay
+        rem = 0
+        for m in range(sa + 1, sb):
+            rem += dy
+            while rem >= d:
+                rem -= d
+                fy += 1
+            while rem < 0:
+                rem += d
+                fy -= 1
+            if rem == 0:
+                continue
+            f = rem / d
+            t = (m - sa) / d
+            ga = h[fy, fy + m]
+            zr = ga + f * (h[fy + 1, fy + m + 1] - ga)
+            e = abs((az - zr) + t * (bz - az))
+            if e > best and e > tol:
+                e = _point_error_3d(h, cellvalid, fy + m + f, fy + f, zr, az + t * (bz - az), t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z, sx, sy, tol, best)
+            if e > best:
+                best = e
+                info[o] = fy * W + fy + m
+                info[o + 1] = fy * W + fy + m + W + 1
+                info[o + 2] = fy * (W - 1) + fy + m
+                info[o + 3] = -1
+    return best
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _row_span(y: int, xmin: int, xmax: int, a0: int, b0: int, c0: int, a1: int, b1: int, c1: int, a2: int,
               b2: int, c2: int) -> tuple[int, int]:
@@ -356,6 +535,8 @@ def _triangle_error(
     y2: int,
     crossings: bool,
     max_error: float,
+    sx: float = 0.0,
+    sy: float = 0.0,
 ) -> tuple[float, int]:
     """Max |TIN - grid surface| over one triangle and the sample to insert next (-1: none).
 
@@ -365,6 +546,12 @@ def _triangle_error(
     with integer arithmetic, so the result is the exact vertical L-infinity distance (up to rounding).
     When a sample is already above ``max_error``, the crossings are skipped and the worst sample's
     error (a lower bound, enough to keep the triangle queued) and the sample are returned.
+
+    With ``sx > 0`` (metres per grid column, ``sy`` per row) the error at a sample or crossing whose vertical
+    error exceeds ``max_error`` is its 3D one instead (`_point_error_3d`: the raster point's distance to the
+    triangle and the TIN point's to the grid surface): a steep triangle along a façade is charged about the
+    horizontal offset of the points beside it, not the façade's height (the DSM builder's Hausdorff metric;
+    a guide for where to insert, not a bound: its certificate decides).
     """
     H, W = h.shape
     z0 = h[y0, x0]
@@ -394,6 +581,10 @@ def _triangle_error(
         r2 = b2 * y + c2
         for x in range(lo, hi + 1):
             e = abs((z0 - h[y, x]) + g1 * (a1 * x + r1) + g2 * (a2 * x + r2))
+            if sx > 0.0 and e > best_s and e > max_error:
+                e = _point_error_3d(h, cellvalid, x, y, h[y, x], h[y, x] + (z0 - h[y, x]) + g1 * (a1 * x + r1)
+                                    + g2 * (a2 * x + r2), x0 * sx, y0 * sy, z0, x1 * sx, y1 * sy, h[y1, x1],
+                                    x2 * sx, y2 * sy, h[y2, x2], sx, sy, max_error, best_s)
             if e > best_s:
                 s = y * W + x
                 if vid[s] < 0:
@@ -411,7 +602,17 @@ def _triangle_error(
     cell_a = -1
     cell_b = -1
     for k in range(3 if crossings else 0):
-        if k == 0:
+        if sx > 0.0:
+            if k == 0:
+                e = _edge_error_3d(h, cellvalid, x0, y0, x1, y1, scratch, 0, x0 * sx, y0 * sy, z0, x1 * sx,
+                                   y1 * sy, h[y1, x1], x2 * sx, y2 * sy, h[y2, x2], sx, sy, max_error)
+            elif k == 1:
+                e = _edge_error_3d(h, cellvalid, x1, y1, x2, y2, scratch, 0, x0 * sx, y0 * sy, z0, x1 * sx,
+                                   y1 * sy, h[y1, x1], x2 * sx, y2 * sy, h[y2, x2], sx, sy, max_error)
+            else:
+                e = _edge_error_3d(h, cellvalid, x2, y2, x0, y0, scratch, 0, x0 * sx, y0 * sy, z0, x1 * sx,
+                                   y1 * sy, h[y1, x1], x2 * sx, y2 * sy, h[y2, x2], sx, sy, max_error)
+        elif k == 0:
             e = _edge_error(h, x0, y0, x1, y1, scratch, 0, np.inf)
         elif k == 1:
             e = _edge_error(h, x1, y1, x2, y2, scratch, 0, np.inf)
@@ -754,8 +955,11 @@ def _flush(
     cnt: np.ndarray,
     max_error: float,
     crossings: bool,
+    sx: float = 0.0,
+    sy: float = 0.0,
 ) -> None:
-    """Compute the error of every pending triangle and queue those above ``max_error``."""
+    """Compute the error of every pending triangle and queue those above ``max_error`` (``sx``, ``sy``: see
+    `_triangle_error`)."""
     H, W = h.shape
     for i in range(cnt[_NPEND]):
         t = pend[i]
@@ -771,7 +975,7 @@ def _flush(
             terr[t] = 0.0
             tcand[t] = -1
             continue
-        err, cand = _triangle_error(h, cellvalid, vid, scratch, x0, y0, x1, y1, x2, y2, crossings, max_error)
+        err, cand = _triangle_error(h, cellvalid, vid, scratch, x0, y0, x1, y1, x2, y2, crossings, max_error, sx, sy)
         if cand < 0:
             if err > max_error:
                 cnt[_STUCK] += 1
@@ -843,7 +1047,7 @@ def _seeds(h: np.ndarray, cellvalid: np.ndarray, vid: np.ndarray, seed_limit: fl
 def _greedy(h: np.ndarray, cellvalid: np.ndarray, vid: np.ndarray, scratch: np.ndarray, tri: np.ndarray,
             half: np.ndarray, vx: np.ndarray, vy: np.ndarray, hpos: np.ndarray, heap: np.ndarray, terr: np.ndarray,
             tcand: np.ndarray, pend: np.ndarray, inpend: np.ndarray, cnt: np.ndarray, stack: np.ndarray,
-            max_error: float, crossings: bool) -> bool:
+            max_error: float, crossings: bool, sx: float = 0.0, sy: float = 0.0) -> bool:
     """`build_tin`'s greedy phase until no triangle is above ``max_error`` (True) or the arrays are full
     (False: grow them and call again). Apart from `build_tin`, which allocates, so that the loop runs without
     numba's reference counting (the reassigned arrays cost an incref and a decref each per insertion)."""
@@ -865,7 +1069,7 @@ def _greedy(h: np.ndarray, cellvalid: np.ndarray, vid: np.ndarray, scratch: np.n
             pend[cnt[_NPEND]] = t
             cnt[_NPEND] += 1
         _flush(h, cellvalid, vid, scratch, tri, vx, vy, hpos, heap, terr, tcand, pend, inpend, cnt, max_error,
-               crossings)
+               crossings, sx, sy)
     return True
 
 
@@ -880,6 +1084,8 @@ def build_tin(
     decimate: bool = True,
     seed_limit: float = np.inf,
     seed_lattice: int = 0,
+    sx: float = 0.0,
+    sy: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
     """Greedy-insertion Delaunay TIN of grid ``h`` (H, W), H, W >= 2, after the forced vertices and the
     seeds, then (``decimate``) the vertices the bound does not need removed.
@@ -912,6 +1118,10 @@ def build_tin(
         Also seed every interior sample whose row and column are multiples of this (even, > 0; 0: none)
         and whose four cells are valid: a TIN with few vertices (a coarse tile) otherwise rescans large
         triangles at every insertion. Removable like the other seeds.
+    sx, sy
+        Metres per grid column and row: when > 0, the greedy phase and the decimation measure a 3D error
+        (`_triangle_error`) instead of the vertical one, which is no longer a bound (the caller certifies);
+        0: the vertical error, exact.
 
     Returns
     -------
@@ -994,11 +1204,13 @@ def build_tin(
         cnt,
         max_error,
         crossings,
+        sx,
+        sy,
     )
 
     # Garland & Heckbert 1995: insert the worst sample of the worst triangle until all are within bound.
     while not _greedy(h, cellvalid, vid, scratch, tri, half, vx, vy, hpos, heap, terr, tcand, pend, inpend, cnt,
-                      stack, max_error, crossings):
+                      stack, max_error, crossings, sx, sy):
         cap *= 2
         vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack = _grown_all(
             cap, vx, vy, tri, half, hpos, heap, terr, tcand, pend, inpend, stack)
@@ -1006,7 +1218,7 @@ def build_tin(
     nv = cnt[_NVERT]
     nt = cnt[_NTRI]
     if decimate and crossings:
-        _decimate(h, tri, half, vx, vy, nv, nfixed, nt, max_error)
+        _decimate(h, tri, half, vx, vy, nv, nfixed, nt, max_error, cellvalid, sx, sy)
     live = 0
     for t in range(nt):
         if tri[3 * t] >= 0:
@@ -1077,6 +1289,52 @@ def _samples_within(
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _samples_within_3d(
+    h: np.ndarray, cellvalid: np.ndarray, x0: int, y0: int, x1: int, y1: int, x2: int, y2: int, px: int, py: int,
+    eps: float, sx: float, sy: float
+) -> bool:
+    """`_samples_within` with the 3D error of `_point_error_3d` (``sx``, ``sy``: metres per column, row)."""
+    area = _orient(x0, y0, x1, y1, x2, y2)
+    if area <= 0:
+        return False
+    z0 = h[y0, x0]
+    g1 = (h[y1, x1] - z0) / area
+    g2 = (h[y2, x2] - z0) / area
+    a1 = y0 - y2
+    b1 = x2 - x0
+    c1 = x0 * y2 - y0 * x2
+    a2 = y1 - y0
+    b2 = x0 - x1
+    c2 = x1 * y0 - y1 * x0
+    a0 = y2 - y1
+    b0 = x1 - x2
+    c0 = x2 * y1 - y2 * x1
+    w1 = a1 * px + b1 * py + c1
+    w2 = a2 * px + b2 * py + c2
+    if a0 * px + b0 * py + c0 >= 0 and w1 >= 0 and w2 >= 0:
+        zt = z0 + g1 * w1 + g2 * w2
+        if abs(zt - h[py, px]) > eps and _point_error_3d(h, cellvalid, px, py, h[py, px], zt, x0 * sx, y0 * sy, z0,
+                                                         x1 * sx, y1 * sy, h[y1, x1], x2 * sx, y2 * sy, h[y2, x2],
+                                                         sx, sy, eps, 0.0) > eps:
+            return False
+    ymin = min(y0, min(y1, y2))
+    ymax = max(y0, max(y1, y2))
+    xmin = min(x0, min(x1, x2))
+    xmax = max(x0, max(x1, x2))
+    for y in range(ymin, ymax + 1):
+        lo, hi = _row_span(y, xmin, xmax, a0, b0, c0, a1, b1, c1, a2, b2, c2)
+        r1 = b1 * y + c1
+        r2 = b2 * y + c2
+        for x in range(lo, hi + 1):
+            zt = z0 + g1 * (a1 * x + r1) + g2 * (a2 * x + r2)
+            if abs(zt - h[y, x]) > eps and _point_error_3d(h, cellvalid, x, y, h[y, x], zt, x0 * sx, y0 * sy, z0,
+                                                           x1 * sx, y1 * sy, h[y1, x1], x2 * sx, y2 * sy,
+                                                           h[y2, x2], sx, sy, eps, 0.0) > eps:
+                return False
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _hole_triangle_ok(
     h: np.ndarray,
     vx: np.ndarray,
@@ -1093,6 +1351,9 @@ def _hole_triangle_ok(
     px: int,
     py: int,
     eps: float,
+    cellvalid: np.ndarray,
+    sx: float,
+    sy: float,
 ) -> bool:
     """Whether the triangle of ring vertices (a, b, c) (indices mod d, in cyclic order) meets the
     bound: `_edge_error` on its edges that are diagonals of the hole (its sides are edges of the
@@ -1109,7 +1370,28 @@ def _hole_triangle_ok(
     elif k < i and k < j:
         i, j, k = k, i, j
     s = tstat[i, j, k] - gen
-    if s <= 0:
+    if s <= 0 and sx > 0.0:
+        # 3D (`_triangle_error`'s measure): the diagonals' crossings depend on the triangle, no memo per diagonal
+        s = 1
+        p, q, r = ring[i], ring[j], ring[k]
+        if not _samples_within_3d(h, cellvalid, vx[p], vy[p], vx[q], vy[q], vx[r], vy[r], px, py, eps, sx, sy):
+            s = 2
+        for side in range(3 if s == 1 else 0):
+            if side == 0:
+                u, w = i, j
+            elif side == 1:
+                u, w = j, k
+            else:
+                u, w = i, k
+            if w - u == 1 or (u == 0 and w == d - 1):
+                continue
+            if _edge_error_3d(h, cellvalid, vx[ring[u]], vy[ring[u]], vx[ring[w]], vy[ring[w]], info, 0,
+                              vx[p] * sx, vy[p] * sy, h[vy[p], vx[p]], vx[q] * sx, vy[q] * sy, h[vy[q], vx[q]],
+                              vx[r] * sx, vy[r] * sy, h[vy[r], vx[r]], sx, sy, eps) > eps:
+                s = 2
+                break
+        tstat[i, j, k] = gen + s
+    elif s <= 0:
         s = 1
         for side in range(3):
             if side == 0:
@@ -1153,6 +1435,9 @@ def _hole_feasible(
     px: int,
     py: int,
     eps: float,
+    cellvalid: np.ndarray,
+    sx: float,
+    sy: float,
 ) -> bool:
     """Whether the sub-polygon ring[a..b] (cyclic, closed by the edge b-a) has a triangulation whose
     triangles all pass `_hole_triangle_ok`; the apex chosen for each interval goes to ``choice``.
@@ -1174,7 +1459,8 @@ def _hole_feasible(
                     continue
                 if s + ln - m >= 2 and feas[m % d, s + ln - m] != gen + 1:
                     continue
-                if _hole_triangle_ok(h, vx, vy, ring, d, tstat, dstat, info, gen, s, m, s + ln, px, py, eps):
+                if _hole_triangle_ok(h, vx, vy, ring, d, tstat, dstat, info, gen, s, m, s + ln, px, py, eps, cellvalid,
+                                     sx, sy):
                     feas[si, ln] = gen + 1
                     choice[si, ln] = m - s
                     break
@@ -1192,8 +1478,12 @@ def _decimate(
     nfixed: int,
     ntri: int,
     max_error: float,
+    cellvalid: np.ndarray,
+    sx: float = 0.0,
+    sy: float = 0.0,
 ) -> int:
-    """Remove every vertex whose removal keeps the exact bound; return how many went.
+    """Remove every vertex whose removal keeps the exact bound; return how many went (with ``sx`` > 0, the
+    bound on `_triangle_error`'s 3D measure, not a bound on the result: see `build_tin`).
 
     Greedy insertion overshoots: a vertex inserted early for a large error is often redundant once
     its neighbourhood has been refined. Vertices are visited once, newest first; vertices below
@@ -1233,7 +1523,7 @@ def _decimate(
     stk = np.empty(4 * D, dtype=np.int64)
     rz = np.empty(D, dtype=np.float64)
     return _decimate_run(h, tri, half, vx, vy, nv, nfixed, max_error, vedge, ring, ring_e, outer, lside, tstat,
-                         dstat, feas, info, choice, cand, cerr, stk, rz)
+                         dstat, feas, info, choice, cand, cerr, stk, rz, cellvalid, sx, sy)
 
 
 @njit(cache=True, nogil=True, **NO_NRT)
@@ -1241,7 +1531,7 @@ def _decimate_run(h: np.ndarray, tri: np.ndarray, half: np.ndarray, vx: np.ndarr
                   nfixed: int, max_error: float, vedge: np.ndarray, ring: np.ndarray, ring_e: np.ndarray,
                   outer: np.ndarray, lside: np.ndarray, tstat: np.ndarray, dstat: np.ndarray, feas: np.ndarray,
                   info: np.ndarray, choice: np.ndarray, cand: np.ndarray, cerr: np.ndarray, stk: np.ndarray,
-                  rz: np.ndarray) -> int:
+                  rz: np.ndarray, cellvalid: np.ndarray, sx: float, sy: float) -> int:
     """`_decimate`'s loop over the vertices, on the work arrays it allocated: it allocates none, so it runs
     without numba's reference counting (the inlined hole helpers pass arrays around at every step)."""
     H, W = h.shape
@@ -1298,7 +1588,13 @@ def _decimate_run(h: np.ndarray, tri: np.ndarray, half: np.ndarray, vx: np.ndarr
                     ar = w0 + w1 + w2
                     if ar <= 0:
                         continue
-                    err = abs((w0 * zi + w1 * zk + w2 * rz[j]) / ar - zv)
+                    zt = (w0 * zi + w1 * zk + w2 * rz[j]) / ar
+                    err = abs(zt - zv)
+                    if err > max_error and sx > 0.0:
+                        pi, pk, pj = ring[i], ring[k], ring[j]
+                        err = _point_error_3d(h, cellvalid, x, y, zv, zt, vx[pi] * sx, vy[pi] * sy, zi,
+                                              vx[pk] * sx, vy[pk] * sy, zk, vx[pj] * sx, vy[pj] * sy, rz[j], sx,
+                                              sy, max_error, 0.0)
                     if err > max_error:
                         continue
                     # insertion sort by that error: the best fitting candidates first
@@ -1322,17 +1618,19 @@ def _decimate_run(h: np.ndarray, tri: np.ndarray, half: np.ndarray, vx: np.ndarr
         # all of them costs a third more time for the last 1%.
         for q in range(min(nc, _MAX_CANDIDATES)):
             i, k, j = cand[q, 0], cand[q, 1], cand[q, 2]
-            if not _hole_triangle_ok(h, vx, vy, ring, d, tstat, dstat, info, gen, i, k, j, x, y, max_error):
+            if not _hole_triangle_ok(h, vx, vy, ring, d, tstat, dstat, info, gen, i, k, j, x, y, max_error,
+                                     cellvalid, sx, sy):
                 continue
             if (
                 _hole_feasible(
-                    h, vx, vy, ring, d, tstat, dstat, info, feas, choice, gen, i, k, x, y, max_error
+                    h, vx, vy, ring, d, tstat, dstat, info, feas, choice, gen, i, k, x, y, max_error, cellvalid, sx, sy
                 )
                 and _hole_feasible(
-                    h, vx, vy, ring, d, tstat, dstat, info, feas, choice, gen, k, j, x, y, max_error
+                    h, vx, vy, ring, d, tstat, dstat, info, feas, choice, gen, k, j, x, y, max_error, cellvalid, sx, sy
                 )
                 and _hole_feasible(
-                    h, vx, vy, ring, d, tstat, dstat, info, feas, choice, gen, j, i + d, x, y, max_error
+                    h, vx, vy, ring, d, tstat, dstat, info, feas, choice, gen, j, i + d, x, y, max_error, cellvalid,
+                    sx, sy
                 )
             ):
                 found = q
