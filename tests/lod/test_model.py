@@ -16,6 +16,7 @@ import pytest
 
 from citylod.lod.build.model import ShapeParams, build_model, detect_shapes, extract_buildings, simplify_grid
 from citylod.lod.kernels.certify import certify
+from citylod.lod.kernels.hausdorff import certify_hausdorff
 from citylod.lod.kernels.collapse import grid_triangles
 
 D = 0.5  # sample spacing, metres
@@ -71,9 +72,19 @@ def test_certified_bound_holds_by_independent_checks(scene, model) -> None:
     faces = model.faces
     assert len(faces) < 0.25 * len(grid_triangles(V))
     vr, vc = np.divmod(np.arange(H * W), W)
-    err, _, _ = certify(_read(F, V), (0, 0, H - 1, W - 1), vr.astype(float), vc.astype(float), F.reshape(-1), faces,
-                        (1, 1), 1, per_cell=False)
+    # the DSM tile tree's 3D Hausdorff certifier (its own overlay and candidate search) bounds it by ε
+    err, _, _ = certify_hausdorff(_read(F, V), (0, 0, H - 1, W - 1), vr.astype(float), vc.astype(float),
+                                  F.reshape(-1), faces, (1, 1), 1, (D, 0.0, 0.0, -D), per_cell=False)
     assert err <= 0.3 + 1e-9
+    # the vertical distance is not what is bounded: walls between samples are cut (that is what pays)
+    verr, _, _ = certify(_read(F, V), (0, 0, H - 1, W - 1), vr.astype(float), vc.astype(float), F.reshape(-1),
+                         faces, (1, 1), 1, per_cell=False)
+    assert verr > 0.3
+    # with metric="vertical" the vertical certifier's bound holds, at more triangles
+    vert = simplify_grid(F, V, D, D, 0.3, metric="vertical")
+    verr2, _, _ = certify(_read(F, V), (0, 0, H - 1, W - 1), vr.astype(float), vc.astype(float), F.reshape(-1),
+                          vert.faces, (1, 1), 1, per_cell=False)
+    assert verr2 <= 0.3 + 1e-9 and len(vert.faces) > len(faces)
     # no triangle covers the no-data hole: its samples are no vertex and lie in no triangle's box interior
     ids = np.unique(faces)
     assert not np.isin(ids, np.flatnonzero(~V.reshape(-1))).any()
@@ -123,6 +134,12 @@ def test_constrained_collapse_keeps_ridge_and_courtyard(scene, model) -> None:
     # the ridge (rows 17/18) is still there: the mesh has vertices on it at both ends of the house
     on_ridge = [cc for cc in range(8, 44) if (17 * W + cc) in ids or (18 * W + cc) in ids]
     assert min(on_ridge) <= 9 and max(on_ridge) >= 42
+    # planar roofs collapse to a few triangles each: the gable house's two faces, the courtyard block's ring
+    r, c = np.divmod(model.faces, W)
+    z = F.reshape(-1)[model.faces]
+    for name, eave, most in (("house", 15.5, 12), ("block", 21.5, 20)):
+        on_roof = _truth[name][r, c].all(axis=1) & (z > eave).all(axis=1)
+        assert 2 <= on_roof.sum() <= most, (name, on_roof.sum())
     # without shapes the same bound gives fewer triangles (the constraints cost triangles, not accuracy)
     plain = simplify_grid(F, V, D, D, 0.3, constrained=False)
     assert len(plain.faces) <= len(model.faces)

@@ -50,7 +50,8 @@ class ShapeParams:
     samples (distance ``roof_eps``, normal deviation ``roof_angle_deg``, at least ``roof_min_area`` m²);
     façades to the points inserted at jumps over ``jump`` m (distance ``facade_eps``, at least
     ``facade_min_area`` m² of wall). ``map_eps`` is the ε of the shape map; two planes make an edge only
-    where they meet at ``min_edge_angle_deg`` or more.
+    where they meet at ``min_edge_angle_deg`` or more. Planes of the ground are dropped unless
+    ``ground_planes``.
     """
 
     roof_eps: float | None = None
@@ -63,6 +64,7 @@ class ShapeParams:
     map_eps: float | None = None
     min_edge_angle_deg: float = 25.0
     seed: int = 1
+    ground_planes: bool = False
 
     def resolved(self, spacing: float) -> ShapeParams:
         """The parameters with the spacing-dependent defaults filled in."""
@@ -73,7 +75,7 @@ class ShapeParams:
             facade_eps=self.facade_eps if self.facade_eps is not None else 0.8 * spacing,
             facade_min_area=self.facade_min_area, jump=self.jump,
             map_eps=self.map_eps if self.map_eps is not None else max(0.25, 0.8 * spacing),
-            min_edge_angle_deg=self.min_edge_angle_deg, seed=self.seed)
+            min_edge_angle_deg=self.min_edge_angle_deg, seed=self.seed, ground_planes=self.ground_planes)
 
 
 @dataclass
@@ -114,9 +116,35 @@ def detect_shapes(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, params
     min_size = max(3, int(math.ceil(p.roof_min_area / (dx * dy))))
     label, planes = shapes.detect_roof_planes(F, V, dx, dy, p.roof_eps, p.roof_angle_deg, min_size,
                                               p.roof_max_slope_deg, p.seed, 24, 24, 3)
+    if not p.ground_planes and len(planes):
+        # RANSAC cuts curved terrain into many nearly coplanar planes whose borders are no feature of the
+        # city; their border rule would keep ragged polylines across the ground. Planes mostly standing
+        # less than ``jump`` above the bare-earth estimate are dropped (the ground is left to QEM and the
+        # certified bound).
+        lifted = (F - ground_height(F, V, spacing)) > p.jump
+        ok = label >= 0
+        n_all = np.bincount(label[ok], minlength=len(planes))
+        n_up = np.bincount(label[ok & lifted], minlength=len(planes))
+        keep = n_up >= 0.5 * np.maximum(n_all, 1)
+        remap = np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int32)
+        label = np.where(ok, remap[np.maximum(label, 0)], -1).astype(np.int32)
+        planes = np.ascontiguousarray(planes[keep])
     cols = shapes.facade_columns(F, V, dx, dy, p.jump)
     fl, fplanes = shapes.detect_facades(cols, spacing, p.facade_eps, p.facade_min_area / (spacing * spacing),
                                         p.seed, 24, 24, 4.0 * spacing, 2.5 * spacing)
+    if len(fplanes):
+        # a wall holds up a roof: façades whose columns mostly have no roof plane at their top (the
+        # rims of tree crowns, terrain steps) are dropped, so they do not pin vertices on trees
+        top = np.where(F.reshape(-1)[cols[:, 4].astype(np.int64)] > F.reshape(-1)[cols[:, 5].astype(np.int64)],
+                       cols[:, 4], cols[:, 5]).astype(np.int64)
+        roofed = label.reshape(-1)[top] >= 0
+        on = fl >= 0
+        n_all = np.bincount(fl[on], minlength=len(fplanes))
+        n_roof = np.bincount(fl[on & roofed], minlength=len(fplanes))
+        fkeep = n_roof >= 0.5 * np.maximum(n_all, 1)
+        fremap = np.where(fkeep, np.cumsum(fkeep) - 1, -1).astype(np.int32)
+        fl = np.where(on, fremap[np.maximum(fl, 0)], -1).astype(np.int32)
+        fplanes = np.ascontiguousarray(fplanes[fkeep])
     smap = shapes.shape_map(F, V, dx, dy, label, planes, p.map_eps, fl, cols, fplanes, p.facade_eps, len(planes),
                             math.cos(math.radians(p.min_edge_angle_deg)))
     return Shapes(label, planes, fplanes, len(cols), smap)
@@ -133,6 +161,8 @@ class ModelMesh:
     collapses: int
     seconds: float
     shapes: Shapes | None = None
+    rejections: dict[str, int] = field(default_factory=dict)
+    metric: str = "hausdorff"
 
     @property
     def vertex_ids(self) -> I64:
@@ -150,7 +180,7 @@ class ModelMesh:
 
 def simplify_grid(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, max_error: float, *,
                   params: ShapeParams | None = None, constrained: bool = True, locked: npt.ArrayLike | None = None,
-                  target_triangles: int = 0) -> ModelMesh:
+                  target_triangles: int = 0, metric: str = "hausdorff") -> ModelMesh:
     """Detect shapes and simplify the grid under their constraints with a certified vertical error.
 
     Every accepted collapse keeps ``max |T − F| ≤ max_error`` exactly (overlay vertices evaluated, see
@@ -172,8 +202,13 @@ def simplify_grid(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, max_er
     sh = detect_shapes(F, V, dx, dy, params) if constrained else None
     smap = sh.shape_map if sh is not None else np.full((F.size, shapes.MAX_IDS), -1, np.int32)
     lk = np.zeros(F.size, bool) if locked is None else np.ascontiguousarray(np.asarray(locked, bool).reshape(-1))
-    faces, n = collapse.simplify(F, V, smap, lk, float(dx), float(dy), float(max_error), int(target_triangles))
-    return ModelMesh(F.shape, faces, float(max_error), int(n), time.perf_counter() - t0, sh)
+    if metric not in ("hausdorff", "vertical"):
+        raise ValueError(f"metric must be 'hausdorff' or 'vertical', got {metric!r}")
+    stats = np.zeros(len(collapse.REJECT_NAMES), np.int64)
+    faces, n = collapse.simplify(F, V, smap, lk, float(dx), float(dy), float(max_error), int(target_triangles),
+                                 1 if metric == "hausdorff" else 0, stats)
+    return ModelMesh(F.shape, faces, float(max_error), int(n), time.perf_counter() - t0, sh,
+                     dict(zip(collapse.REJECT_NAMES, stats.tolist(), strict=True)), metric)
 
 
 # ------------------------------------------------------------------------------------------ city objects
