@@ -24,12 +24,15 @@ it passes, in this order:
 6. the link condition, no triangle flipped or degenerate in the horizontal projection (the result stays
    a height field over the same domain; boundary vertices slide only along straight stretches of the
    boundary, locked vertices never move);
-7. **certified error**: the exact vertical L∞ distance of every new triangle to the grid surface is at
-   most ε. Both surfaces are piecewise linear over the same domain, so the difference is linear on
-   every face of their overlay and its maximum is attained at an overlay vertex: a grid sample inside
-   the triangle, or a crossing of a triangle edge with a grid row, column or diagonal. All are
-   evaluated. ``|T − F| ≤ ε`` at every (x, y) bounds the symmetric Hausdorff distance by ε (the vertical
-   metric of docs/DESIGN.md decision 3).
+7. **certified error**: the symmetric 3D Hausdorff distance between the new triangles and the grid
+   surface is certified at most ε (:func:`hausdorff_check`: the overlay of a triangle with the grid's cell
+   triangles cuts both into convex pieces, and the distance to a triangle is convex, so a piece whose
+   vertices are all within ε of one triangle of the other surface is within ε everywhere; the metric of
+   docs/DESIGN.md decision 3). A vertical bound would keep a vertex on every step a wall between samples
+   makes; in 3D such a wall is cut straight. With ``metric`` 0 the test is the exact vertical L∞ distance
+   instead: both surfaces are piecewise linear over the same domain, so the difference is linear on every
+   face of their overlay and its maximum is attained at an overlay vertex, a grid sample inside the
+   triangle or a crossing of a triangle edge with a grid row, column or diagonal, all evaluated.
 
 Written by hand: pymeshlab's quadric edge collapse and pyfqmr optimise vertex positions and accept no
 per-vertex constraint sets, no certified bound and no height-field validity test; OpenMesh's decimater
