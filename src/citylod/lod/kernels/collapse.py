@@ -403,6 +403,28 @@ def _near_surface(px, py, pz, n, F, V, W, dx, dy, i, j, reach, eps):
 
 
 @njit(cache=True, nogil=True)
+def _span(y0, x0, y1, x1, y2, x2, yl):
+    """The interval of columns where the row line ``yl`` crosses the triangle (empty: left > right)."""
+    lo = math.inf
+    hi = -math.inf
+    for e in range(3):
+        if e == 0:
+            ya, xa, yb, xb = y0, x0, y1, x1
+        elif e == 1:
+            ya, xa, yb, xb = y1, x1, y2, x2
+        else:
+            ya, xa, yb, xb = y2, x2, y0, x0
+        if ya == yl:
+            lo = min(lo, xa)
+            hi = max(hi, xa)
+        if (ya - yl) * (yb - yl) < 0.0:
+            x = xa + (yl - ya) * (xb - xa) / (yb - ya)
+            lo = min(lo, x)
+            hi = max(hi, x)
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
 def hausdorff_check(F, V, W, dx, dy, a, b, c, eps, cand, ncand, own, t2s, scratch):
     """Certify one triangle (a, b, c) of grid samples (counter-clockwise in (col, row)) against the grid
     surface S in the 3D Hausdorff sense; returns 0 (certified, only its own triangle needed), 1 (certified
@@ -455,24 +477,47 @@ def hausdorff_check(F, V, W, dx, dy, a, b, c, eps, cand, ncand, own, t2s, scratc
                     x = x1 + (yl - y1) * (x2 - x1) / (y2 - y1)
                     lo = min(lo, x)
                     hi = max(hi, x)
+        # the run of cells wholly inside the triangle: where its samples are all within eps vertically, its
+        # pieces (the cells' own triangles, linear on both surfaces) are certified by the samples alone
+        la, ra = _span(ys0, xs0, ys1, xs1, ys2, xs2, float(i))
+        lb, rb = _span(ys0, xs0, ys1, xs1, ys2, xs2, float(i + 1))
+        ja = max(int(math.ceil(max(la, lb) - 1e-9)), 0)
+        jb = min(int(math.floor(min(ra, rb) + 1e-9)) - 1, W - 2)
+        run_ok = ja <= jb
+        if run_ok:
+            for rr in (i, i + 1):
+                for cc in range(ja, jb + 2):
+                    if not V[rr, cc] or abs(F[rr, cc] - (pa * rr + pb * cc + pc)) > eps:
+                        run_ok = False
+                        break
+                if not run_ok:
+                    break
         for j in range(max(int(math.floor(lo)), 0), min(int(math.ceil(hi)) - 1, W - 2) + 1):
+            if run_ok and ja <= j <= jb:
+                continue
+            inside = ja <= j <= jb
             for lower in (True, False):
                 g0, g1, g2 = _cell_tri(W, i, j, lower)
                 qy[0], qx[0] = float(i), float(j)
                 qy[1], qx[1] = float(g1 // W), float(g1 % W)
                 qy[2], qx[2] = float(i + 1), float(j + 1)
-                n = _clip(qy, qx, 3, ys0, xs0, ys1, xs1, sgn, wy, wx)
-                if n >= 3:
-                    n = _clip(wy, wx, n, ys1, xs1, ys2, xs2, sgn, qy, qx)
-                if n >= 3:
-                    n = _clip(qy, qx, n, ys2, xs2, ys0, xs0, sgn, wy, wx)
-                if n < 3:
-                    continue
-                area = 0.0
-                for k in range(n):
-                    area += wx[k] * wy[(k + 1) % n] - wx[(k + 1) % n] * wy[k]
-                if abs(area) < 1e-9:
-                    continue  # the triangle only touches this cell triangle
+                if inside:
+                    n = 3
+                    for k in range(3):
+                        wy[k], wx[k] = qy[k], qx[k]
+                else:
+                    n = _clip(qy, qx, 3, ys0, xs0, ys1, xs1, sgn, wy, wx)
+                    if n >= 3:
+                        n = _clip(wy, wx, n, ys1, xs1, ys2, xs2, sgn, qy, qx)
+                    if n >= 3:
+                        n = _clip(qy, qx, n, ys2, xs2, ys0, xs0, sgn, wy, wx)
+                    if n < 3:
+                        continue
+                    area = 0.0
+                    for k in range(n):
+                        area += wx[k] * wy[(k + 1) % n] - wx[(k + 1) % n] * wy[k]
+                    if abs(area) < 1e-9:
+                        continue  # the triangle only touches this cell triangle
                 if not (V[i, j] and V[g1 // W, g1 % W] and V[i + 1, j + 1]):
                     return 2
                 f0, f1, f2 = F[i, j], F[g1 // W, g1 % W], F[i + 1, j + 1]
@@ -610,6 +655,16 @@ def _collapse_code(F, V, W, dx, dy, tri, alive, head, nxt, S, v, w, nb, n, eps, 
                 ncand += 1
                 ctri[ncand] = -1
             c = nxt[c]
+    # a necessary condition first, cheap: v's sample is a point of S and must stay within eps of the mesh
+    px, py, pz = scratch[4], scratch[5], scratch[6]
+    px[0], py[0], pz[0] = (v % W) * dx, -(v // W) * dy, F[v // W, v % W]
+    near = False
+    for q in range(ncand):
+        if _max_dist(px, py, pz, 1, F, W, dx, dy, cand[q, 0], cand[q, 1], cand[q, 2], eps) <= eps:
+            near = True
+            break
+    if not near:
+        return 10
     for q in range(nnew):
         r = hausdorff_check(F, V, W, dx, dy, cand[q, 0], cand[q, 1], cand[q, 2], eps, cand, ncand, q, True, scratch)
         if r == 2:
@@ -658,8 +713,12 @@ def _cost(Q, P, v, w):
     x, y, z = P[w, 0], P[w, 1], P[w, 2]
     q = Q[v] + Q[w]
     # q = [a2, ab, ac, ad, b2, bc, bd, c2, cd, d2]
-    return (q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x + q[4] * y * y + 2 * q[5] * y * z
-            + 2 * q[6] * y + q[7] * z * z + 2 * q[8] * z + q[9])
+    e = (q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x + q[4] * y * y + 2 * q[5] * y * z
+         + 2 * q[6] * y + q[7] * z * z + 2 * q[8] * z + q[9])
+    # ties (exactly planar regions cost 0 everywhere) go to the shortest edge, so collapses spread evenly
+    # instead of piling one fan of hundreds of triangles, each collapse into which re-checks its whole area
+    dx, dy = P[v, 0] - x, P[v, 1] - y
+    return max(e, 0.0) + 1e-9 * (dx * dx + dy * dy)
 
 
 @njit(cache=True, nogil=True)
