@@ -292,6 +292,57 @@ def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool =
             "triangles": rep.triangles, "samples": rep.samples, "seconds": rep.seconds}
 
 
+def memory_run(work_dir: str, *, size: int = 20480, block: int = 1025, limit_mib: int = 1400, cell: int = 512,
+               max_error: float = 0.5, seed: int = 7) -> dict[str, float]:
+    """Build the model of a raster larger than the memory the build may use, and measure its peak.
+
+    The raster is ``size``² float32 samples (tiled, deflate; 1.6 GiB as an array at the default size),
+    no-data except a ``block``² window of the sample city at 0.5 m in its middle, so that the run takes
+    minutes. ``citylod build model`` runs in a child process whose address space is capped at
+    ``limit_mib`` MiB (``RLIMIT_AS``), in process (``--workers 0``); its peak resident memory is read
+    from ``getrusage(RUSAGE_CHILDREN)``.
+    """
+    import resource
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import rasterio
+    from affine import Affine
+    from rasterio.windows import Window
+
+    from citylod.sample.city import make_city
+
+    work = Path(work_dir)
+    work.mkdir(parents=True, exist_ok=True)
+    tif = work / "big_dsm.tif"
+    city = make_city(block, seed=seed, spacing=0.5)
+    x, y = city.pixel_centers()
+    F = city.surface_height(x, y)
+    F = np.where(city.nodata_mask(x, y), -9999.0, F).astype(np.float32)
+    off = (size - block) // 2
+    with rasterio.open(tif, "w", driver="GTiff", width=size, height=size, count=1, dtype="float32",
+                       crs="EPSG:32632", transform=Affine(0.5, 0, 500000.0, 0, -0.5, 5400000.0), nodata=-9999.0,
+                       tiled=True, blockxsize=512, blockysize=512, compress="deflate") as ds:
+        ds.write(F, 1, window=Window(off, off, block, block))
+    limit = limit_mib * 1024 * 1024
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    cmd = [sys.executable, "-c", "import sys; from citylod.cli import main; sys.exit(main(sys.argv[1:]))", "-q", "build", "model", str(tif), "-o", str(work / "model"),
+           "--workers", "0", "--cell", str(cell), "--max-error", str(max_error)]
+    t = time.perf_counter()
+    proc = subprocess.run(cmd, preexec_fn=cap, capture_output=True, text=True, check=False)
+    secs = time.perf_counter() - t
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    if proc.returncode != 0:
+        raise RuntimeError(f"build failed ({proc.returncode}): {proc.stderr[-2000:]}")
+    return {"raster_samples": float(size * size), "raster_mib_float32": size * size * 4 / 2**20,
+            "limit_mib": float(limit_mib), "peak_rss_mib": peak, "seconds": secs,
+            "valid_samples": float(block * block), "vertices_per_second": block * block / secs}
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m citylod.bench.model_bench --size 385 --max-error 1.0``: the comparison as a table."""
     import argparse
@@ -306,11 +357,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--max-error", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--share", type=float, default=0.9, help="share of a segment's points within 0.5 m to keep it")
+    ap.add_argument("--work", help="folder for temporary files (default: the system's)")
     ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
     ap.add_argument("--memory-cell", type=int,
                     help="instead: build the model of the sample DSM with cells of this many samples in this process "
                          "and print its peak resident memory")
+    ap.add_argument("--memory-limit", type=int, metavar="MIB",
+                    help="instead: build a 20480² raster (1.6 GiB as float32) in a child capped at MIB MiB of "
+                         "address space and print its peak resident memory")
     a = ap.parse_args(argv)
+    if a.memory_limit:
+        with tempfile.TemporaryDirectory(dir=a.work) as tmp:
+            print(memory_run(tmp, limit_mib=a.memory_limit))
+        return
     if a.memory_cell:
         import resource
 

@@ -263,6 +263,11 @@ def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.
     H, W = F.shape
     K = len(roof_planes)
     lab = np.where(mask & (roof_label >= 0), roof_label, -1).astype(np.int64)
+    # the samples along a ridge or a valley are often on neither plane (their one-sided normals fit
+    # neither): planes are made to meet by giving mask samples next to a plane its label
+    if K and (lab >= 0).any():
+        dist, idx = ndimage.distance_transform_edt(lab < 0, return_indices=True)
+        lab = np.where(mask & (lab < 0) & (dist <= 1.0), lab[tuple(idx)], lab)
     parent = np.arange(K)
 
     def find(i: int) -> int:
@@ -299,10 +304,10 @@ def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.
                     pa, pb = find(int(k // K)), find(int(k % K))
                     if pa != pb:
                         parent[max(pa, pb)] = min(pa, pb)
-    roots = np.array([find(i) for i in range(K)], np.int64)
+    roots = np.array([find(i) for i in range(K)] or [0], np.int64)
     group = np.where(lab >= 0, roots[np.maximum(lab, 0)] + 1, 0)
     # samples on no plane: the nearest plane sample's building, within the same part of the mask
-    parts, nparts = ndimage.label(mask)
+    parts, _ = ndimage.label(mask)
     idx = ndimage.distance_transform_edt(group == 0, return_distances=False, return_indices=True)
     near = group[tuple(idx)]
     same = parts[tuple(idx)] == parts
@@ -595,6 +600,9 @@ def _cell_task(raster: str, r0: int, c0: int, cell: int, max_error: float, param
     nr = min(cell + 1, info.height - r0)
     nc = min(cell + 1, info.width - c0)
     F, V = src.read_window(r0, c0, nr, nc)
+    if not V.any():  # nothing to mesh, no building to find
+        return {"key": key, "samples": 0, "triangles": 0, "grid_triangles": 0, "seconds": 0.0, "content": None,
+                "footprints": []}
     dx, dy = _spacing_xy(info)
     locked = np.zeros((nr, nc), bool)
     if r0 > 0:

@@ -497,7 +497,7 @@ def hausdorff_check(F, V, W, dx, dy, a, b, c, eps, cand, ncand, own, t2s, scratc
                 continue
             inside = ja <= j <= jb
             for lower in (True, False):
-                g0, g1, g2 = _cell_tri(W, i, j, lower)
+                g1 = _cell_tri(W, i, j, lower)[1]
                 qy[0], qx[0] = float(i), float(j)
                 qy[1], qx[1] = float(g1 // W), float(g1 % W)
                 qy[2], qx[2] = float(i + 1), float(j + 1)
