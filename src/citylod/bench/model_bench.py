@@ -167,8 +167,50 @@ def pymeshlab_decimate(pos: F64, faces: npt.NDArray[np.int64], target: int) -> t
     return m.vertex_matrix() + o, m.face_matrix().astype(np.int64)
 
 
-def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True, share: float = 0.9) -> list[Row]:
-    """The four methods of the module docstring on the city's DSM grid (pixel centres, no-data masked)."""
+def plot_meshes(city: SampleCity, meshes: list[tuple[str, F64, npt.NDArray[np.int64]]], path: str,
+                half: float = 30.0) -> None:
+    """Top views of meshes side by side around the pitched roof nearest the city's centre: faces shaded by a sun from
+    the north-west, edges drawn, the true ridges and eaves in red (matplotlib, Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    mid = np.array(city.pixel_centers()[0].mean()), np.array(city.pixel_centers()[1].mean())
+    pitched = [b for b in city.buildings if b.roof != "flat"] or city.buildings
+    b = min(pitched, key=lambda b: float(np.hypot(b.center[0] - mid[0], b.center[1] - mid[1])))
+    cx, cy = b.center
+    segs = [s for bs in feature_segments(city) for s in bs]
+    sun = np.array([-1.0, 1.0, 1.4]) / np.linalg.norm([-1.0, 1.0, 1.4])
+    fig, axes = plt.subplots(1, len(meshes), figsize=(6 * len(meshes), 6.4))
+    for ax, (name, pos, faces) in zip(np.atleast_1d(axes), meshes, strict=True):
+        tri = pos[faces]
+        keep = np.all((np.abs(tri[:, :, 0] - cx) < half * 1.5) & (np.abs(tri[:, :, 1] - cy) < half * 1.5), axis=1)
+        tri = tri[keep]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        n *= np.sign(n[:, 2:3] + 1e-12)
+        shade = np.clip(n @ sun, 0.05, 1.0)
+        pc = PolyCollection(tri[:, :, :2], facecolors=plt.cm.gray(shade), edgecolors="tab:blue", linewidths=0.4)
+        ax.add_collection(pc)
+        for p, q in segs:
+            ax.plot([p[0], q[0]], [p[1], q[1]], color="red", lw=0.8, alpha=0.8)
+        ax.set_xlim(cx - half, cx + half)
+        ax.set_ylim(cy - half, cy + half)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"{name}: {len(faces)} triangles", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True, share: float = 0.9,
+            plot: str | None = None) -> list[Row]:
+    """The four methods of the module docstring on the city's DSM grid (pixel centres, no-data masked);
+    with ``plot`` a PNG of the constrained mesh beside pymeshlab's at the same triangle count."""
     x, y = city.pixel_centers()
     F = city.surface_height(x, y)
     V = ~city.nodata_mask(x, y)
@@ -195,6 +237,9 @@ def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True, share
     t = time.perf_counter()
     qpos, qfaces = pymeshlab_decimate(gpos, gfaces, len(ufaces))
     tq = time.perf_counter() - t
+    if plot:
+        plot_meshes(city, [(f"constrained, certified ≤ {max_error:g} m (3D)", cpos, cfaces),
+                           ("pymeshlab quadric edge collapse", ppos, pfaces)], plot)
     for name, (p, f), secs in ((f"constrained, certified ≤ {max_error:g} m", (cpos, cfaces), con.seconds),
                                (f"unconstrained QEM, certified ≤ {max_error:g} m", (upos, ufaces), unc.seconds),
                                ("pymeshlab QEC, constrained's triangles", (ppos, pfaces), tp),
@@ -357,6 +402,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--max-error", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--share", type=float, default=0.9, help="share of a segment's points within 0.5 m to keep it")
+    ap.add_argument("--plot", help="PNG: the constrained mesh beside pymeshlab's at the same triangle count")
     ap.add_argument("--work", help="folder for temporary files (default: the system's)")
     ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
     ap.add_argument("--memory-cell", type=int,
@@ -387,7 +433,7 @@ def main(argv: list[str] | None = None) -> None:
             print(delft(a.delft, tmp, progress=True))
         return
     city = make_city(a.size, seed=a.seed, spacing=a.spacing)
-    rows = compare(city, a.max_error, share=a.share)
+    rows = compare(city, a.max_error, share=a.share, plot=a.plot)
     print(f"sample city {a.size}² at {a.spacing} m, {len(city.buildings)} buildings, ε = {a.max_error} m, "
           f"segment kept when {100 * a.share:g} % of its points are within 0.5 m")
     print(f"{'method':52s} {'triangles':>9s} {'kept':>6s} {'seconds':>8s} {'Hausdorff (sampled)':>20s}")
