@@ -572,6 +572,7 @@ class ModelBuildReport:
     max_error: float
     seconds: float
     heights: str = ""  # what the CRS leaves unsaid about the heights (no vertical datum), as in build dsm
+    metric: str = "hausdorff"
 
     @property
     def vertices_per_second(self) -> float:
@@ -580,7 +581,7 @@ class ModelBuildReport:
     def summary(self) -> str:
         return (f"model: {self.samples} samples in {self.cells} cells -> {self.triangles} triangles "
                 f"({self.grid_triangles / max(self.triangles, 1):.1f}x fewer than the grid), certified "
-                f"≤ {self.max_error:g} m; {self.buildings} buildings; {self.seconds:.1f} s, "
+                f"≤ {self.max_error:g} m ({self.metric}); {self.buildings} buildings; {self.seconds:.1f} s, "
                 f"{self.vertices_per_second:,.0f} vertices/s -> {self.output}"
                 + (f"\nheights: {self.heights}" if self.heights else ""))
 
@@ -799,4 +800,4 @@ def build_model(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str],
             shutil.rmtree(partial, ignore_errors=True)
     return ModelBuildReport(out, len(tasks), sum(r["samples"] for r in results), sum(r["triangles"] for r in results),
                             sum(r["grid_triangles"] for r in results), len(fps), eps, time.perf_counter() - t0,
-                            heights=missing_vertical_datum(crs) or "")
+                            heights=missing_vertical_datum(crs) or "", metric=metric)
