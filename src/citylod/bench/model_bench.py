@@ -167,8 +167,50 @@ def pymeshlab_decimate(pos: F64, faces: npt.NDArray[np.int64], target: int) -> t
     return m.vertex_matrix() + o, m.face_matrix().astype(np.int64)
 
 
-def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True, share: float = 0.9) -> list[Row]:
-    """The four methods of the module docstring on the city's DSM grid (pixel centres, no-data masked)."""
+def plot_meshes(city: SampleCity, meshes: list[tuple[str, F64, npt.NDArray[np.int64]]], path: str,
+                half: float = 30.0) -> None:
+    """Top views of meshes side by side around the pitched roof nearest the city's centre: faces shaded by a sun from
+    the north-west, edges drawn, the true ridges and eaves in red (matplotlib, Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    mid = np.array(city.pixel_centers()[0].mean()), np.array(city.pixel_centers()[1].mean())
+    pitched = [b for b in city.buildings if b.roof != "flat"] or city.buildings
+    b = min(pitched, key=lambda b: float(np.hypot(b.center[0] - mid[0], b.center[1] - mid[1])))
+    cx, cy = b.center
+    segs = [s for bs in feature_segments(city) for s in bs]
+    sun = np.array([-1.0, 1.0, 1.4]) / np.linalg.norm([-1.0, 1.0, 1.4])
+    fig, axes = plt.subplots(1, len(meshes), figsize=(6 * len(meshes), 6.4))
+    for ax, (name, pos, faces) in zip(np.atleast_1d(axes), meshes, strict=True):
+        tri = pos[faces]
+        keep = np.all((np.abs(tri[:, :, 0] - cx) < half * 1.5) & (np.abs(tri[:, :, 1] - cy) < half * 1.5), axis=1)
+        tri = tri[keep]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        n *= np.sign(n[:, 2:3] + 1e-12)
+        shade = np.clip(n @ sun, 0.05, 1.0)
+        pc = PolyCollection(tri[:, :, :2], facecolors=plt.cm.gray(shade), edgecolors="tab:blue", linewidths=0.4)
+        ax.add_collection(pc)
+        for p, q in segs:
+            ax.plot([p[0], q[0]], [p[1], q[1]], color="red", lw=0.8, alpha=0.8)
+        ax.set_xlim(cx - half, cx + half)
+        ax.set_ylim(cy - half, cy + half)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"{name}: {len(faces)} triangles", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True, share: float = 0.9,
+            plot: str | None = None) -> list[Row]:
+    """The four methods of the module docstring on the city's DSM grid (pixel centres, no-data masked);
+    with ``plot`` a PNG of the constrained mesh beside pymeshlab's at the same triangle count."""
     x, y = city.pixel_centers()
     F = city.surface_height(x, y)
     V = ~city.nodata_mask(x, y)
@@ -195,6 +237,9 @@ def compare(city: SampleCity, max_error: float, *, hausdorff: bool = True, share
     t = time.perf_counter()
     qpos, qfaces = pymeshlab_decimate(gpos, gfaces, len(ufaces))
     tq = time.perf_counter() - t
+    if plot:
+        plot_meshes(city, [(f"constrained, certified ≤ {max_error:g} m (3D)", cpos, cfaces),
+                           ("pymeshlab quadric edge collapse", ppos, pfaces)], plot)
     for name, (p, f), secs in ((f"constrained, certified ≤ {max_error:g} m", (cpos, cfaces), con.seconds),
                                (f"unconstrained QEM, certified ≤ {max_error:g} m", (upos, ufaces), unc.seconds),
                                ("pymeshlab QEC, constrained's triangles", (ppos, pfaces), tp),
@@ -292,6 +337,57 @@ def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool =
             "triangles": rep.triangles, "samples": rep.samples, "seconds": rep.seconds}
 
 
+def memory_run(work_dir: str, *, size: int = 20480, block: int = 1025, limit_mib: int = 1400, cell: int = 512,
+               max_error: float = 0.5, seed: int = 7) -> dict[str, float]:
+    """Build the model of a raster larger than the memory the build may use, and measure its peak.
+
+    The raster is ``size``² float32 samples (tiled, deflate; 1.6 GiB as an array at the default size),
+    no-data except a ``block``² window of the sample city at 0.5 m in its middle, so that the run takes
+    minutes. ``citylod build model`` runs in a child process whose address space is capped at
+    ``limit_mib`` MiB (``RLIMIT_AS``), in process (``--workers 0``); its peak resident memory is read
+    from ``getrusage(RUSAGE_CHILDREN)``.
+    """
+    import resource
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import rasterio
+    from affine import Affine
+    from rasterio.windows import Window
+
+    from citylod.sample.city import make_city
+
+    work = Path(work_dir)
+    work.mkdir(parents=True, exist_ok=True)
+    tif = work / "big_dsm.tif"
+    city = make_city(block, seed=seed, spacing=0.5)
+    x, y = city.pixel_centers()
+    F = city.surface_height(x, y)
+    F = np.where(city.nodata_mask(x, y), -9999.0, F).astype(np.float32)
+    off = (size - block) // 2
+    with rasterio.open(tif, "w", driver="GTiff", width=size, height=size, count=1, dtype="float32",
+                       crs="EPSG:32632", transform=Affine(0.5, 0, 500000.0, 0, -0.5, 5400000.0), nodata=-9999.0,
+                       tiled=True, blockxsize=512, blockysize=512, compress="deflate") as ds:
+        ds.write(F, 1, window=Window(off, off, block, block))
+    limit = limit_mib * 1024 * 1024
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    cmd = [sys.executable, "-c", "import sys; from citylod.cli import main; sys.exit(main(sys.argv[1:]))", "-q", "build", "model", str(tif), "-o", str(work / "model"),
+           "--workers", "0", "--cell", str(cell), "--max-error", str(max_error)]
+    t = time.perf_counter()
+    proc = subprocess.run(cmd, preexec_fn=cap, capture_output=True, text=True, check=False)
+    secs = time.perf_counter() - t
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    if proc.returncode != 0:
+        raise RuntimeError(f"build failed ({proc.returncode}): {proc.stderr[-2000:]}")
+    return {"raster_samples": float(size * size), "raster_mib_float32": size * size * 4 / 2**20,
+            "limit_mib": float(limit_mib), "peak_rss_mib": peak, "seconds": secs,
+            "valid_samples": float(block * block), "vertices_per_second": block * block / secs}
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m citylod.bench.model_bench --size 385 --max-error 1.0``: the comparison as a table."""
     import argparse
@@ -306,11 +402,20 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--max-error", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--share", type=float, default=0.9, help="share of a segment's points within 0.5 m to keep it")
+    ap.add_argument("--plot", help="PNG: the constrained mesh beside pymeshlab's at the same triangle count")
+    ap.add_argument("--work", help="folder for temporary files (default: the system's)")
     ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
     ap.add_argument("--memory-cell", type=int,
                     help="instead: build the model of the sample DSM with cells of this many samples in this process "
                          "and print its peak resident memory")
+    ap.add_argument("--memory-limit", type=int, metavar="MIB",
+                    help="instead: build a 20480² raster (1.6 GiB as float32) in a child capped at MIB MiB of "
+                         "address space and print its peak resident memory")
     a = ap.parse_args(argv)
+    if a.memory_limit:
+        with tempfile.TemporaryDirectory(dir=a.work) as tmp:
+            print(memory_run(tmp, limit_mib=a.memory_limit))
+        return
     if a.memory_cell:
         import resource
 
@@ -328,7 +433,7 @@ def main(argv: list[str] | None = None) -> None:
             print(delft(a.delft, tmp, progress=True))
         return
     city = make_city(a.size, seed=a.seed, spacing=a.spacing)
-    rows = compare(city, a.max_error, share=a.share)
+    rows = compare(city, a.max_error, share=a.share, plot=a.plot)
     print(f"sample city {a.size}² at {a.spacing} m, {len(city.buildings)} buildings, ε = {a.max_error} m, "
           f"segment kept when {100 * a.share:g} % of its points are within 0.5 m")
     print(f"{'method':52s} {'triangles':>9s} {'kept':>6s} {'seconds':>8s} {'Hausdorff (sampled)':>20s}")

@@ -41,7 +41,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     m = bsub.add_parser("model", help="DSM raster to a simplified city mesh (3D Tiles) and buildings (CityJSON)")
     m.add_argument("raster", type=Path)
     m.add_argument("-o", "--output", type=Path, required=True)
-    m.add_argument("--max-error", type=float, help="certified vertical error bound in metres (default: the spacing)")
+    m.add_argument("--max-error", type=float, help="certified error bound in metres (default: the spacing)")
+    m.add_argument("--metric", choices=("hausdorff", "vertical"), default="hausdorff",
+                   help="what the bound bounds: 3D Hausdorff distance (default) or vertical distance")
     m.add_argument("--cell", type=int, default=512, help="samples per out-of-core cell side (default 512)")
     m.add_argument("--no-shapes", action="store_true", help="plain QEM collapse under the bound, no shape rules")
     m.add_argument("--ortho", type=Path, help="orthophoto to texture the mesh with")
@@ -96,7 +98,7 @@ def run(args: argparse.Namespace, progress: bool) -> int:
 
         report = build_model(args.raster, args.output, max_error=args.max_error, cell=args.cell,
                              constrained=not args.no_shapes, workers=args.workers, scheduler=args.scheduler,
-                             progress=progress, ortho=args.ortho)
+                             progress=progress, ortho=args.ortho, metric=args.metric)
     else:
         from citylod.io.city import read_city_model, to_metric
         from citylod.semantics.store import build_city
