@@ -1,5 +1,8 @@
 """A one-box city tileset for the far-field tests: a 10 × 8 × 15 m box with one colour per face on a
-60 × 60 m ground (the ground's triangles lie on the terrain plane and only set the field's extent)."""
+60 × 60 m ground (the ground's triangles lie on the terrain plane and only set the field's extent).
+
+Every face is textured from one PNG atlas of solid blocks (citylod draws textured city tiles unlit, so the
+geometry's picture holds exactly these colours)."""
 
 from __future__ import annotations
 
@@ -7,7 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from citylod.io.image import encode_image
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, write_content, write_tileset
+from citylod.lod.build.slf import GROUND_RGB
 
 X0, Y0, Z0 = 500_000.0, 5_400_000.0, 100.0
 BOX = (np.array([X0 + 25.0, Y0 + 26.0, Z0]), np.array([X0 + 35.0, Y0 + 34.0, Z0 + 15.0]))
@@ -29,22 +34,25 @@ def box_faces() -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         _quad(np.array([x0, y1, z0]), np.array([x0, y0, z0]), np.array([x0, y0, z1]), np.array([x0, y1, z1]), WEST),
         _quad(np.array([x1, y0, z0]), np.array([x1, y1, z0]), np.array([x1, y1, z1]), np.array([x1, y0, z1]), EAST),
         _quad(np.array([X0, Y0, Z0]), np.array([X0 + 60, Y0, Z0]), np.array([X0 + 60, Y0 + 60, Z0]),
-              np.array([X0, Y0 + 60, Z0]), (90, 90, 90)),
+              np.array([X0, Y0 + 60, Z0]), GROUND_RGB),
     ]
 
 
 def write_box_city(out: Path) -> Path:
     """The tileset (one tile) in EPSG:32632; returns its folder."""
-    verts, faces, cols = [], [], []
-    for v, f, c in box_faces():
+    faces_ = box_faces()
+    atlas = np.zeros((8, 8 * 8, 3), np.uint8)  # block k: columns 8k..8k+7
+    verts, faces, uvs = [], [], []
+    for k, (v, f, c) in enumerate(faces_):
+        atlas[:, 8 * k:8 * k + 8] = c[0]
         faces.append(f + sum(len(x) for x in verts))
         verts.append(v)
-        cols.append(c)
+        uvs.append(np.array([[(8 * k + 2 + 4 * a) / 64.0, 0.25 + 0.5 * b] for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))]))
     v = np.concatenate(verts)
     centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
-    rgba = np.concatenate([np.concatenate(cols), np.full((len(v), 1), 255)], axis=1).astype(np.uint8)
     content = TileContent([MeshData((v - centre).astype(np.float32), np.concatenate(faces).astype(np.uint32),
-                                    colors=rgba, name="city")])
+                                    uv=np.concatenate(uvs).astype(np.float32), texture=encode_image(atlas, "png"),
+                                    name="city_textured")])
     out.mkdir(parents=True, exist_ok=True)
     uri = write_content(out, "0", content)
     write_tileset(out, TileSpec("0", 0, centre, v.min(axis=0), v.max(axis=0), 0.0, uri), "EPSG:32632",

@@ -210,23 +210,53 @@ def compress(x: U8, clusters: int = 256, components: int = 3, seed: int = 0) -> 
     centroids, _ = kmeans2(pick.astype(np.float64), c, iter=8, minit="++", seed=seed)
     label, _ = vq(proj.astype(np.float64), centroids)
     k = components
-    mean = np.zeros((clusters, nd * 3), np.float32)
-    basis = np.zeros((clusters, k, nd * 3), np.float32)
-    weights = np.zeros((n, k), np.float32)
-    for ci in range(c):
-        rows = np.flatnonzero(label == ci)
-        if not len(rows):
-            continue
-        xc = data[rows]
-        m = xc.mean(axis=0)
-        mean[ci] = m
-        xc = xc - m
-        # Orthogonal iteration for the k leading eigenvectors of xc^T xc: a few products with xc.
-        q = np.linalg.qr(rng.standard_normal((nd * 3, k)).astype(np.float32))[0]
-        for _ in range(6):
-            q = np.linalg.qr(xc.T @ (xc @ q))[0]
-        basis[ci] = q.T
-        weights[rows] = xc @ q
+
+    def fit(label: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """Each cluster's mean and k leading eigenvectors (orthogonal iteration: a few products with xc)."""
+        mean = np.zeros((clusters, nd * 3), np.float32)
+        basis = np.zeros((clusters, k, nd * 3), np.float32)
+        for ci in range(c):
+            xc = data[label == ci]
+            if not len(xc):
+                continue
+            mean[ci] = xc.mean(axis=0)
+            xc = xc - mean[ci]
+            q = np.linalg.qr(rng.standard_normal((nd * 3, k)).astype(np.float32))[0]
+            for _ in range(6):
+                q = np.linalg.qr(xc.T @ (xc @ q))[0]
+            basis[ci] = q.T
+        return mean, basis
+
+    def residual(label: npt.NDArray[np.int64], mean: npt.NDArray[np.float32],
+                 basis: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        out = np.empty(n, np.float32)
+        for s0 in range(0, n, 8192):  # in blocks: the gathered bases are (block, k, N·3)
+            sl = slice(s0, s0 + 8192)
+            xc = data[sl] - mean[label[sl]]
+            b = basis[label[sl]]
+            w = np.einsum("nd,nkd->nk", xc, b)
+            out[sl] = (xc ** 2).sum(axis=1) - (w ** 2).sum(axis=1)
+        return out
+
+    label = label.astype(np.int64)
+    mean, basis = fit(label)
+    # Per Cluster Factorisation: move each texel to whichever of its 6 nearest centroids reconstructs it best
+    # with that cluster's eigen-lumispheres, refit, twice (−10 % RMS on a 2 × 2 group of the sample city).
+    cf = centroids.astype(np.float32)
+    dist = (proj ** 2).sum(axis=1)[:, None] - 2 * proj @ cf.T + (cf ** 2).sum(axis=1)[None]
+    near = np.argsort(dist, axis=1)[:, :6]
+    del dist
+    for _ in range(2):
+        best = np.full(n, np.inf, np.float32)
+        new = label.copy()
+        for j in range(near.shape[1]):
+            e = residual(near[:, j], mean, basis)
+            better = e < best
+            best[better] = e[better]
+            new[better] = near[better, j]
+        label = new
+        mean, basis = fit(label)
+    weights = np.einsum("nd,nkd->nk", data - mean[label], basis[label])
     lo = np.zeros((clusters, k), np.float32)
     hi = np.zeros((clusters, k), np.float32)
     for ci in range(c):
