@@ -64,13 +64,13 @@ def _orbit(lo: Any, hi: Any, n: int, step_deg: float, dist_ext: float) -> list[C
 
 
 def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, size: tuple[int, int] = (960, 540),
-              orbit_frames: int = 12, progress: bool = True) -> dict[str, Any]:
+              orbit_frames: int = 12, texel_px: float | None = None, progress: bool = True) -> dict[str, Any]:
     """Run the comparison; returns (and writes) the report."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     big = (3 * size[0], 3 * size[1])
-    with (SlfView(slf_dir, size=size, tau_px=tau_px) as sv, GeometryView(slf_dir, size=size, tau_px=tau_px) as gv,
+    with (SlfView(slf_dir, size=size, tau_px=tau_px, texel_px=texel_px) as sv, GeometryView(slf_dir, size=size, tau_px=tau_px) as gv,
           GeometryView(slf_dir, size=big, tau_px=tau_px) as bv):
         lo, hi = sv.city.root.box.bounds()
         flight = default_flight(lo, hi, n=30)[:10]
@@ -125,7 +125,7 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
             if m.any():
                 fl_s.append(float(np.abs(a.astype(np.int16) - b.astype(np.int16)).mean(axis=2)[m].mean()))
                 fl_g.append(float(np.abs(ga.astype(np.int16) - gb.astype(np.int16)).mean(axis=2)[m].mean()))
-    summary: dict[str, Any] = {"tau_px": tau_px, "size": list(size)}
+    summary: dict[str, Any] = {"tau_px": tau_px, "texel_px": texel_px, "size": list(size)}
     for name in sets:
         r = [x for x in rows if x["set"] == name]
         if not r:
@@ -148,7 +148,8 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
                           "geometry": float(np.mean(fl_g)) if fl_g else float("nan"), "pairs": len(fl_s)}
     report = {"summary": summary, "frames": rows}
     (out / "slf_report.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
-    lines = [f"# Far-field SLF against building geometry (τ = {tau_px} px, {size[0]}×{size[1]})", "",
+    lines = [f"# Far-field SLF against building geometry (τ = {tau_px} px, texels ≤ {texel_px} px, "
+             f"{size[0]}×{size[1]})", "",
              "| cameras | frames | SLF frame ms (eval) | geometry ms | speed-up | SLF MB | geometry MB | less data |"
              " mean err | p99 err | geometry@τ mean err |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name in sets:
@@ -171,9 +172,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("out_dir", type=Path)
     p.add_argument("--tau", type=float, default=2.0)
     p.add_argument("--orbit-frames", type=int, default=12)
+    p.add_argument("--texel-px", type=float, help="also refine fields while a texel covers more pixels")
     a = p.parse_args(argv)
     t0 = time.perf_counter()
-    slf_bench(a.slf_dir, a.out_dir, tau_px=a.tau, orbit_frames=a.orbit_frames)
+    slf_bench(a.slf_dir, a.out_dir, tau_px=a.tau, orbit_frames=a.orbit_frames, texel_px=a.texel_px)
     print((a.out_dir / "slf_report.md").read_text())
     print(f"{time.perf_counter() - t0:.0f} s")
     return 0

@@ -138,10 +138,14 @@ class SlfView:
         Screen-space error threshold.
     fields
         False: never draw a field (every finest cell shows its buildings): the same code path without SLFs.
+    texel_px
+        Also refine a field cell while its texels cover more than this many pixels (sharper far field for
+        more bytes); None: the switching error alone decides.
     """
 
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
-                 fields: bool = True, reeval_deg: float = 0.5, city_dir: str | Path | None = None) -> None:
+                 fields: bool = True, reeval_deg: float = 0.5, city_dir: str | Path | None = None,
+                 texel_px: float | None = None) -> None:
         self.ts, self.meta = open_slf(slf_dir)
         self.folder = Path(self.ts.folder)
         city = Path(city_dir) if city_dir is not None else (self.folder / self.meta["city"])
@@ -149,6 +153,7 @@ class SlfView:
         self.size = (int(size[0]), int(size[1]))
         self.tau_px = float(tau_px)
         self.fields = fields
+        self.texel_px = texel_px
         self.reeval = math.radians(reeval_deg)
         self.ground_z = float(self.meta["ground_z"])
         self.ground_rgb = np.array(self.meta["ground_rgb"], np.float64)
@@ -337,7 +342,8 @@ class SlfView:
             lo, hi = t.box.bounds()
             d = float(np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0)))
             sse = view.sse(t.geometric_error, max(d, 1e-6))
-            if t.children and (sse > self.tau_px or not self.fields):
+            fine = self.texel_px is not None and view.sse(self._extras[t.key]["texel_m"], max(d, 1e-6)) > self.texel_px
+            if t.children and (sse > self.tau_px or fine or not self.fields):
                 stack.extend(t.children)
                 continue
             s = sse / self.tau_px
