@@ -112,3 +112,20 @@ def test_damaged_field_file_is_refused(box_slf: Path, tmp_path: Path) -> None:
     with SlfView(bad, size=SIZE, tau_px=1e6) as sv, pytest.raises(InputError, match="damaged|holds"):
         sv.prepare(_camera(400.0, 0.0, 90.0))
     assert BOX[0][2] == Z0
+
+
+def test_not_a_far_field_tileset(box_slf: Path, tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    from citylod.core.errors import InputError
+
+    with pytest.raises(InputError, match="not a far-field"):
+        SlfView(box_slf.parent / "city", size=SIZE)
+    bad = tmp_path / "slf"
+    shutil.copytree(box_slf, bad)
+    doc = json.loads((bad / "tileset.json").read_text())
+    del doc["extras"]["citylod"]["ground_z"]
+    (bad / "tileset.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="incomplete"):
+        SlfView(bad, size=SIZE)

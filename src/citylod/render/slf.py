@@ -52,6 +52,14 @@ def open_slf(path: str | Path) -> tuple[Any, dict[str, Any]]:
     meta = ts.citylod
     if meta.get("kind") != "slf":
         raise InputError("not a far-field (surface light field) tileset: extras.citylod.kind is not 'slf'", ts.path)
+    try:
+        ok = (isinstance(meta["city"], str) and float(meta["ground_z"]) == float(meta["ground_z"])
+              and len(meta["ground_rgb"]) == 3 and 3 <= int(meta["directions_grid"]) <= 65
+              and float(meta["min_elevation_deg"]) < 90)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"far-field tileset metadata is incomplete ({exc!r})", ts.path) from exc
+    if not ok:
+        raise InputError("far-field tileset metadata is out of range", ts.path)
     return ts, meta
 
 
@@ -173,7 +181,6 @@ class SlfView:
         self.bytes_loaded = 0
         self._building_actors: dict[tuple[str, str], list[Any]] = {}  # (city tile, cell) -> actors
         self._used: dict[str, list[Tile]] = {}
-        self.finest = {t.key for t in self.ts.walk() if not t.children}
 
     def _tile_extras(self) -> dict[str, dict[str, Any]]:
         doc = json.loads((self.folder / "tileset.json").read_text())
