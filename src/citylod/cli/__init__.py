@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "render": "render",
     "bench": "bench",
     "bench-suite": "bench",
+    "bench-slf": "bench",
     "link": "link",
     "view": "view",
     "demo": "demo",

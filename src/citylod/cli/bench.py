@@ -21,8 +21,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bs.add_argument("out_dir", type=Path)
     bs.add_argument("--quick", action="store_true", help="smaller inputs")
 
+    bf = sub.add_parser("bench-slf", help="far-field surface light fields against the building geometry")
+    bf.add_argument("slf_dir", type=Path, help="far-field tileset (citylod build slf)")
+    bf.add_argument("-o", "--output", type=Path, required=True)
+    bf.add_argument("--tau", type=float, default=2.0)
+    bf.add_argument("--orbit-frames", type=int, default=12)
+    bf.add_argument("--texel-px", type=float, help="also refine fields while a texel covers more pixels than this")
+
 
 def run(args: argparse.Namespace, progress: bool) -> int:
+    if args.command == "bench-slf":
+        from citylod.bench.slf_bench import slf_bench
+
+        slf_bench(args.slf_dir, args.output, tau_px=args.tau, orbit_frames=args.orbit_frames,
+                  texel_px=args.texel_px, progress=progress)
+        print((args.output / "slf_report.md").read_text())
+        return 0
     if args.command == "bench-suite":
         from citylod.bench.suite import run_suite
 

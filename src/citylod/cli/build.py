@@ -67,9 +67,31 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--inflate", type=float, help="proxy inflation in metres")
     c.add_argument("--crs", help="metric CRS to project geographic input to, or the CRS of a file that names none, "
                    "e.g. EPSG:32632")
+    add_slf_parser(bsub)
+
+
+def add_slf_parser(bsub: argparse._SubParsersAction) -> None:
+    """``citylod build slf CITY_TILES -o OUT``: far-field surface light fields (issue 28)."""
+    f = bsub.add_parser("slf", help="far-field surface light fields over a city tileset (replace distant buildings)")
+    f.add_argument("city_tiles", type=Path, help="city tileset (citylod build city)")
+    f.add_argument("-o", "--output", type=Path, required=True)
+    f.add_argument("--texel-m", type=float, default=2.0, help="texel size of the finest level in metres (default 2)")
+    f.add_argument("--texels", type=int, default=64, help="texels per cell side, a power of two (default 64)")
+    f.add_argument("--directions", type=int, default=11,
+                   help="side of the parabolic direction lattice (11: 97 directions, 9: 49, 7: 37)")
+    f.add_argument("--oversample", type=int, default=3, help="samples per texel side (default 3)")
+    f.add_argument("--clusters", type=int, default=256, help="clusters per group of four cells (≤ 256)")
+    f.add_argument("--components", type=int, default=3, help="eigen-lumispheres per cluster (default 3)")
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:
+    if args.kind == "slf":
+        from citylod.lod.build.slf import build_slf
+
+        print(build_slf(args.city_tiles, args.output, texel_m=args.texel_m, texels=args.texels, grid=args.directions,
+                        oversample=args.oversample, clusters=args.clusters, components=args.components,
+                        progress=progress).summary())
+        return 0
     if args.kind == "dsm":
         from citylod.lod.build.dsm import build_dsm
 

@@ -1,0 +1,520 @@
+"""Drawing a city with far-field surface light fields (:mod:`citylod.lod.build.slf`), and the baseline that
+draws its building geometry, into one off-screen window each.
+
+:class:`SlfView` walks the far-field quadtree per frame: a cell whose screen-space error
+(``geometricError`` at its distance, docs/DESIGN.md decision 2) is at most τ is drawn as its terrain quad with
+the field evaluated on the CPU for the direction from the cell's centre to the eye (bilinear between the four
+nearest stored directions, :func:`citylod.lod.kernels.slf.evaluate`; re-evaluated only when that direction
+moves by more than ``reeval_deg``). A cell above τ is refined into its children; a finest cell above τ shows
+its buildings (the city tiles the ordinary selection picks at τ, split by object between cells) on the bare
+ground. Around the
+switch the two cross-fade: with ``s = sse / τ`` and ``α = clip((s − ½) / ½, 0, 1)`` the buildings are drawn
+at ``α`` of their height above the ground and the cell's texture is the field blended towards the ground
+colour by ``α``, so a building grows out of its light field between half and all of the switching error
+instead of popping. (Scaling, not opacity: translucent textured buildings cost llvmpipe 40× a frame.) Levels of the
+field replace each other without a blend (they differ only in texel size).
+
+:class:`GeometryView` draws the city tileset at the same τ through the ordinary
+:class:`~citylod.render.tileset_actor.Scene`, on the same ground, or at full resolution (the reference).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.core.camera import Camera, View
+from citylod.core.errors import InputError
+from citylod.io.image import decode_image
+from citylod.io.tiles3d import Tile, open_tileset
+from citylod.lod.build.slf import read_cell, read_group
+from citylod.lod.kernels.slf import DirectionSet, direction_set, evaluate, interpolation
+from citylod.render import _vtk
+from citylod.render.offscreen import OffscreenRenderer
+from citylod.render.tileset_actor import _BACKGROUND, camera_to_vtk
+
+__all__ = ["GeometryView", "SlfFrame", "SlfView", "open_slf"]
+
+U8 = npt.NDArray[np.uint8]
+F64 = npt.NDArray[np.float64]
+
+
+def open_slf(path: str | Path) -> tuple[Any, dict[str, Any]]:
+    """The far-field tileset and its ``extras.citylod`` (``kind`` must be ``"slf"``)."""
+    ts = open_tileset(Path(path))
+    meta = ts.citylod
+    if meta.get("kind") != "slf":
+        raise InputError("not a far-field (surface light field) tileset: extras.citylod.kind is not 'slf'", ts.path)
+    try:
+        ok = (isinstance(meta["city"], str) and float(meta["ground_z"]) == float(meta["ground_z"])
+              and len(meta["ground_rgb"]) == 3 and 3 <= int(meta["directions_grid"]) <= 65
+              and float(meta["min_elevation_deg"]) < 90)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"far-field tileset metadata is incomplete ({exc!r})", ts.path) from exc
+    if not ok:
+        raise InputError("far-field tileset metadata is out of range", ts.path)
+    return ts, meta
+
+
+@dataclass
+class SlfFrame:
+    """What one frame drew: SLF ``cells`` (by level), finest cells with buildings (``geometry_cells``,
+    ``fading`` of them between the two), bytes loaded so far, seconds evaluating fields."""
+
+    cells: int = 0
+    levels: dict[int, int] = field(default_factory=dict)
+    geometry_cells: int = 0
+    fading: int = 0
+    bytes_loaded: int = 0
+    bytes_drawn: int = 0
+    eval_s: float = 0.0
+    evaluations: int = 0
+
+
+def _texture_actor(size_m: float, centre: F64, origin: F64, z: float) -> tuple[Any, Any, Any]:
+    h = size_m / 2
+    pts = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]]) + [centre[0] - origin[0],
+                                                                        centre[1] - origin[1], z - origin[2]]
+    data = _vtk.vtkPolyData()
+    p = _vtk.vtkPoints()
+    p.SetData(_vtk.numpy_to_vtk(pts.astype(np.float32), deep=True))
+    data.SetPoints(p)
+    cells = _vtk.vtkCellArray()
+    cells.SetData(3, _vtk.numpy_to_vtkIdTypeArray(np.array([0, 1, 2, 0, 2, 3], np.int64), deep=True))
+    data.SetPolys(cells)
+    tc = _vtk.numpy_to_vtk(np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32), deep=True)
+    data.GetPointData().SetTCoords(tc)
+    mapper = _vtk.vtkPolyDataMapper()
+    mapper.SetInputData(data)
+    actor = _vtk.vtkActor()
+    actor.SetMapper(mapper)
+    actor.GetProperty().LightingOff()
+    tex = _vtk.vtkTexture()
+    tex.InterpolateOn()
+    tex.MipmapOn()
+    tex.EdgeClampOn()
+    actor.SetTexture(tex)
+    return actor, tex, data
+
+
+def _set_image(tex: Any, rgb: U8) -> None:
+    """Texture from an image whose row 0 is the north (top) edge; VTK's row 0 is the bottom."""
+    h, w, _ = rgb.shape
+    img = _vtk.vtkImageData()
+    img.SetDimensions(w, h, 1)
+    img.GetPointData().SetScalars(_vtk.numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, 3), deep=True,
+                                                    array_type=_vtk.VTK_UNSIGNED_CHAR))
+    tex.SetInputData(img)
+    tex.Modified()
+
+
+class _Cell:
+    def __init__(self, tile: Tile, view: SlfView) -> None:
+        self.tile = tile
+        lo, hi = tile.box.bounds()
+        self.centre = 0.5 * (lo + hi)
+        self.size = float(hi[0] - lo[0])
+        self.info = view.cell_info.get(tile.key)
+        self.actor, self.tex, _ = _texture_actor(self.size, self.centre, view.origin, view.ground_z - 0.05)
+        self.actor.VisibilityOff()
+        view.renderer.AddActor(self.actor)
+        self.cluster: U8 | None = None
+        self.weights: F64 | None = None
+        self.group: str | None = None
+        self.last_dir: F64 | None = None
+        self.last_alpha = -1.0
+        self.colours: U8 | None = None
+
+
+class SlfView:
+    """A city drawn with far-field surface light fields (see the module docstring).
+
+    Parameters
+    ----------
+    slf_dir
+        A far-field tileset (``citylod build slf``); its ``city`` extra names the city tileset.
+    size
+        (width, height) pixels.
+    tau_px
+        Screen-space error threshold.
+    fields
+        False: never draw a field (every finest cell shows its buildings): the same code path without SLFs.
+    texel_px
+        Also refine a field cell while its texels cover more than this many pixels (sharper far field for
+        more bytes); None: the switching error alone decides.
+    """
+
+    def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
+                 fields: bool = True, reeval_deg: float = 0.5, city_dir: str | Path | None = None,
+                 texel_px: float | None = None) -> None:
+        self.ts, self.meta = open_slf(slf_dir)
+        self.folder = Path(self.ts.folder)
+        city = Path(city_dir) if city_dir is not None else (self.folder / self.meta["city"])
+        self.city = open_tileset(city)
+        self.size = (int(size[0]), int(size[1]))
+        self.tau_px = float(tau_px)
+        self.fields = fields
+        self.texel_px = texel_px
+        self.reeval = math.radians(reeval_deg)
+        self.ground_z = float(self.meta["ground_z"])
+        self.ground_rgb = np.array(self.meta["ground_rgb"], np.float64)
+        self.ds: DirectionSet = direction_set(int(self.meta["directions_grid"]),
+                                              float(self.meta["min_elevation_deg"]))
+        lo, hi = self.ts.root.box.bounds()
+        self.origin = np.round(0.5 * (lo + hi))
+        self.window = _vtk.offscreen_window(*self.size)
+        self.renderer = _vtk.vtkOpenGLRenderer()
+        self.renderer.SetBackground(*_BACKGROUND)
+        self.window.AddRenderer(self.renderer)
+        self.cell_info = {t.key: t for t in self.ts.walk()}
+        self._extras = self._tile_extras()
+        self.cells: dict[str, _Cell] = {}
+        self.groups: dict[str, tuple[F64, F64]] = {}
+        self.loaded: set[str] = set()
+        self.bytes_loaded = 0
+        self._building_actors: dict[tuple[str, str], list[Any]] = {}  # (city tile, cell) -> actors
+        self._used: dict[str, list[Tile]] = {}
+
+    def _tile_extras(self) -> dict[str, dict[str, Any]]:
+        doc = json.loads((self.folder / "tileset.json").read_text())
+        out: dict[str, dict[str, Any]] = {}
+        # The reader names tiles by their path of child indices ("0", "0/2", ...): walk the document alike.
+        stack = [("0", doc["root"])]
+        keys = [t.key for t in self.ts.walk()]
+        while stack:
+            key, t = stack.pop()
+            stack.extend((f"{key}/{i}", c) for i, c in enumerate(t.get("children", [])))
+            e = t.get("extras", {}).get("citylod_slf")
+            if not isinstance(e, dict) or not isinstance(e.get("cell"), str) or not isinstance(e.get("group"), str):
+                raise InputError("a far-field tile lacks extras.citylod_slf", self.ts.path)
+            out[key] = e
+        missing = set(keys) - set(out)
+        if missing:
+            raise InputError(f"far-field tiles without a field: {sorted(missing)[:3]}", self.ts.path)
+        return out
+
+    # -- data ---------------------------------------------------------------------------------------
+    def _read(self, rel: str) -> bytes:
+        path = (self.folder / rel).resolve()
+        if self.folder.resolve() not in path.parents:
+            raise InputError(f"far-field file {rel!r} lies outside the tileset", self.ts.path)
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read far-field file ({exc.strerror})", path) from exc
+        if rel not in self.loaded:
+            self.loaded.add(rel)
+            self.bytes_loaded += len(data)
+        return data
+
+    def _field(self, cell: _Cell) -> None:
+        if cell.cluster is not None:
+            return
+        e = self._extras[cell.tile.key]
+        cl, q = read_cell(self._read(e["cell"]), str(self.folder / e["cell"]))
+        cell.cluster, cell.weights = cl, q.astype(np.float64)
+        cell.group = e["group"]
+        if cell.group not in self.groups:
+            cp = read_group(self._read(cell.group), str(self.folder / cell.group))
+            if cp.mean.shape[1] != len(self.ds):
+                raise InputError(f"far-field group has {cp.mean.shape[1]} directions, the tileset {len(self.ds)}",
+                                 self.folder / cell.group)
+            self.groups[cell.group] = cp.lumispheres()
+
+    def _city_tiles(self, view: View, lo: F64, hi: F64) -> list[Tile]:
+        """The city tiles the ordinary selection draws at τ (refine while ``sse > τ``) over the box lo–hi."""
+        eye = view.eye
+        out, stack = [], [self.city.root]
+        while stack:
+            t = stack.pop()
+            tlo, thi = t.box.bounds()
+            if tlo[0] > hi[0] or thi[0] < lo[0] or tlo[1] > hi[1] or thi[1] < lo[1]:
+                continue
+            d = float(np.linalg.norm(np.maximum(np.maximum(tlo - eye, eye - thi), 0.0)))
+            if t.children and view.sse(t.geometric_error, max(d, 1e-6)) > self.tau_px:
+                stack.extend(t.children)
+            elif t.content_paths:
+                out.append(t)
+        return out
+
+    def _buildings(self, cell: _Cell, tiles: list[Tile]) -> list[Any]:
+        """Actors of the objects of ``tiles`` whose centre lies in ``cell`` (built on first use, kept)."""
+        lo, hi = cell.tile.box.bounds()
+        actors: list[Any] = []
+        for tile in tiles:
+            key = (tile.key, cell.tile.key)
+            if key not in self._building_actors:
+                made = []
+                for mesh, pos, centre_of_vertex in self._leaf_content(tile):
+                    inside = ((centre_of_vertex[:, 0] >= lo[0]) & (centre_of_vertex[:, 0] < hi[0])
+                              & (centre_of_vertex[:, 1] >= lo[1]) & (centre_of_vertex[:, 1] < hi[1]))
+                    faces = mesh.faces.astype(np.int64)
+                    keep = inside[faces[:, 0]]
+                    if keep.any():
+                        made.append(self._mesh_actor(mesh, pos, faces[keep]))
+                self._building_actors[key] = made
+            actors += self._building_actors[key]
+        return actors
+
+    def _leaf_content(self, leaf: Tile) -> list[tuple[Any, F64, F64]]:
+        cache = self.__dict__.setdefault("_leaf_cache", {})
+        if leaf.key in cache:
+            return cache[leaf.key]
+        content = leaf.load_content()
+        self.bytes_loaded += leaf.content_bytes
+        m = leaf.matrix
+        out = []
+        meshes = [(mesh, mesh.positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]) for mesh in content.meshes]
+        # Object centres over all meshes of the leaf (feature ID 0 is the object's row).
+        sums: dict[int, list[float]] = {}
+        for mesh, pos in meshes:
+            if not mesh.features:
+                continue
+            ids = mesh.features[0].ids.astype(np.int64)
+            for k in np.unique(ids):
+                p = pos[ids == k]
+                s = sums.setdefault(int(k), [np.inf, np.inf, -np.inf, -np.inf])
+                s[0], s[1] = min(s[0], p[:, 0].min()), min(s[1], p[:, 1].min())
+                s[2], s[3] = max(s[2], p[:, 0].max()), max(s[3], p[:, 1].max())
+        for mesh, pos in meshes:
+            if mesh.features:
+                ids = mesh.features[0].ids.astype(np.int64)
+                box = np.array([sums[int(k)] for k in range(int(ids.max()) + 1)] if len(ids) else [[0, 0, 0, 0]])
+                cen = 0.5 * (box[ids, :2] + box[ids, 2:])
+            else:
+                cen = pos[:, :2]
+            out.append((mesh, pos, cen))
+        cache[leaf.key] = out
+        return out
+
+    def _mesh_actor(self, mesh: Any, pos: F64, faces: npt.NDArray[np.int64]) -> Any:
+        data = _vtk.vtkPolyData()
+        p = _vtk.vtkPoints()
+        p.SetData(_vtk.numpy_to_vtk((pos - self.origin).astype(np.float32), deep=True))
+        data.SetPoints(p)
+        cells = _vtk.vtkCellArray()
+        cells.SetData(3, _vtk.numpy_to_vtkIdTypeArray(faces.reshape(-1), deep=True))
+        data.SetPolys(cells)
+        mapper = _vtk.vtkPolyDataMapper()
+        mapper.SetInputData(data)
+        mapper.SetColorModeToDirectScalars()
+        actor = _vtk.vtkActor()
+        actor.SetMapper(mapper)
+        actor.SetOrigin(0.0, 0.0, self.ground_z - self.origin[2])  # grows from the ground (fade-in)
+        actor.GetProperty().LightingOff()
+        if mesh.texture is not None and mesh.uv is not None:
+            tc = np.column_stack([mesh.uv[:, 0], 1.0 - mesh.uv[:, 1]]).astype(np.float32)  # VTK: origin bottom left
+            data.GetPointData().SetTCoords(_vtk.numpy_to_vtk(tc, deep=True))
+            textures = self.__dict__.setdefault("_textures", {})  # one texture per atlas, shared by cells
+            tex = textures.get(id(mesh))
+            if tex is None:
+                tex = textures[id(mesh)] = _vtk.vtkTexture()
+                tex.InterpolateOn()
+                tex.MipmapOn()
+                tex.EdgeClampOn()
+                _set_image(tex, decode_image(mesh.texture)[..., :3])
+            actor.SetTexture(tex)
+        elif mesh.colors is not None:
+            data.GetPointData().SetScalars(_vtk.numpy_to_vtk(np.ascontiguousarray(mesh.colors[:, :3]), deep=True,
+                                                             array_type=_vtk.VTK_UNSIGNED_CHAR))
+            mapper.ScalarVisibilityOn()
+        self.renderer.AddActor(actor)
+        return actor
+
+    # -- frames -------------------------------------------------------------------------------------
+    def _cell(self, tile: Tile) -> _Cell:
+        c = self.cells.get(tile.key)
+        if c is None:
+            c = self.cells[tile.key] = _Cell(tile, self)
+        return c
+
+    def prepare(self, camera: Camera) -> SlfFrame:
+        """Choose, evaluate and show this camera's cells (no drawing)."""
+        view = View(camera, *self.size)
+        eye = np.asarray(camera.position, np.float64)
+        frame = SlfFrame()
+        show: dict[str, float] = {}  # cell key -> buildings' opacity (0: field only)
+        stack = [self.ts.root]
+        while stack:
+            t = stack.pop()
+            if view.cull_box(t.box):
+                continue
+            lo, hi = t.box.bounds()
+            d = float(np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0)))
+            sse = view.sse(t.geometric_error, max(d, 1e-6))
+            fine = self.texel_px is not None and view.sse(self._extras[t.key]["texel_m"], max(d, 1e-6)) > self.texel_px
+            if t.children and (sse > self.tau_px or fine or not self.fields):
+                stack.extend(t.children)
+                continue
+            s = sse / self.tau_px
+            alpha = 1.0 if not self.fields else (float(np.clip((s - 0.5) / 0.5, 0.0, 1.0)) if not t.children else 0.0)
+            show[t.key] = alpha
+        for key, cell in self.cells.items():
+            if key not in show:
+                cell.actor.VisibilityOff()
+        shown: set[int] = set()
+        used: dict[str, list[Tile]] = {}
+        for key, alpha in show.items():
+            cell = self._cell(self.cell_info[key])
+            frame.cells += alpha < 1.0
+            frame.levels[cell.tile.level] = frame.levels.get(cell.tile.level, 0) + 1
+            if alpha > 0.0:
+                frame.geometry_cells += 1
+                frame.fading += alpha < 1.0
+                lo, hi = cell.tile.box.bounds()
+                used[key] = self._city_tiles(view, lo, hi)
+                for a in self._buildings(cell, used[key]):
+                    a.VisibilityOn()
+                    a.SetScale(1.0, 1.0, max(alpha, 1e-3))
+                    shown.add(id(a))
+            t0 = time.perf_counter()
+            if self._update_texture(cell, eye, alpha):
+                frame.evaluations += 1
+            frame.eval_s += time.perf_counter() - t0
+            cell.actor.VisibilityOn()
+        for actors in self._building_actors.values():
+            for a in actors:
+                if id(a) not in shown:
+                    a.VisibilityOff()
+        self._used = used
+        frame.bytes_loaded = self.bytes_loaded
+        frame.bytes_drawn = self._bytes_drawn(show)
+        camera_to_vtk(camera, self.renderer.GetActiveCamera(), self.origin)
+        self.renderer.ResetCameraClippingRange()
+        return frame
+
+    def _bytes_drawn(self, show: dict[str, float]) -> int:
+        """Bytes of what this frame needs: the files of fields drawn (groups once), leaves of buildings drawn."""
+        files: set[str] = set()
+        leaves: set[Tile] = set()
+        for key, alpha in show.items():
+            if alpha < 1.0:
+                e = self._extras[key]
+                files.update((e["cell"], e["group"]))
+            if alpha > 0.0:
+                leaves.update(self._used.get(key, []))
+        size = sum((self.folder / f).stat().st_size for f in files)
+        return size + sum(t.content_bytes for t in leaves)
+
+    def _update_texture(self, cell: _Cell, eye: F64, alpha: float) -> bool:
+        v = eye - np.array([cell.centre[0], cell.centre[1], self.ground_z])
+        v /= np.linalg.norm(v)
+        if alpha >= 1.0:
+            if cell.last_alpha != 1.0:
+                _set_image(cell.tex, np.full((2, 2, 3), np.rint(self.ground_rgb), np.uint8))
+                cell.last_alpha = 1.0
+            return False
+        same_dir = cell.last_dir is not None and float(v @ cell.last_dir) > math.cos(self.reeval)
+        if same_dir and abs(alpha - cell.last_alpha) < 1e-3 and cell.colours is not None:
+            return False
+        self._field(cell)
+        if not same_dir or cell.colours is None:
+            idx, w = interpolation(self.ds, v)
+            mean, basis = self.groups[cell.group]  # type: ignore[index]
+            cell.colours = evaluate(cell.cluster, cell.weights, mean, basis, idx, w)  # type: ignore[arg-type]
+            cell.last_dir = v
+        rgb = cell.colours
+        if alpha > 0.0:
+            rgb = np.rint((1 - alpha) * rgb + alpha * self.ground_rgb).astype(np.uint8)
+        _set_image(cell.tex, rgb)
+        cell.last_alpha = alpha
+        return True
+
+    def draw(self) -> float:
+        t0 = time.perf_counter()
+        self.window.Render()
+        self.window.WaitForCompletion()
+        return time.perf_counter() - t0
+
+    def grab_rgb(self) -> U8:
+        w, h = self.size
+        arr = _vtk.vtkUnsignedCharArray()
+        self.window.GetPixelData(0, 0, w - 1, h - 1, 0, arr, 0)
+        return np.ascontiguousarray(_vtk.vtk_to_numpy(arr).reshape(h, w, 3)[::-1])
+
+    def field_mask(self) -> npt.NDArray[np.bool_]:
+        """Pixels of the last prepared frame covered by a cell drawn with its field (a second, flat render)."""
+        saved = []
+        for cell in self.cells.values():
+            saved.append((cell, cell.actor.GetVisibility(), cell.last_alpha))
+        bg = self.renderer.GetBackground()
+        self.renderer.SetBackground(0, 0, 0)
+        hidden = [a for acts in self._building_actors.values() for a in acts if a.GetVisibility()]
+        for a in hidden:
+            a.VisibilityOff()
+        white = np.full((2, 2, 3), 255, np.uint8)
+        for cell, vis, alpha in saved:
+            if vis and alpha < 1.0:
+                _set_image(cell.tex, white)
+            else:
+                cell.actor.VisibilityOff()
+        self.draw()
+        mask = self.grab_rgb()[..., 0] > 127
+        self.renderer.SetBackground(*bg)
+        for a in hidden:
+            a.VisibilityOn()
+        for cell, vis, alpha in saved:
+            cell.actor.SetVisibility(vis)
+            if vis and alpha < 1.0 and cell.colours is not None:
+                rgb = cell.colours if alpha <= 0 else np.rint((1 - alpha) * cell.colours + alpha * self.ground_rgb
+                                                              ).astype(np.uint8)
+                _set_image(cell.tex, rgb)
+        return mask
+
+    def close(self) -> None:
+        self.window.Finalize()
+
+    def __enter__(self) -> SlfView:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class GeometryView:
+    """The city tileset at τ (or at full resolution) through the ordinary scene, on the far field's ground
+    plane (a flat quad in the ground colour over the field's extent), for comparison with :class:`SlfView`."""
+
+    def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
+                 city_dir: str | Path | None = None) -> None:
+        ts, meta = open_slf(slf_dir)
+        city = Path(city_dir) if city_dir is not None else Path(ts.folder) / meta["city"]
+        self.r = OffscreenRenderer([city], size=size, tau_px=tau_px)
+        lo, hi = ts.root.box.bounds()
+        origin = self.r.scene.origin
+        assert origin is not None
+        actor, tex, _ = _texture_actor(float(hi[0] - lo[0]), 0.5 * (lo + hi), origin,
+                                       float(meta["ground_z"]) - 0.05)
+        _set_image(tex, np.full((2, 2, 3), np.rint(meta["ground_rgb"]), np.uint8))
+        self.r.renderer.AddActor(actor)
+        self.size = self.r.size
+
+    def prepare(self, camera: Camera, *, full_resolution: bool = False) -> Any:
+        return self.r.prepare(camera, full_resolution=full_resolution)
+
+    def file_bytes(self) -> int:
+        """Content file bytes of the tiles drawn in the last frame (what a client downloads for it)."""
+        layer = self.r.scene.layers[0]
+        return sum(layer.node(k).tile.content_bytes for k in layer.shown_keys)
+
+    def draw(self) -> float:
+        return self.r.draw()
+
+    def grab_rgb(self) -> U8:
+        return self.r.grab_rgb()
+
+    def close(self) -> None:
+        self.r.close()
+
+    def __enter__(self) -> GeometryView:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,131 @@
+"""Far-field surface light fields drawn (issue 28): the field's image against the geometry's for a simple
+scene, the cross-fade without popping, the command line and the validator."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from citylod.cli import main
+from citylod.core.camera import Camera
+from citylod.lod.build.slf import GROUND_RGB, build_slf
+from citylod.render.slf import GeometryView, SlfView
+from tests.lod.slf_scene import BOX, X0, Y0, Z0, write_box_city
+
+SIZE = (320, 240)
+BIG = (800, 600)
+
+
+@pytest.fixture(scope="module")
+def box_slf(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    tmp = tmp_path_factory.mktemp("slf_render")
+    city = write_box_city(tmp / "city")
+    out = tmp / "slf"
+    build_slf(city, out, texel_m=0.5, texels=128, grid=11, oversample=2, clusters=64, progress=False)
+    return out
+
+
+def _camera(dist: float, az_deg: float, el_deg: float) -> Camera:
+    c = np.array([X0 + 30.0, Y0 + 30.0, Z0])
+    az, el = math.radians(az_deg), math.radians(el_deg)
+    eye = c + dist * np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+    return Camera(tuple(eye), tuple(c), (0.0, 0.0, 1.0) if el_deg < 89 else (0.0, 1.0, 0.0), 20.0)
+
+
+@pytest.mark.parametrize(("az", "el"), [(0.0, 90.0), (200.0, 40.0), (120.0, 55.0)])
+def test_field_image_matches_the_geometry(box_slf: Path, az: float, el: float) -> None:
+    """Where the selection at τ = 8 px picks the field (one box, one colour per face), it draws what the
+    box's geometry draws: the mean colour error over the field's pixels is small, and the box's roof is
+    there. (Nearer, the blend of four directions shows the roof in up to four places: the parallax that
+    the cell's geometricError accounts for.)"""
+    cam = _camera(2000.0, az, el)  # a pixel is 1.2 m, the box 9 px wide, the cell's error 3.6 px
+    with SlfView(box_slf, size=BIG, tau_px=8.0) as sv:
+        f = sv.prepare(cam)
+        assert f.cells >= 1 and f.geometry_cells == 0
+        sv.draw()
+        img, mask = sv.grab_rgb(), sv.field_mask()
+    with GeometryView(box_slf, size=BIG) as gv:
+        gv.prepare(cam, full_resolution=True)
+        gv.draw()
+        ref = gv.grab_rgb()
+    assert mask.sum() > 1000
+    d = np.abs(img.astype(int) - ref.astype(int)).mean(axis=2)[mask]
+    assert d.mean() <= 8.0, d.mean()
+    ground = np.array(GROUND_RGB)
+    box_ref = (np.abs(ref.astype(int) - ground).max(axis=2) > 40) & mask
+    box_img = (np.abs(img.astype(int) - ground).max(axis=2) > 40) & mask
+    assert box_ref.sum() > 20  # the box is there from every side
+    assert 0.5 * box_ref.sum() <= box_img.sum() <= 2.0 * box_ref.sum()
+    assert (box_ref & box_img).sum() >= 0.4 * box_ref.sum()  # and in the same place
+
+
+def test_buildings_grow_out_of_the_field_without_popping(box_slf: Path) -> None:
+    """Walking the camera in, the cell goes from field to geometry through a fade; no step between two
+    frames changes the picture by much more than the same step does with the geometry alone (camera
+    motion), i.e. nothing pops."""
+    dists = np.geomspace(4000.0, 150.0, 24)
+    seqs = []
+    for fields in (True, False):
+        with SlfView(box_slf, size=SIZE, tau_px=2.0, fields=fields) as sv:
+            frames, states = [], []
+            for dist in dists:
+                f = sv.prepare(_camera(float(dist), 200.0, 40.0))
+                sv.draw()
+                frames.append(sv.grab_rgb().astype(int))
+                states.append((f.cells, f.geometry_cells, f.fading))
+        seqs.append((frames, states))
+    (frames, states), (geo, _) = seqs
+    assert states[0][1] == 0 and states[-1][1] >= 1  # field far away, buildings near
+    assert sum(1 for s in states if s[2]) >= 2  # and a fade over several frames between
+    jumps = [np.abs(a - b).mean() for a, b in itertools.pairwise(frames)]
+    motion = [np.abs(a - b).mean() for a, b in itertools.pairwise(geo)]
+    excess = [j - m for j, m in zip(jumps, motion, strict=True)]
+    assert max(excess) < 1.0, (jumps, motion)
+
+
+def test_cli_build_slf(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    city = write_box_city(tmp_path / "city")
+    assert main(["-q", "build", "slf", str(city), "-o", str(tmp_path / "f"), "--texels", "32", "--texel-m", "2",
+                 "--directions", "5", "--clusters", "16"]) == 0
+    assert "cells" in capsys.readouterr().out
+    assert main(["-q", "build", "slf", str(tmp_path / "nothing"), "-o", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("citylod: error:") and len(err.strip().splitlines()) == 1
+    assert main(["-q", "build", "slf", str(city), "-o", str(tmp_path / "g"), "--texels", "50"]) == 2
+    assert not (tmp_path / "g").exists()
+
+
+def test_damaged_field_file_is_refused(box_slf: Path, tmp_path: Path) -> None:
+    import shutil
+
+    from citylod.core.errors import InputError
+
+    bad = tmp_path / "slf"
+    shutil.copytree(box_slf, bad)
+    shutil.copytree(box_slf.parent / "city", tmp_path / "city")
+    for f in (bad / "slf" / "cells").iterdir():
+        f.write_bytes(f.read_bytes()[:20])
+    with SlfView(bad, size=SIZE, tau_px=1e6) as sv, pytest.raises(InputError, match="damaged|holds"):
+        sv.prepare(_camera(400.0, 0.0, 90.0))
+    assert BOX[0][2] == Z0
+
+
+def test_not_a_far_field_tileset(box_slf: Path, tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    from citylod.core.errors import InputError
+
+    with pytest.raises(InputError, match="not a far-field"):
+        SlfView(box_slf.parent / "city", size=SIZE)
+    bad = tmp_path / "slf"
+    shutil.copytree(box_slf, bad)
+    doc = json.loads((bad / "tileset.json").read_text())
+    del doc["extras"]["citylod"]["ground_z"]
+    (bad / "tileset.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="incomplete"):
+        SlfView(bad, size=SIZE)
