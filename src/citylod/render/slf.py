@@ -38,7 +38,7 @@ from citylod.lod.build.slf import read_cell, read_group
 from citylod.lod.kernels.slf import DirectionSet, direction_set, evaluate, interpolation
 from citylod.render import _vtk
 from citylod.render.offscreen import OffscreenRenderer
-from citylod.render.tileset_actor import _BACKGROUND, camera_to_vtk
+from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
 
 __all__ = ["GeometryView", "SlfFrame", "SlfView", "open_slf"]
 
@@ -171,7 +171,7 @@ class SlfView:
         self.origin = np.round(0.5 * (lo + hi))
         self.window = _vtk.offscreen_window(*self.size)
         self.renderer = _vtk.vtkOpenGLRenderer()
-        self.renderer.SetBackground(*_BACKGROUND)
+        self.renderer.SetBackground(*BACKGROUND)
         self.window.AddRenderer(self.renderer)
         self.cell_info = {t.key: t for t in self.ts.walk()}
         self._extras = self._tile_extras()

@@ -62,7 +62,7 @@ SKIRT_ARRAY = "citylod_skirt"
 DEFAULT_POINT_BUDGET = 1_000_000
 
 _SURFACE_RGB = (0.86, 0.83, 0.76)  # untextured, uncoloured surfaces: light stone, so shading reads well
-_BACKGROUND = (0.72, 0.80, 0.90)
+BACKGROUND = (0.72, 0.80, 0.90)  # the sky every renderer clears to, so pictures compare
 
 
 # ----------------------------------------------------------------------------------- selection proxies
@@ -695,7 +695,7 @@ class Scene:
 
     def _setup_renderer(self) -> None:
         ren = self.renderer
-        ren.SetBackground(*_BACKGROUND)
+        ren.SetBackground(*BACKGROUND)
         ren.AutomaticLightCreationOff()
         ren.RemoveAllLights()
         light = _vtk.vtkLight()
