@@ -389,10 +389,14 @@ class MainWindow(QMainWindow):
             return self.build_and_open(p)
         first = not self.document.entries
         try:
-            self.document.open(p)
+            entry = self.document.open(p)
         except (CitylodError, OSError, ValueError) as exc:
             self._error(str(exc))
             return False
+        reprojection = getattr(entry.layer, "reprojection", None)
+        if reprojection is not None:  # a layer in another CRS than the project's (the first layer's)
+            name = p.parent.name if p.name == "tileset.json" else p.name
+            self.statusBar().showMessage(f"{name}: {reprojection.label}", 10000)
         self._add_recent(p)
         self.gc_policy.settle()  # the layer's tile tree and store live as long as the window
         if first or (kind == "tileset" and len(self.document.scene.layers) == 1):

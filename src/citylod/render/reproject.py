@@ -26,8 +26,9 @@ change by well under 1 %. The geometric error ε of a tile (a Hausdorff distance
 becomes ``L·ε + c``: distances grow at most by the Lipschitz constant L of T over B, bounded by the largest
 singular value of the Jacobian at the centre plus half-widths times the (estimated, doubled) second
 derivatives; and c bounds how far a straight triangle edge or face between transformed vertices lies from
-the true curved image of the source triangle (linear interpolation error on a simplex,
-``½·diag²·‖∂²T‖``, doubled), where no edge is longer than the box's diagonal. A tile therefore never looks
+the true curved image of the source triangle: linear interpolation on a simplex errs by at most
+``½·ρ²·‖∂²T‖``, ρ the radius of a ball holding the simplex (Waldron 1998), here B's circumscribed ball (ρ is
+half B's diagonal), with the doubled second-derivative estimate. A tile therefore never looks
 better on screen than it is, and culling never drops a tile that is in view.
 
 **Geographic CRSs are refused** (:class:`~citylod.core.errors.CitylodError`): a scene in degrees would mix
@@ -159,8 +160,8 @@ class Reprojection:
         sigma = np.linalg.svd(jac_u, compute_uv=False)[:, 0]
         variation = (half * np.sqrt((hess ** 2).sum(axis=2))).sum(axis=1)
         scale = sigma + variation
-        diag2 = 4.0 * (half ** 2).sum(axis=1)
-        chord = diag2 * np.sqrt((hess ** 2).sum(axis=(1, 2)))  # ½·diag²·‖∂²T‖, with the factor 2 above
+        # ½·ρ²·‖∂²T‖ with ρ² ≤ Σ h_a² (a triangle in B lies in B's circumscribed ball); the 2 is in ``hess``.
+        chord = 0.5 * (half ** 2).sum(axis=1) * np.sqrt((hess ** 2).sum(axis=(1, 2)))
         return out, scale * np.asarray(errors, np.float64) + chord, scale
 
     # -- contents ---------------------------------------------------------------------------------------

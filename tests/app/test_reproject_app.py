@@ -1,0 +1,86 @@
+"""Two sources in different CRSs opened in the app through File → Open with real keys (xdotool under Xvfb):
+both layers are drawn, the second reprojected on the fly into the first's CRS, and the status bar says so.
+The old app refused the second source ("layers of one scene must share a CRS").
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("PySide6")
+pytest.importorskip("pytestqt")
+
+from tests.app.test_real_input import _wait_resolved, pytestmark, window, xin  # noqa: F401
+from tests.render.test_reproject import two_crs  # noqa: F401  (the module fixture)
+
+
+def _open_with_dialog(qtbot, win, xin, path: Path) -> None:  # noqa: F811
+    """Ctrl+O in the window, the file's path typed into Qt's file dialog, Return."""
+    from PySide6.QtCore import QTimer
+    from PySide6.QtWidgets import QApplication, QFileDialog
+
+    def dialog():
+        return next((w for w in QApplication.topLevelWidgets() if isinstance(w, QFileDialog) and w.isVisible()),
+                    None)
+
+    typed: list[bool] = []
+
+    def answer() -> None:
+        # Runs inside the dialog's own event loop (the shortcut blocks in it): real keys into the dialog.
+        dlg = dialog()
+        if dlg is None:
+            QTimer.singleShot(200, answer)
+            return
+        dlg.activateWindow()
+        dlg.raise_()
+        for args in (["key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "5", str(path)],
+                     ["key", "Return"]):
+            subprocess.run(["xdotool", *args], check=True, timeout=30)
+        typed.append(True)
+
+    def give_up() -> None:  # never hang the suite on a dialog that did not get the keys
+        dlg = dialog()
+        if dlg is not None:
+            dlg.reject()
+
+    QTimer.singleShot(300, answer)
+    QTimer.singleShot(30000, give_up)
+    entries = len(win.document.entries)
+    xin.key(win.view.vtk, "ctrl+o")
+    qtbot.waitUntil(lambda: len(win.document.entries) > entries or win.errors, timeout=40000)
+    assert typed and dialog() is None, win.errors
+    assert not win.errors, win.errors
+
+
+def test_second_crs_opens_reprojected(qtbot, window, xin, two_crs) -> None:  # noqa: F811
+    _open_with_dialog(qtbot, window, xin, two_crs["utm"] / "tileset.json")
+    _open_with_dialog(qtbot, window, xin, two_crs["laea"] / "tileset.json")
+    layers = [e.layer for e in window.document.entries]
+    assert len(layers) == 2 and layers[0].reprojection is None and layers[1].reprojection is not None
+    assert window.statusBar().currentMessage() == "laea: EPSG:3035 reprojected on the fly to EPSG:32632"
+    assert window.document.crs.to_epsg() == 32632
+    window.view.reset_view()
+    _wait_resolved(qtbot, window)
+    assert layers[0].shown_keys and layers[1].shown_keys
+    # The reprojected layer alone (the first hidden): drawn where the UTM sample lies, covering the same
+    # part of the view as the UTM layer alone does.
+    covered = []
+    for visible in ((False, True), (True, False)):
+        for i, on in enumerate(visible):
+            window.document.set_visible(i, on)
+        window.view.request_render()
+        _wait_resolved(qtbot, window)
+        img = window.view.framebuffer().convertToFormat(window.view.framebuffer().Format.Format_RGB888)
+        arr = np.frombuffer(img.constBits(), np.uint8).reshape(img.height(), img.bytesPerLine())
+        rgb = arr[:, : img.width() * 3].reshape(img.height(), img.width(), 3).astype(int)
+        sky = np.all(np.abs(rgb - rgb[0, 0]) <= 3, axis=2)
+        covered.append(~sky)
+    laea, utm = covered
+    assert laea.mean() > 0.1, laea.mean()
+    assert (laea & utm).sum() / (laea | utm).sum() > 0.95
+    lo, hi = layers[1].bounds
+    assert 511_990 < lo[0] and hi[0] < 512_140 and 5_402_990 < lo[1] and hi[1] < 5_403_140
