@@ -51,7 +51,7 @@ def _open_with_dialog(qtbot, win, xin, path: Path) -> None:  # noqa: F811
     QTimer.singleShot(30000, give_up)
     entries = len(win.document.entries)
     xin.key(win.view.vtk, "ctrl+o")
-    qtbot.waitUntil(lambda: len(win.document.entries) > entries or win.errors, timeout=40000)
+    qtbot.waitUntil(lambda: len(win.document.entries) > entries or bool(win.errors), timeout=40000)
     assert typed and dialog() is None, win.errors
     assert not win.errors, win.errors
 
