@@ -225,3 +225,57 @@ def test_cli_renders_two_crs_and_refuses_an_unrelated_one(two_crs: dict[str, Pat
     r = run_cli(["render", two_crs["utm"], site, "-o", bad, "--camera", cam, "--size", "160x120"])
     assert_clean_refusal(r, "site_cli")
     assert not bad.exists()
+
+
+def _without_crs(src: Path, dst: Path, local: bool) -> Path:
+    """A copy as another tool would write it: no citylod CRS (so 3D Tiles' ECEF), placed on the globe by
+    its root transform, or (``local``) left in a local frame with no transform at all."""
+    shutil.copytree(src, dst)
+    doc = json.loads((dst / "tileset.json").read_text())
+    del doc["extras"]["citylod"]
+    if local:
+        del doc["root"]["transform"]
+    (dst / "tileset.json").write_text(json.dumps(doc))
+    return dst
+
+
+def test_ecef_tileset_is_reprojected_in_3d(two_crs: dict[str, Path]) -> None:
+    """A tileset without a CRS of its own is ECEF (EPSG:4978): next to the UTM layer it is transformed in 3D
+    (geocentric → easting, northing, ellipsoidal height) and its vertices land on the UTM layer's within the
+    ECEF placement's approximation (a tangent frame at the origin, millimetres over 64 m)."""
+    ecef = _without_crs(two_crs["utm"], two_crs["dir"] / "ecef", local=False)
+    with Scene() as scene:
+        utm = scene.add(two_crs["utm"])
+        layer = scene.add(ecef)
+        assert layer.reprojection is not None and layer.reprojection.use_z
+        assert "EPSG:4978 reprojected on the fly to EPSG:32632" in layer.reprojection.label
+        for key in ("0", "0/1"):
+            a, _ = _load_node(utm.node(f"0:{key}"))
+            node = layer.node(f"1:{key}")
+            b, _ = _load_node(node)
+            wa = a.meshes[0].positions.astype(np.float64) @ utm.node(f"0:{key}").matrix[:3, :3].T \
+                + utm.node(f"0:{key}").matrix[:3, 3]
+            wb = b.meshes[0].positions.astype(np.float64) + node.matrix[:3, 3]
+            assert np.abs(wa - wb).max() < 0.02, np.abs(wa - wb).max(axis=0)
+            lo, hi = node.box.bounds()
+            assert (wb >= lo).all() and (wb <= hi).all()
+
+
+def test_tileset_in_a_local_frame_is_refused(two_crs: dict[str, Path]) -> None:
+    local = _without_crs(two_crs["utm"], two_crs["dir"] / "local", local=True)
+    with Scene() as scene:
+        scene.add(two_crs["utm"])
+        with pytest.raises(CitylodError, match="local.*without a CRS"):
+            scene.add(local)
+    with Scene() as scene:  # and the other way round: a UTM layer next to a local one
+        scene.add(local)
+        with pytest.raises(CitylodError, match="in a scene without one"):
+            scene.add(two_crs["utm"])
+
+
+def test_heights_are_transformed_only_where_both_crs_state_them() -> None:
+    pairs = {("EPSG:32632", "EPSG:3035"): False, ("EPSG:7415", "EPSG:28992"): False,
+             ("EPSG:7415", "EPSG:25831+5783"): True, ("EPSG:32632", "EPSG:4978"): True}
+    for (src, dst), use_z in pairs.items():
+        rep = reprojection_for(pyproj.CRS(src), pyproj.CRS(dst), "test")
+        assert rep is not None and rep.use_z is use_z, (src, dst)

@@ -202,13 +202,33 @@ def _sampling_axes(axes: F64) -> F64:
     return out
 
 
-def reprojection_for(src: Any, dst: Any, source: str, sample: npt.ArrayLike | None = None) -> Reprojection | None:
+# A tileset that states no CRS is read as 3D Tiles' ECEF (EPSG:4978); one whose coordinates do not lie near the
+# Earth's surface (radius between the Dead Sea shore less 12 km and 100 km above the equator) is in a local
+# frame that nothing relates to a CRS.
+_EARTH_RADII = (6_356_752.0 - 12_000.0, 6_378_137.0 + 100_000.0)
+
+
+def _unplaced(crs: Any, points: npt.ArrayLike | None) -> bool:
+    if points is None or not getattr(crs, "is_geocentric", False):
+        return False
+    r = np.linalg.norm(np.asarray(points, np.float64).reshape(-1, 3), axis=1)
+    return bool(((r < _EARTH_RADII[0]) | (r > _EARTH_RADII[1])).any())
+
+
+def reprojection_for(src: Any, dst: Any, source: str, sample: npt.ArrayLike | None = None,
+                     dst_sample: npt.ArrayLike | None = None) -> Reprojection | None:
     """The :class:`Reprojection` of a layer in ``src`` into a scene in ``dst``; None when they are equal.
 
-    ``sample`` (N, 3): points of the layer (its root box corners) checked to transform to finite values.
-    Raises CitylodError, naming ``source``, when either CRS is missing or geographic or PROJ knows no
-    transformation between them (engineering or unknown CRSs).
+    ``sample`` (N, 3): points of the layer (its root box corners) checked to transform to finite values;
+    ``dst_sample``: points of the scene (its origin). Raises CitylodError, naming ``source``, when either
+    CRS is missing, geographic, or a tileset without a CRS whose coordinates are not on the globe (a local
+    frame), or when PROJ knows no transformation between them (engineering or unknown CRSs).
     """
+    if src is not None and dst is not None and not src.equals(dst):
+        if _unplaced(src, sample):
+            src = None
+        elif _unplaced(dst, dst_sample):
+            dst = None
     if src is None or dst is None:
         raise CitylodError(f"cannot show a layer {'without' if src is None else 'in ' + crs_label(src)} a CRS in a "
                            f"scene {'without one' if dst is None else 'in ' + crs_label(dst)}: nothing says how "

@@ -744,7 +744,7 @@ class Scene:
         reprojection = None
         if self.crs is not None and not ts.crs.equals(self.crs):
             # Drawn in the scene's CRS (the first layer's), transformed on the fly: citylod.render.reproject.
-            reprojection = reprojection_for(ts.crs, self.crs, str(ts.path), ts.root.box.corners())
+            reprojection = reprojection_for(ts.crs, self.crs, str(ts.path), ts.root.box.corners(), self.origin)
         self.crs = self.crs if self.crs is not None else ts.crs
         if self.origin is None:
             self.origin = np.round(ts.root.box.center)
