@@ -279,3 +279,48 @@ def test_heights_are_transformed_only_where_both_crs_state_them() -> None:
     for (src, dst), use_z in pairs.items():
         rep = reprojection_for(pyproj.CRS(src), pyproj.CRS(dst), "test")
         assert rep is not None and rep.use_z is use_z, (src, dst)
+
+
+def test_reprojected_point_cloud_lands_on_the_original_points(tmp_path: Path) -> None:
+    """The sample's LiDAR (UTM 32N) rewritten in EPSG:3035 (LAS scale 1 mm) and built: drawn in the UTM scene,
+    every point of every tile is within 2 mm of an original point and inside its tile's box."""
+    import laspy
+    from scipy.spatial import cKDTree
+
+    from citylod.lod.build.points import build_points
+
+    info = make_sample(tmp_path / "sample", size=65)
+    las = laspy.read(info.files["points"])
+    x, y = pyproj.Transformer.from_crs(32632, 3035, always_xy=True).transform(np.asarray(las.x), np.asarray(las.y))
+    header = laspy.LasHeader(point_format=las.header.point_format, version=las.header.version)
+    header.offsets = [np.floor(x.min()), np.floor(y.min()), las.header.offsets[2]]
+    header.scales = [0.001, 0.001, las.header.scales[2]]
+    header.add_crs(pyproj.CRS(3035))
+    warped = laspy.LasData(header)
+    warped.points = laspy.ScaleAwarePointRecord.zeros(len(las.points), header=header)
+    warped.x, warped.y, warped.z = x, y, np.asarray(las.z)
+    for dim in las.point_format.dimension_names:
+        if dim not in ("X", "Y", "Z"):
+            warped[dim] = las[dim]
+    warped.write(tmp_path / "points3035.laz")
+    with pytest.warns(UserWarning, match="no vertical datum"):
+        build_points([info.files["points"]], tmp_path / "utm", workers=0, progress=False)
+        build_points([tmp_path / "points3035.laz"], tmp_path / "laea", workers=0, progress=False)
+    tree = cKDTree(np.c_[las.x, las.y, las.z])
+    with Scene() as scene:
+        scene.add(tmp_path / "utm")
+        layer = scene.add(tmp_path / "laea")
+        assert layer.kind == "points" and layer.reprojection is not None
+        drawn = 0
+        for node in layer._nodes.values():
+            if node.content_uri is None:
+                continue
+            prepared, _ = _load_node(node)
+            assert prepared.points is not None
+            world = prepared.points.positions.astype(np.float64) + node.matrix[:3, 3]
+            lo, hi = node.box.bounds()
+            assert (world >= lo).all() and (world <= hi).all(), node.key
+            dist, _ = tree.query(world)
+            assert dist.max() < 0.002, (node.key, float(dist.max()))
+            drawn += len(world)
+        assert drawn >= len(las.points)
