@@ -6,11 +6,54 @@ tileset (textured), its city store and its point octree built once beside it.
 
 from __future__ import annotations
 
+import os
+import shutil
+import signal
+import subprocess
 from types import SimpleNamespace
 
 import pytest
 
 from citylod.sample import SampleInfo, make_sample
+
+_XVFB: subprocess.Popen[bytes] | None = None
+
+
+def _die_with_parent() -> None:
+    import ctypes
+
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Give each xdist worker its own Xvfb display.
+
+    Under ``pytest -n 2`` inside one ``xvfb-run`` both workers would share a display, and the real-input GUI
+    tests of one worker (xdotool keys and clicks go to the focused window) would land in the other
+    worker's windows. A private server per worker keeps X input where its test sent it.
+    """
+    global _XVFB
+    if not os.environ.get("PYTEST_XDIST_WORKER") or not os.environ.get("DISPLAY") or not shutil.which("Xvfb"):
+        return
+    r, w = os.pipe()
+    _XVFB = subprocess.Popen(["Xvfb", "-displayfd", str(w), "-screen", "0", "1600x1200x24", "-nolisten", "tcp"],
+                             pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                             preexec_fn=_die_with_parent)
+    os.close(w)
+    with os.fdopen(r) as f:
+        number = f.readline().strip()
+    if number:
+        os.environ["DISPLAY"] = f":{number}"
+        os.environ.pop("XAUTHORITY", None)
+    else:  # the server did not start: keep the shared display
+        _XVFB.kill()
+        _XVFB = None
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _XVFB is not None:
+        _XVFB.terminate()
+        _XVFB.wait(timeout=10)
 
 
 @pytest.fixture(scope="session")
