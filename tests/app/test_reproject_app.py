@@ -86,3 +86,17 @@ def test_second_crs_opens_reprojected(qtbot, window, xin, two_crs) -> None:  # n
     assert (laea & utm).sum() / (laea | utm).sum() > 0.95
     lo, hi = layers[1].bounds
     assert 511_990 < lo[0] and hi[0] < 512_140 and 5_402_990 < lo[1] and hi[1] < 5_403_140
+
+
+def test_unrelated_crs_is_reported_naming_the_file(qtbot, window, two_crs) -> None:  # noqa: F811
+    """A source whose CRS nothing relates to the project's: one error line naming it, the layer not added."""
+    from tests.render.test_reproject import ENGINEERING, _with_crs
+
+    site = two_crs["dir"] / "site_app"
+    if not site.exists():
+        _with_crs(two_crs["utm"], site, ENGINEERING)
+    assert window.open_path(two_crs["utm"])
+    assert not window.open_path(site)
+    assert len(window.document.entries) == 1 and len(window.document.scene.layers) == 1
+    assert len(window.errors) == 1 and str(site) in window.errors[0] and "no transformation" in window.errors[0]
+    assert "\n" not in window.errors[0] and window.statusBar().currentMessage() == window.errors[0]
