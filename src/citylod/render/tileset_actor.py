@@ -21,6 +21,9 @@ Design points, each measured or required:
 * **Skirts** (Wahl et al. 2004) are drawn by the surface's actor (a second, unpickable actor per tile
   would double the per-actor cost, which is what llvmpipe spends most on besides triangles); their
   cells carry the flag :data:`SKIRT_ARRAY`, and :func:`is_skirt_cell` tells a picker to look past them.
+* **One CRS per scene**, the first layer's: a layer in another CRS is reprojected on the fly
+  (:mod:`citylod.render.reproject`): its proxies carry transformed boxes and errors and a ``matrix`` that maps
+  the transformed positions its loads produce; layers in the scene's CRS are not touched.
 
 Nothing here imports Qt; VTK comes from :mod:`citylod.render._vtk`.
 """
