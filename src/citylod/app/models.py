@@ -758,7 +758,7 @@ class Document:
                 pts = None if slot is None or slot.prepared is None else slot.prepared.points
                 if pts is None or not len(pts.positions):
                     continue
-                tile = layer.node(key).tile
+                tile = layer.node(key)  # its matrix maps the prepared positions (reprojected or not)
                 world = pts.positions.astype(np.float64) @ tile.matrix[:3, :3].T + tile.matrix[:3, 3]
                 colours = layer._point_rgb(pts, mode, slot.level, tile)
                 if colours is None:  # colour by level: one colour per tile

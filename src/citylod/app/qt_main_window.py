@@ -89,6 +89,7 @@ class MainWindow(QMainWindow):
         self.document.async_semantics = True
         self.interactive = interactive  # False: errors go to the status bar and stderr, no message boxes
         self.tasks: list[ProcessTask] = []
+        self._built_from: dict[str, str] = {}  # build output → the raw file's name, for messages
         self.errors: list[str] = []
         self.view = SceneView(self.document, self)
         self.setCentralWidget(self.view)
@@ -389,10 +390,14 @@ class MainWindow(QMainWindow):
             return self.build_and_open(p)
         first = not self.document.entries
         try:
-            self.document.open(p)
+            entry = self.document.open(p)
         except (CitylodError, OSError, ValueError) as exc:
             self._error(str(exc))
             return False
+        reprojection = getattr(entry.layer, "reprojection", None)
+        if reprojection is not None:  # a layer in another CRS than the project's (the first layer's)
+            name = self._built_from.get(str(p)) or (p.parent.name if p.name == "tileset.json" else p.name)
+            self.statusBar().showMessage(f"{name}: {reprojection.label}", 10000)
         self._add_recent(p)
         self.gc_policy.settle()  # the layer's tile tree and store live as long as the window
         if first or (kind == "tileset" and len(self.document.scene.layers) == 1):
@@ -430,8 +435,10 @@ class MainWindow(QMainWindow):
         if plan.output.exists():
             target = plan.output
             if source_kind(target) in ("tileset", "store"):
+                self._built_from[str(target)] = path.name
                 self.statusBar().showMessage(f"{path.name}: opening the existing {plan.label} {target}", 6000)
                 return self.open_path(target)
+        self._built_from[str(plan.output)] = path.name
         task = ProcessTask(plan.argv, plan.output, f"Building the {plan.label} of {path.name}…", self)
         task.finished.connect(lambda ok, out, msg, t=task: self._build_done(t, ok, out, msg))
         self.tasks.append(task)

@@ -119,7 +119,7 @@ class PolygonEdits:
             for key, slot in layer._slots.items():
                 if not slot.visible or slot.prepared is None:
                     continue
-                matrix = layer.node(key).tile.matrix
+                matrix = layer.node(key).matrix  # maps prepared positions (reprojected or not)
                 for mi, (props, mesh) in enumerate(zip(slot.meshes, slot.prepared.meshes, strict=False)):
                     if props.data is not None:
                         self._mesh(li, key, mi, props, mesh, matrix)

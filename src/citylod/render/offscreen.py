@@ -178,7 +178,8 @@ def render_images(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[C
     Parameters
     ----------
     sources
-        Tileset folders or ``tileset.json`` files (one scene; they must share a CRS).
+        Tileset folders or ``tileset.json`` files (one scene, in the first one's CRS; the others are
+        reprojected on the fly).
     cameras
         Cameras in the data's CRS.
     size

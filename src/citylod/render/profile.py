@@ -130,7 +130,7 @@ def surface_profile(scene: Any, a: npt.ArrayLike, b: npt.ArrayLike, samples: int
             box_lo, box_hi = node.box.corners().min(axis=0), node.box.corners().max(axis=0)
             if np.any(box_hi[:2] < lo - step) or np.any(box_lo[:2] > hi + step):
                 continue
-            matrix = np.asarray(node.tile.matrix, np.float64)
+            matrix = np.asarray(node.matrix, np.float64)  # prepared positions → scene CRS
             heights = []
             for mesh in slot.prepared.meshes:
                 heights.append(_mesh_heights(xy, pa, normal, _world(mesh.positions, matrix), mesh.surface))

@@ -21,6 +21,9 @@ Design points, each measured or required:
 * **Skirts** (Wahl et al. 2004) are drawn by the surface's actor (a second, unpickable actor per tile
   would double the per-actor cost, which is what llvmpipe spends most on besides triangles); their
   cells carry the flag :data:`SKIRT_ARRAY`, and :func:`is_skirt_cell` tells a picker to look past them.
+* **One CRS per scene**, the first layer's: a layer in another CRS is reprojected on the fly
+  (:mod:`citylod.render.reproject`): its proxies carry transformed boxes and errors and a ``matrix`` that maps
+  the transformed positions its loads produce; layers in the scene's CRS are not touched.
 
 Nothing here imports Qt; VTK comes from :mod:`citylod.render._vtk`.
 """
@@ -47,6 +50,7 @@ from citylod.lod.runtime.loader import TileLoader, resolve_layers
 from citylod.lod.runtime.selection import Budget, Selection, select
 from citylod.render import _vtk
 from citylod.render.colors import COLOR_MODES, classification_rgb, intensity_rgb, level_color, ramp_rgb
+from citylod.render.reproject import Reprojection, reprojection_for
 from citylod.render.texture_residency import TextureResidency
 from citylod.render.tile_data import PreparedMesh, PreparedTile, prepare_tile
 
@@ -73,8 +77,8 @@ class _Node:
     so each layer selects over a proxy tree built once when the layer is added.
     """
 
-    __slots__ = ("box", "children", "content_bytes", "content_uri", "geometric_error", "key", "level",
-                 "point_count", "refine", "tile", "triangle_count")
+    __slots__ = ("box", "children", "content_bytes", "content_uri", "geometric_error", "key", "level", "matrix",
+                 "point_count", "refine", "reproject", "tile", "triangle_count")
 
     def __init__(self, tile: Tile, prefix: str) -> None:
         self.tile = tile
@@ -90,9 +94,13 @@ class _Node:
         # loader replaces them with the loaded counts: a point budget must count a tile before loading it.
         self.point_count = int(tile.point_count)
         self.triangle_count = int(tile.triangle_count)
+        # Where the prepared positions are measured from, into the scene's CRS: the tile's own matrix, or
+        # for a reprojected layer a translation to its transformed box centre (see _proxy_tree).
+        self.matrix: F64 = tile.matrix
+        self.reproject: Reprojection | None = None
 
 
-def _proxy_tree(root: Tile, prefix: str) -> tuple[_Node, dict[str, _Node]]:
+def _proxy_tree(root: Tile, prefix: str, reprojection: Reprojection | None = None) -> tuple[_Node, dict[str, _Node]]:
     top = _Node(root, prefix)
     index = {top.key: top}
     stack = [top]
@@ -103,11 +111,23 @@ def _proxy_tree(root: Tile, prefix: str) -> tuple[_Node, dict[str, _Node]]:
             node.children.append(proxy)
             index[proxy.key] = proxy
             stack.append(proxy)
+    if reprojection is not None:
+        # Boxes and errors in the scene's CRS for selection (conservative: citylod.render.reproject).
+        nodes = list(index.values())
+        boxes, errors, _scale = reprojection.boxes([n.box for n in nodes], [n.geometric_error for n in nodes])
+        for n, box, err in zip(nodes, boxes, errors, strict=True):
+            n.box = box
+            n.geometric_error = float(err)
+            n.matrix = translation(np.round(box.center))
+            n.reproject = reprojection
     return top, index
 
 
 def _load_node(node: _Node) -> tuple[PreparedTile, int]:
     prepared, nbytes = prepare_tile(node)
+    if node.reproject is not None:
+        # On the loader's worker thread, in float64, before the scene origin shift.
+        prepared = node.reproject.prepared(prepared, node.tile.matrix, node.matrix[:3, 3])
     node.point_count = prepared.point_count
     node.triangle_count = prepared.triangles
     return prepared, nbytes
@@ -346,12 +366,14 @@ class TilesetLayer:
     ``smooth_refinement`` (point nodes that appear fade in over ``Scene.fade_s``; on for point layers).
     """
 
-    def __init__(self, scene: Scene, tileset: Tileset, index: int) -> None:
+    def __init__(self, scene: Scene, tileset: Tileset, index: int, reprojection: Reprojection | None = None) -> None:
         self.scene = scene
         self.tileset = tileset
         self.name = tileset.path.parent.name
         self.prefix = f"{index}:"
-        self.root, self._nodes = _proxy_tree(tileset.root, self.prefix)
+        #: How the layer's coordinates reach the scene's CRS; None when the layer is in the scene's CRS.
+        self.reprojection = reprojection
+        self.root, self._nodes = _proxy_tree(tileset.root, self.prefix, reprojection)
         self.visible = True
         self.tau_px: float | None = None
         cl = tileset.extras.get("citylod", {}) if isinstance(tileset.extras, dict) else {}
@@ -381,6 +403,11 @@ class TilesetLayer:
         return frozenset(self._shown)
 
     @property
+    def bounds(self) -> tuple[F64, F64]:
+        """Axis-aligned bounds of the layer in the scene's CRS (the tileset's, reprojected if it must be)."""
+        return self.root.box.bounds()
+
+    @property
     def effective_color_by(self) -> str:
         return self.color_by or self.scene.color_by
 
@@ -396,7 +423,7 @@ class TilesetLayer:
         return out
 
     # -- styling ----------------------------------------------------------------------------------
-    def _mesh_style(self, props: _MeshProps, mesh: PreparedMesh, level: int, mode: str, tile: Tile) -> None:
+    def _mesh_style(self, props: _MeshProps, mesh: PreparedMesh, level: int, mode: str, tile: Tile | _Node) -> None:
         prop = props.actor.GetProperty()
         props.mapper.ScalarVisibilityOff()
         props.mapper.SetScalarModeToDefault()
@@ -437,11 +464,11 @@ class TilesetLayer:
             prop.LightingOff()
 
     @staticmethod
-    def _absolute_z(positions: npt.NDArray[np.float32], tile: Tile) -> npt.NDArray[np.float64]:
+    def _absolute_z(positions: npt.NDArray[np.float32], tile: Tile | _Node) -> npt.NDArray[np.float64]:
         m = tile.matrix
         return positions.astype(np.float64) @ m[2, :3] + m[2, 3]
 
-    def _point_rgb(self, pts: Any, mode: str, level: int, tile: Tile) -> npt.NDArray[np.uint8] | None:
+    def _point_rgb(self, pts: Any, mode: str, level: int, tile: Tile | _Node) -> npt.NDArray[np.uint8] | None:
         if mode == "auto":
             mode = "rgb" if pts.rgb is not None else "classification" if pts.classification is not None \
                 else "elevation"
@@ -459,7 +486,7 @@ class TilesetLayer:
             return intensity_rgb(pts.intensity, *self._intensity_range)
         return ramp_rgb(self._absolute_z(pts.positions, tile), *self.scene.elevation_range)
 
-    def _point_style(self, props: _PointProps, pts: Any, level: int, mode: str, tile: Tile) -> None:
+    def _point_style(self, props: _PointProps, pts: Any, level: int, mode: str, tile: Tile | _Node) -> None:
         rgb = self._point_rgb(pts, mode, level, tile)
         prop = props.actor.GetProperty()
         prop.SetPointSize(self.point_size_px)
@@ -489,7 +516,7 @@ class TilesetLayer:
     def _style_slot(self, slot: _Slot, mode: str) -> None:
         prepared = slot.prepared
         assert prepared is not None and slot.key is not None
-        tile = self._nodes[slot.key].tile
+        tile = self._nodes[slot.key]  # its matrix maps the prepared positions (reprojected or not)
         for props, mesh in zip(slot.meshes, prepared.meshes, strict=False):
             self._mesh_style(props, mesh, prepared.level, mode, tile)
         if slot.points is not None and prepared.points is not None and slot.points.data is not None:
@@ -501,7 +528,7 @@ class TilesetLayer:
         slot.key = node.key
         slot.level = node.level
         slot.prepared = prepared
-        user = _matrix(translation(-self.scene.origin) @ node.tile.matrix)
+        user = _matrix(translation(-self.scene.origin) @ node.matrix)
         slot.user_matrix = user
         while len(slot.meshes) < len(prepared.meshes):
             props = _MeshProps(self.scene._count_actor)
@@ -710,28 +737,34 @@ class Scene:
 
     # -- layers -----------------------------------------------------------------------------------
     def add(self, source: str | os.PathLike[str] | Tileset) -> TilesetLayer:
-        """Open and add a tileset (folder, ``tileset.json`` or an opened :class:`Tileset`)."""
+        """Open and add a tileset (folder, ``tileset.json`` or an opened :class:`Tileset`).
+
+        The scene's CRS is the first layer's; a layer in another CRS is reprojected on the fly
+        (:mod:`citylod.render.reproject`, ``layer.reprojection``). CitylodError when no transformation
+        relates the two CRSs.
+        """
         ts = source if isinstance(source, Tileset) else open_tileset(Path(source))
+        reprojection = None
         if self.crs is not None and not ts.crs.equals(self.crs):
-            raise CitylodError(f"tileset CRS {ts.crs.name!r} differs from the scene's {self.crs.name!r}; "
-                               "layers of one scene must share a CRS", ts.path)
-        self.crs = ts.crs
+            # Drawn in the scene's CRS (the first layer's), transformed on the fly: citylod.render.reproject.
+            reprojection = reprojection_for(ts.crs, self.crs, str(ts.path), ts.root.box.corners(), self.origin)
+        self.crs = self.crs if self.crs is not None else ts.crs
         if self.origin is None:
             self.origin = np.round(ts.root.box.center)
-        layer = TilesetLayer(self, ts, len(self.layers))
+        layer = TilesetLayer(self, ts, len(self.layers), reprojection)
         self.layers.append(layer)
-        lo = min(lay.tileset.bounds[0][2] for lay in self.layers)
-        hi = max(lay.tileset.bounds[1][2] for lay in self.layers)
+        lo = min(lay.bounds[0][2] for lay in self.layers)
+        hi = max(lay.bounds[1][2] for lay in self.layers)
         self.elevation_range = (float(lo), float(hi if hi > lo else lo + 1.0))
         return layer
 
     @property
     def bounds(self) -> tuple[F64, F64]:
-        """Axis-aligned bounds of every layer in the data's CRS."""
+        """Axis-aligned bounds of every layer in the scene's CRS (reprojected layers' transformed boxes)."""
         if not self.layers:
             raise CitylodError("the scene has no layers")
-        los = np.array([lay.tileset.bounds[0] for lay in self.layers])
-        his = np.array([lay.tileset.bounds[1] for lay in self.layers])
+        los = np.array([lay.bounds[0] for lay in self.layers])
+        his = np.array([lay.bounds[1] for lay in self.layers])
         return los.min(axis=0), his.max(axis=0)
 
     def set_color_by(self, mode: str) -> None:
