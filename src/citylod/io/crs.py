@@ -146,6 +146,15 @@ _GRID_DIRS = ("/usr/share/proj", "/usr/local/share/proj")
 _GLOBAL_GEOID = "egm96_15.gtx"  # EGM96 geoid heights on a 15' grid, in Debian's proj-data
 
 
+@functools.lru_cache(maxsize=1)
+def use_package_grids() -> None:
+    """Let PROJ find the grids installed by packages (Debian's proj-data) for every transformation, after
+    pyproj's own data folder (whose proj.db stays the one used). Network access stays off."""
+    for folder in _GRID_DIRS:
+        if os.path.isdir(folder) and folder != pyproj.datadir.get_data_dir():
+            pyproj.datadir.append_data_dir(folder)
+
+
 def _grid_path(name: str) -> str | None:
     for folder in (pyproj.datadir.get_data_dir(), *_GRID_DIRS):
         path = os.path.join(folder, name)

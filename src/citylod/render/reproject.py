@@ -50,7 +50,7 @@ import pyproj
 
 from citylod.core.errors import CitylodError
 from citylod.core.geometry import F64, Box
-from citylod.io.crs import is_geographic
+from citylod.io.crs import is_geographic, use_package_grids
 from citylod.render.tile_data import PreparedTile
 
 __all__ = ["Reprojection", "crs_label", "reprojection_for"]
@@ -245,6 +245,7 @@ def reprojection_for(src: Any, dst: Any, source: str, sample: npt.ArrayLike | No
         if is_geographic(crs):
             raise CitylodError(f"cannot reproject {crs_label(src)} into {crs_label(dst)} on the fly: {role} is "
                                "geographic (degrees); open a layer in a projected CRS first", source)
+    use_package_grids()  # e.g. BETA2007 or a geoid for heights in a vertical datum
     try:
         transformer = pyproj.Transformer.from_crs(src, dst, always_xy=True)
     except pyproj.exceptions.ProjError as exc:
