@@ -146,17 +146,22 @@ _GRID_DIRS = ("/usr/share/proj", "/usr/local/share/proj")
 _GLOBAL_GEOID = "egm96_15.gtx"  # EGM96 geoid heights on a 15' grid, in Debian's proj-data
 
 
+def _pyproj_data_dir() -> str:
+    """pyproj's own data folder (the first of PROJ's search path once package folders are appended)."""
+    return pyproj.datadir.get_data_dir().split(os.pathsep)[0]
+
+
 @functools.lru_cache(maxsize=1)
 def use_package_grids() -> None:
     """Let PROJ find the grids installed by packages (Debian's proj-data) for every transformation, after
     pyproj's own data folder (whose proj.db stays the one used). Network access stays off."""
     for folder in _GRID_DIRS:
-        if os.path.isdir(folder) and folder != pyproj.datadir.get_data_dir():
+        if os.path.isdir(folder) and folder != _pyproj_data_dir():
             pyproj.datadir.append_data_dir(folder)
 
 
 def _grid_path(name: str) -> str | None:
-    for folder in (pyproj.datadir.get_data_dir(), *_GRID_DIRS):
+    for folder in (_pyproj_data_dir(), *_GRID_DIRS):
         path = os.path.join(folder, name)
         if os.path.isfile(path):
             return path
@@ -169,6 +174,7 @@ def _height_offset(wkt: str, x: float, y: float, z: float, lon: float, lat: floa
     vertical = next((c for c in crs.sub_crs_list if c.is_vertical), None) if crs.is_compound else None
     if vertical is None:
         return 0.0, None  # ellipsoidal heights already, or no vertical datum stated: taken as ellipsoidal
+    use_package_grids()
     with warnings.catch_warnings():  # pyproj's warning names the missing grid; the message below does too
         warnings.simplefilter("ignore")
         group = pyproj.transformer.TransformerGroup(crs, "EPSG:4979", always_xy=True)
@@ -186,7 +192,7 @@ def _height_offset(wkt: str, x: float, y: float, z: float, lon: float, lat: floa
                    f"({n:+.2f} m here), not the datum's own model{needs}: within about a metre")
     return 0.0, (f"heights in {vertical.name} written as WGS84 ellipsoidal heights: no geoid model is installed"
                  f"{needs}, so on a globe the data sits tens of metres off; install Debian's proj-data package "
-                 f"(EGM96) or the datum's grid into {pyproj.datadir.get_data_dir()}")
+                 f"(EGM96) or the datum's grid into {_pyproj_data_dir()}")
 
 
 def compound_crs_for(crs: pyproj.CRS, limit: int = 3) -> list[str]:
@@ -199,7 +205,7 @@ def compound_crs_for(crs: pyproj.CRS, limit: int = 3) -> list[str]:
     if auth is None or auth[0] != "EPSG":
         return []
     try:
-        path = os.path.join(pyproj.datadir.get_data_dir(), "proj.db")
+        path = os.path.join(_pyproj_data_dir(), "proj.db")
         db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
         try:
             rows = db.execute("SELECT code, name FROM compound_crs WHERE auth_name = 'EPSG' "
