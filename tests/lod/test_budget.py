@@ -140,3 +140,6 @@ def test_point_controller_refines_smoothly_and_follows_a_cut() -> None:
     c.update(4.0, 10_000, False)  # a sparse view: everything it holds costs 4 ms
     assert c.point_budget == pytest.approx(250_000, rel=0.1)  # ready for the next dense view, not 12 500
     assert c.tau_px == c.base_tau_px  # τ stays the user's
+    for _ in range(5):  # far, sparse views whose points are 4× cheaper each (they cover few pixels) ...
+        c.update(1.0, 10_000, False)
+    assert c.point_budget == pytest.approx(250_000, rel=0.1)  # ... do not raise it past the dense views' cost
