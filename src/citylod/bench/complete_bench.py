@@ -587,6 +587,9 @@ def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int
         "splats-plain": (xyz, cls, None),
         "splats-walls-points": (np.concatenate([xyz, aug.xyz]), np.concatenate([cls, aug.classification]),
                                 np.concatenate([np.zeros((len(xyz), 3), np.float32), aug.normals])),
+        "splats-walls-points-footprints": (
+            np.concatenate([xyz, aug_fp.xyz]), np.concatenate([cls, aug_fp.classification]),
+            np.concatenate([np.zeros((len(xyz), 3), np.float32), aug_fp.normals])),
     }.items():
         frames = splat_coverage(px, pc, pn, mesh, cams, size=size, roofs=roofs)
         result["variants"][name] = _totals(frames)
