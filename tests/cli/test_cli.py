@@ -30,6 +30,20 @@ def test_info_on_raster_and_tileset(tmp_path, capsys) -> None:
     assert "kind dsm" in out and "EPSG:32632" in out
 
 
+def test_a_closed_pipe_ends_the_command_quietly(tmp_path) -> None:
+    """``citylod info X | head``: the reader closes the pipe before the command writes; no traceback."""
+    import subprocess
+    import sys
+
+    r = _raster(tmp_path / "d.tif")
+    p = subprocess.Popen([sys.executable, "-m", "citylod.cli", "info", str(r)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    assert p.stdout is not None and p.stderr is not None
+    p.stdout.close()  # long before the interpreter has started and written anything
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) == 141 and "Traceback" not in err and err == "", err
+
+
 def test_errors_are_one_line_with_exit_code_2(tmp_path, capsys) -> None:
     assert main(["info", str(tmp_path / "missing.tif")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

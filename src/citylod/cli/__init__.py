@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -72,3 +73,9 @@ def _run(args: Any, progress: bool) -> int:
     except KeyboardInterrupt:
         print("citylod: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader went away (``citylod info X | head``): stop quietly, as Unix tools do. Point stdout at
+        # /dev/null so the interpreter's final flush does not raise again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE
