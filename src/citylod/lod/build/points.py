@@ -828,7 +828,10 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
                 ihist += sp
             if memory and complete is not None:
                 n_in = meta.point_count
-                aug, extra = complete_records(cloud[0][:n_in], meta, tmp / "complete.las", complete)
+                # Wall quads add no points: they are computed and written as tiles on a thread of their own
+                # while the octree is built, and waited for at the end (add_wall_tiles).
+                aug, extra = complete_records(cloud[0][:n_in], meta, tmp / "complete.las", complete,
+                                              quads_later=True, tiles_dir=partial)
                 n_add = 0 if extra is None else read_metadata([extra], meta.crs).point_count
                 if n_in + n_add > len(cloud[0]):
                     r0, x0, q0 = cloud
