@@ -458,9 +458,10 @@ class _Edges:
 
 
 def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions,
-               footprints: Sequence[Any] | None = None) -> _Edges:
+               footprints: Sequence[Any] | FootprintOutline | None = None) -> _Edges:
     """The walls: boundary edges (roof down to the terrain outside) and roof steps (higher roof down to
-    the lower one), with normals from the boundary direction. With ``footprints`` (shapely polygons), outer
+    the lower one), with normals from the boundary direction. With ``footprints`` (shapely polygons or their
+    :class:`FootprintOutline`), outer
     walls near a footprint come from :func:`footprint_edges` instead."""
     from scipy import ndimage
 
@@ -541,10 +542,74 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
     return _Edges(x0, y0, x1, y1, nx, ny, bottom, top, cols[8][keep] > 0)
 
 
-def footprint_edges(footprints: Sequence[Any], grid: CellGrid, dtm: F64, roof: F64, opts: CompleteOptions,
+@dataclass(frozen=True)
+class FootprintOutline:
+    """The outline of the union of building footprints, cut into pieces of at most one ``cell`` (``p0`` to
+    ``p1``, (P, 2) each, with ``n`` the outward unit normals: the union's inside is on each piece's left),
+    and the union grown by ``reach_m`` (a shapely geometry). Depends on the footprints and the cell size
+    only, so the point build computes it while it decodes the points (:func:`start_footprint_outline`)."""
+
+    p0: F64
+    p1: F64
+    n: F64
+    grown: Any
+    cell: float
+    reach_m: float
+
+
+def footprint_outline(footprints: Sequence[Any], cell: float, reach_m: float = 1.5) -> FootprintOutline:
+    """:class:`FootprintOutline` of ``footprints`` (shapely polygons) for cells of ``cell`` metres."""
+    import shapely
+
+    c = cell
+    union = shapely.union_all(shapely.make_valid(np.asarray(footprints, dtype=object)))
+    polys = [g for g in getattr(union, "geoms", [union]) if g.geom_type == "Polygon" and not g.is_empty]
+    xs, ys = [], []
+    for poly in polys:
+        poly = shapely.geometry.polygon.orient(poly, 1.0)  # exterior CCW, holes CW: inside on the left
+        for ring in (poly.exterior, *poly.interiors):
+            q = np.asarray(ring.coords)[:, :2]
+            xs.append(q[:-1])
+            ys.append(q[1:])
+    if not xs:
+        z = np.zeros((0, 2))
+        return FootprintOutline(z, z, z, union.buffer(reach_m), float(cell), float(reach_m))
+    a, b = np.concatenate(xs), np.concatenate(ys)
+    seg = b - a
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    ok = length > 1e-6
+    a, seg, length = a[ok], seg[ok], length[ok]
+    npc = np.maximum(1, np.ceil(length / c).astype(np.int64))
+    e = np.repeat(np.arange(len(a)), npc)
+    k = np.arange(len(e)) - np.repeat(np.cumsum(npc) - npc, npc)
+    t0, t1 = k / npc[e], (k + 1) / npc[e]
+    p0 = a[e] + t0[:, None] * seg[e]
+    p1 = a[e] + t1[:, None] * seg[e]
+    d = seg[e] / length[e][:, None]
+    n = np.column_stack([d[:, 1], -d[:, 0]])  # right of the direction: outwards
+    return FootprintOutline(p0, p1, n, union.buffer(reach_m), float(cell), float(reach_m))
+
+
+def start_footprint_outline(opts: CompleteOptions) -> Future[FootprintOutline] | None:
+    """Read ``opts.footprints`` now (a bad file is refused at once) and compute their
+    :func:`footprint_outline` on a thread of its own; None without footprints or walls."""
+    from citylod.io.footprints import read_footprints
+
+    if not opts.footprints or opts.walls == "none":
+        return None
+    footprints = read_footprints(opts.footprints)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="citylod-footprints")
+    try:
+        return pool.submit(footprint_outline, footprints, opts.cell_m)
+    finally:
+        pool.shutdown(wait=False)
+
+
+def footprint_edges(footprints: Sequence[Any] | FootprintOutline, grid: CellGrid, dtm: F64, roof: F64, opts: CompleteOptions,
                     reach_m: float = 1.5, where: npt.NDArray[np.bool_] | None = None
                     ) -> tuple[_Edges, npt.NDArray[np.bool_]]:
-    """Outer walls on the outline of the union of ``footprints`` (shapely polygons; walls shared by two
+    """Outer walls on the outline of the union of ``footprints`` (shapely polygons, or their
+    :class:`FootprintOutline` for this grid's cells and ``reach_m``; walls shared by two
     footprints, as in a terrace, are inside the union and get none), cut into pieces of at most one cell
     so the top follows the roof: each piece rises from the terrain half a cell outside to the scanned roof
     a quarter of a cell inside (the roof above the wall's line, under the eaves). Pieces with no scanned
@@ -560,31 +625,15 @@ def footprint_edges(footprints: Sequence[Any], grid: CellGrid, dtm: F64, roof: F
     import shapely
 
     c = grid.cell
-    union = shapely.union_all(shapely.make_valid(np.asarray(footprints, dtype=object)))
-    polys = [g for g in getattr(union, "geoms", [union]) if g.geom_type == "Polygon" and not g.is_empty]
-    xs, ys = [], []
-    for poly in polys:
-        poly = shapely.geometry.polygon.orient(poly, 1.0)  # exterior CCW, holes CW: inside on the left
-        for ring in (poly.exterior, *poly.interiors):
-            q = np.asarray(ring.coords)[:, :2]
-            xs.append(q[:-1])
-            ys.append(q[1:])
-    if not xs:
+    if not isinstance(footprints, FootprintOutline):
+        footprints = footprint_outline(footprints, c, reach_m)
+    elif footprints.cell != c or footprints.reach_m != reach_m:
+        raise ValueError(f"the outline was cut for {footprints.cell} m cells and {footprints.reach_m} m of reach, "
+                         f"not {c} and {reach_m}")
+    p0, p1, n = footprints.p0, footprints.p1, footprints.n
+    if len(p0) == 0:
         z = np.zeros(0)
         return _Edges(z, z, z, z, z, z, z, z, np.zeros(0, bool)), np.zeros(grid.shape, bool)
-    a, b = np.concatenate(xs), np.concatenate(ys)
-    seg = b - a
-    length = np.hypot(seg[:, 0], seg[:, 1])
-    ok = length > 1e-6
-    a, seg, length = a[ok], seg[ok], length[ok]
-    npc = np.maximum(1, np.ceil(length / c).astype(np.int64))
-    e = np.repeat(np.arange(len(a)), npc)
-    k = np.arange(len(e)) - np.repeat(np.cumsum(npc) - npc, npc)
-    t0, t1 = k / npc[e], (k + 1) / npc[e]
-    p0 = a[e] + t0[:, None] * seg[e]
-    p1 = a[e] + t1[:, None] * seg[e]
-    d = seg[e] / length[e][:, None]
-    n = np.column_stack([d[:, 1], -d[:, 0]])  # right of the direction: outwards
     mid = (p0 + p1) / 2.0
     ny_, nx_ = grid.shape
 
@@ -601,7 +650,7 @@ def footprint_edges(footprints: Sequence[Any], grid: CellGrid, dtm: F64, roof: F
     keep = oin & np.isfinite(top) & (top - bottom >= opts.min_wall_m)
     iy, ix = np.nonzero(np.ones(grid.shape, bool) if where is None else where)
     near = np.zeros(grid.shape, bool)
-    near[iy, ix] = shapely.contains_xy(union.buffer(reach_m), grid.lo[0] + (ix + 0.5) * c, grid.lo[1] + (iy + 0.5) * c)
+    near[iy, ix] = shapely.contains_xy(footprints.grown, grid.lo[0] + (ix + 0.5) * c, grid.lo[1] + (iy + 0.5) * c)
     edges = _Edges(p0[keep, 0], p0[keep, 1], p1[keep, 0], p1[keep, 1], n[keep, 0], n[keep, 1], bottom[keep],
                    top[keep], np.zeros(int(keep.sum()), bool))
     return edges, near
@@ -653,7 +702,8 @@ def _wall_quads(edges: _Edges) -> tuple[F64, F32]:
 
 # ------------------------------------------------------------------------------------------------ API
 def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions(), *,
-                 quads_later: bool = False, tiles_dir: str | PathLike[str] | None = None) -> Augmentation:
+                 quads_later: bool = False, tiles_dir: str | PathLike[str] | None = None,
+                 outline: Future[FootprintOutline] | None = None) -> Augmentation:
     """Ground under canopy and walls from a scanned grid (see the module docstring).
 
     ``quads_later``: wall quads are computed on a thread of their own and the augmentation returned with
@@ -661,7 +711,8 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions(), *,
     point build can build its octree meanwhile: quads add no points, and take no random numbers, so they
     are the same either way. The footprints are read before returning, so a bad file is refused first.
     With ``tiles_dir`` too, that thread also writes the wall tiles there (:attr:`Augmentation.wall_tiles`,
-    which :func:`add_wall_tiles` then uses).
+    which :func:`add_wall_tiles` then uses). ``outline``: the footprints' outline being computed
+    (:func:`start_footprint_outline`), used instead of reading ``opts.footprints`` here.
     """
     t0 = time.perf_counter()
     n_ground = grid.class_n[GROUND]
@@ -686,8 +737,10 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions(), *,
         quads, qn = np.zeros((0, 4, 3)), np.zeros((0, 3), np.float32)
         pending = None
         if opts.walls != "none" and mask.any():
-            footprints = None
-            if opts.footprints:
+            footprints: Any = None
+            if outline is not None:
+                footprints = outline.result()
+            elif opts.footprints:
                 from citylod.io.footprints import read_footprints
 
                 footprints = read_footprints(opts.footprints)
@@ -717,7 +770,7 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions(), *,
 
 
 def _quads_of(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions,
-              footprints: Sequence[Any] | None, tiles_dir: str | PathLike[str] | None = None
+              footprints: Sequence[Any] | FootprintOutline | None, tiles_dir: str | PathLike[str] | None = None
               ) -> tuple[F64, F32, float, list[Any] | None]:
     """The wall quads and normals, the seconds they took, and their tiles when written to ``tiles_dir``."""
     t0 = time.perf_counter()
@@ -836,19 +889,19 @@ def _write_added(aug: Augmentation, meta: Any, target: Path, template: Any) -> P
 
 
 def complete_records(recs: np.ndarray, meta: Any, target: Path, opts: CompleteOptions, *,
-                     quads_later: bool = False, tiles_dir: str | PathLike[str] | None = None
-                     ) -> tuple[Augmentation, Path | None]:
+                     quads_later: bool = False, tiles_dir: str | PathLike[str] | None = None,
+                     outline: Future[FootprintOutline] | None = None) -> tuple[Augmentation, Path | None]:
     """The in-memory point build's hook, after it decoded its input into ``recs``: complete them
     (:func:`scan_records`, :func:`augment_grid`) and write the added points to ``target`` (None: nothing
-    added). ``quads_later``, ``tiles_dir``: wall quads (and their tiles) are still being computed on return
-    (see :func:`augment_grid`)."""
+    added). ``quads_later``, ``tiles_dir``: wall quads (and their tiles) are still being computed on return;
+    ``outline``: the footprints' outline started earlier (see :func:`augment_grid`)."""
     refused = _geographic(meta)
     if refused:
         return _empty(refused), None
     t0 = time.perf_counter()
     grid = scan_records(recs, meta.lo, meta.hi, opts.cell_m, meta.files[0].path if meta.files else None)
     t_scan = time.perf_counter() - t0
-    aug = augment_grid(grid, opts, quads_later=quads_later, tiles_dir=tiles_dir)
+    aug = augment_grid(grid, opts, quads_later=quads_later, tiles_dir=tiles_dir, outline=outline)
     aug.seconds = {"scan": t_scan, **aug.seconds}
     return aug, _write_added(aug, meta, target, meta.files[0].path)
 
@@ -916,6 +969,7 @@ __all__ = [
     "Augmentation",
     "CellGrid",
     "CompleteOptions",
+    "FootprintOutline",
     "add_wall_tiles",
     "augment",
     "augment_grid",
@@ -923,8 +977,10 @@ __all__ = [
     "complete_inputs",
     "complete_records",
     "footprint_edges",
+    "footprint_outline",
     "scan_grid",
     "scan_records",
+    "start_footprint_outline",
     "terrain",
     "wall_edges",
     "wall_mesh",
