@@ -447,36 +447,3 @@ def test_delft_walls_on_the_bgt_footprints() -> None:
     dd = shapely.distance(outline, pts) * np.where(shapely.contains(union, pts), -1.0, 1.0)
     near = np.abs(dd) < 1.5
     assert 0.1 <= np.median(dd[near]) <= 0.5
-
-
-def test_scan_of_records_in_two_bands_counts_every_point_once() -> None:
-    """``scan_records`` fills a large cloud's grid in two bands of rows on two threads: per-cell counts, height
-    sums and roof maxima as numpy computes them here, and every point counted once per class."""
-    from citylod.io.las import POINT_DTYPE
-    from citylod.lod.build import complete as mod
-
-    rng = np.random.default_rng(5)
-    n = 300_000
-    recs = np.zeros(n, POINT_DTYPE)
-    recs["x"] = X0 + rng.random(n) * 50.0
-    recs["y"] = Y0 + rng.random(n) * 40.0
-    recs["z"] = rng.random(n) * 10.0
-    recs["classification"] = rng.choice(np.array([1, 2, 5, 6], np.uint8), n)
-    recs["intensity"] = rng.integers(0, 4000, n)
-    lo, hi = np.array([X0, Y0]), np.array([X0 + 50.0, Y0 + 40.0])
-    grid = mod.scan_records(recs, lo, hi, 0.5)
-    ny, nx = grid.shape
-    ix = np.clip(((recs["x"] - X0) / 0.5).astype(np.int64), 0, nx - 1)
-    iy = np.clip(((recs["y"] - Y0) / 0.5).astype(np.int64), 0, ny - 1)
-    flat = iy * nx + ix
-    for cls, plane_n, plane_z in ((2, 0, 1), (6, 2, 3)):
-        sel = recs["classification"] == cls
-        assert np.array_equal(grid.planes[plane_n].ravel(), np.bincount(flat[sel], minlength=ny * nx))
-        assert np.allclose(grid.planes[plane_z].ravel(), np.bincount(flat[sel], recs["z"][sel], minlength=ny * nx))
-    zmax = np.full(ny * nx, -np.inf)
-    b = recs["classification"] == 6
-    np.maximum.at(zmax, flat[b], recs["z"][b])
-    has = grid.planes[2].ravel() > 0
-    assert np.array_equal(grid.planes[4].ravel()[has], zmax[has])
-    assert grid.class_n.sum() == n and grid.class_n[6] == b.sum()
-    assert grid.class_intensity[2] == recs["intensity"][recs["classification"] == 2].astype(np.float64).sum()

@@ -235,21 +235,18 @@ def _empty(skipped: str | None = None) -> Augmentation:
 @numba.njit(cache=True, nogil=True)
 def _accumulate(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, scales: F64, offsets: F64, cls: np.ndarray,
                 inten: np.ndarray, x0: float, y0: float, inv_cell: float, planes: F64, class_n: F64,
-                class_int: F64, row0: int, row1: int) -> None:  # pragma: no cover - compiled
-    """Add decoded LAS columns (:func:`~citylod.io.las.point_fields`) to the cell accumulators, in one pass;
-    only the points in grid rows ``row0`` to ``row1`` (exclusive), so two threads can fill two bands."""
+                class_int: F64) -> None:  # pragma: no cover - compiled
+    """Add decoded LAS columns (:func:`~citylod.io.las.point_fields`) to the cell accumulators, in one pass."""
     ny, nx = planes.shape[1], planes.shape[2]
     for i in range(X.shape[0]):
-        y = Y[i] * scales[1] + offsets[1]
-        iy = min(max(int((y - y0) * inv_cell), 0), ny - 1)
-        if iy < row0 or iy >= row1:
-            continue
         x = X[i] * scales[0] + offsets[0]
+        y = Y[i] * scales[1] + offsets[1]
         z = Z[i] * scales[2] + offsets[2]
         c = cls[i]
         class_n[c] += 1.0
         class_int[c] += inten[i]
         ix = min(max(int((x - x0) * inv_cell), 0), nx - 1)
+        iy = min(max(int((y - y0) * inv_cell), 0), ny - 1)
         planes[_A_N, iy, ix] += 1.0
         if c == GROUND:
             planes[_G_N, iy, ix] += 1.0
@@ -292,7 +289,7 @@ def scan_grid(files: Sequence[str | PathLike[str]], lo: F64, hi: F64, cell_m: fl
         for pts in iter_points(f, chunk_points=chunk_points, raw=True):
             X, Y, Z, scales, offsets, inten, cls, *_ = point_fields(pts)
             _accumulate(X, Y, Z, scales, offsets, cls, inten, float(lo2[0]), float(lo2[1]), 1.0 / cell_m,
-                        planes, class_n, class_int, 0, planes.shape[1])
+                        planes, class_n, class_int)
     return CellGrid(lo2, float(cell_m), planes, class_n, class_int)
 
 
@@ -314,19 +311,8 @@ def scan_records(recs: np.ndarray, lo: F64, hi: F64, cell_m: float, source: Any 
     decoded a second time (the decode is most of the completion's cost)."""
     lo2, planes, class_n, class_int = _new_grid(lo, hi, cell_m, source)
     one, zero = np.ones(3), np.zeros(3)
-    cols = (recs["x"], recs["y"], recs["z"], one, zero, recs["classification"], recs["intensity"],
-            float(lo2[0]), float(lo2[1]), 1.0 / cell_m, planes)
-    ny = planes.shape[1]
-    if len(recs) < 100_000 or ny < 2:
-        _accumulate(*cols, class_n, class_int, 0, ny)
-    else:  # two bands of rows on two threads (the kernel lets go of the GIL); each cell sees its points in order
-        n2, i2 = np.zeros_like(class_n), np.zeros_like(class_int)
-        with ThreadPoolExecutor(1, thread_name_prefix="citylod-scan") as pool:
-            other = pool.submit(_accumulate, *cols, n2, i2, ny // 2, ny)
-            _accumulate(*cols, class_n, class_int, 0, ny // 2)
-            other.result()
-        class_n += n2
-        class_int += i2
+    _accumulate(recs["x"], recs["y"], recs["z"], one, zero, recs["classification"], recs["intensity"],
+                float(lo2[0]), float(lo2[1]), 1.0 / cell_m, planes, class_n, class_int)
     return CellGrid(lo2, float(cell_m), planes, class_n, class_int)
 
 
