@@ -309,15 +309,16 @@ def test_footprint_walls_stand_on_the_footprint(cloud: tuple[Path, np.ndarray], 
     assert np.median(np.max(uv - inner, axis=1)) > 0.25
 
 
+@pytest.mark.parametrize("walls", ["points", "quads"])  # quads are computed on a thread: read first
 def test_bad_footprint_file_is_one_line_exit_2(cloud: tuple[Path, np.ndarray], tmp_path: Path,
-                                               capsys: pytest.CaptureFixture[str]) -> None:
+                                               capsys: pytest.CaptureFixture[str], walls: str) -> None:
     from citylod.cli import main
 
     path, _ = cloud
     bad = tmp_path / "pand.gpkg"
     bad.write_bytes(b"not a database" * 100)
     rc = main(["build", "points", str(path), "-o", str(tmp_path / "ts"), "--crs", "EPSG:28992",
-               "--complete", "--footprints", str(bad)])
+               "--complete", walls, "--footprints", str(bad)])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and "pand.gpkg" in err and "Traceback" not in err, err
     assert not (tmp_path / "ts").exists()
@@ -343,6 +344,78 @@ def test_in_memory_build_completes_from_its_own_decode(cloud: tuple[Path, np.nda
         n += len(p.positions)
         syn += int(p.extra.get("synthetic", np.zeros(0, np.uint8)).sum())
     assert n == len(pts) + len(aug.xyz) and syn == len(aug.xyz)
+
+
+def _wall_corners(out: Path) -> np.ndarray:
+    """Every wall tile's vertices, in the source CRS, sorted by rows."""
+    ts = open_tileset(out)
+    parts = [t.load_content().meshes[0].positions.astype(np.float64) + t.matrix[:3, 3]
+             for t in ts.root.children if t.content_uri and "walls" in t.content_uri]
+    v = np.concatenate(parts)
+    return v[np.lexsort(v.T[::-1])]
+
+
+def test_in_memory_quads_on_their_thread_match_the_pre_pass(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    """The in-memory build computes and writes the wall quads on a thread of their own while it builds the
+    octree: the same wall tiles as the out-of-core build's pre-pass, which computes them first, in line."""
+    path, _ = cloud
+    fp = tmp_path / "pand.sqlite"
+    _write_footprints(fp, HALF - INSET)
+    opts = CompleteOptions(walls="quads", footprints=str(fp))
+    mem = build_points([path], tmp_path / "mem", crs="EPSG:28992", progress=False, complete=opts)
+    pre = build_points([path], tmp_path / "pre", crs="EPSG:28992", progress=False, workers=0, complete=opts)
+    quads = [r.complete.split(", ")[2] for r in (mem, pre) if r.complete]  # "N wall quads"
+    assert len(quads) == 2 and quads[0] == quads[1] and quads[0].endswith("wall quads")
+    a, b = _wall_corners(tmp_path / "mem"), _wall_corners(tmp_path / "pre")
+    assert len(a) > 0 and a.shape == b.shape and np.allclose(a, b, atol=1e-3)
+    doc = json.loads((tmp_path / "mem" / "tileset.json").read_text())
+    assert doc["extras"]["citylod"]["complete"]["quads"] == len(a) // 4
+
+
+def test_an_error_computing_quads_on_their_thread_is_raised_when_waited_for(
+        cloud: tuple[Path, np.ndarray], monkeypatch: pytest.MonkeyPatch) -> None:
+    from citylod.lod.build import complete as mod
+
+    path, _ = cloud
+    meta_lo, meta_hi = np.array([X0, Y0]), np.array([X0 + 40.0, Y0 + 40.0])
+    grid = mod.scan_grid([path], meta_lo, meta_hi, 0.5)
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("walls failed")
+
+    monkeypatch.setattr(mod, "wall_edges", broken)
+    aug = mod.augment_grid(grid, CompleteOptions(walls="quads"), quads_later=True)
+    assert aug.walls_pending is not None and len(aug.xyz) > 0  # the ground points are there already
+    with pytest.raises(RuntimeError, match="walls failed"):
+        aug.wait_walls()
+
+
+def test_near_footprint_cells_asked_only_where_needed(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    """``footprint_edges(where=...)`` answers for the cells asked about as for the whole grid, and a cell
+    is near when its centre is within ``reach_m`` of the footprint (distance to the rectangle computed
+    here; the buffer's arcs are polygons, hence the small tolerance)."""
+    from citylod.io.footprints import read_footprints
+    from citylod.lod.build import complete as mod
+
+    path, _ = cloud
+    fp = tmp_path / "pand.sqlite"
+    _write_footprints(fp, HALF - INSET)
+    polys = read_footprints(fp)
+    grid = mod.scan_grid([path], np.array([X0, Y0]), np.array([X0 + 40.0, Y0 + 40.0]), 0.5)
+    opts = CompleteOptions(walls="quads", footprints=str(fp))
+    dtm = mod.terrain(grid)
+    roof = mod._roof(grid, mod.building_mask(grid, opts))
+    rng = np.random.default_rng(3)
+    where = rng.random(grid.shape) < 0.3
+    e_all, near_all = mod.footprint_edges(polys, grid, dtm, roof, opts, reach_m=1.5)
+    e_some, near_some = mod.footprint_edges(polys, grid, dtm, roof, opts, reach_m=1.5, where=where)
+    assert np.array_equal(near_some, near_all & where) and np.array_equal(e_all.x0, e_some.x0)
+    xs, ys = grid.centers()
+    cx, cy = np.meshgrid(xs, ys)
+    uv = np.abs(_to_house(np.column_stack([cx.ravel() - X0, cy.ravel() - Y0])))
+    d = np.hypot(*np.maximum(uv - (HALF - INSET), 0.0).T).reshape(grid.shape)
+    assert near_all.sum() > 100
+    assert np.all(d[near_all] <= 1.5 + 1e-9) and np.all(d[~near_all] >= 1.5 - 0.02)
 
 
 @pytest.mark.realdata

@@ -26,6 +26,10 @@ does the same on a 2D cell grid:
 
 The in-memory point build decodes its input once and completes the decoded records
 (:func:`complete_records`); the out-of-core build scans the files in a pre-pass (:func:`complete_inputs`).
+In the in-memory build the footprints' outline is cut while the points decode
+(:func:`start_footprint_outline`) and wall quads, which add no points, are computed and written as tiles on
+a thread of their own while the octree is built (``quads_later`` of :func:`augment_grid`): the same walls,
+less of the build's time.
 
 Added points keep the class they stand for (2 ground, 6 building) and carry the LAS *synthetic* flag,
 which the point build keeps as a per-point ``SYNTHETIC`` glTF attribute, so they can be hidden, coloured
@@ -41,6 +45,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -177,6 +182,12 @@ class Augmentation:
         Why nothing was added, or None.
     seconds
         Wall time of the scan and of the augmentation.
+    walls_pending
+        The wall quads while they are still being computed (:func:`augment_grid` with ``quads_later``);
+        :meth:`wait_walls` waits for them. None once they are in ``quads``.
+    wall_tiles
+        The wall tiles already written with the quads (:func:`write_wall_tiles`; ``tiles_dir`` of
+        :func:`augment_grid`), or None.
     """
 
     xyz: F64
@@ -190,16 +201,26 @@ class Augmentation:
     wall_spacing_m: float = 0.0
     skipped: str | None = None
     seconds: dict[str, float] = field(default_factory=dict)
+    walls_pending: Future[tuple[F64, F32, float, list[Any] | None]] | None = field(default=None, repr=False)
+    wall_tiles: list[Any] | None = field(default=None, repr=False)
+
+    def wait_walls(self) -> None:
+        """Wait for the wall quads computed in the background, if any, and put them in ``quads`` (an error
+        there is raised here)."""
+        if self.walls_pending is not None:
+            pending, self.walls_pending = self.walls_pending, None
+            self.quads, self.quad_normals, self.seconds["walls"], self.wall_tiles = pending.result()
 
     @property
     def counts(self) -> dict[str, int]:
+        self.wait_walls()
         return {"ground": int(np.sum(self.kind == KIND_GROUND)), "wall": int(np.sum(self.kind >= KIND_WALL)),
                 "quads": len(self.quads)}
 
     def summary(self) -> str:
         if self.skipped:
             return f"complete   skipped: {self.skipped}"
-        c = self.counts
+        c = self.counts  # waits for the walls
         return (f"complete   {c['ground']:,} ground points under canopy ({self.ground_spacing_m:.2f} m), "
                 f"{c['wall']:,} wall points ({self.wall_spacing_m:.2f} m), {c['quads']:,} wall quads, "
                 f"{sum(self.seconds.values()):.2f} s")
@@ -323,8 +344,7 @@ def terrain(grid: CellGrid) -> F64:
         ph, pw = w.shape[0] % 2, w.shape[1] % 2
         w = np.pad(w, ((0, ph), (0, pw)))
         v = np.pad(v, ((0, ph), (0, pw)))
-        h2, w2 = w.shape[0] // 2, w.shape[1] // 2
-        levels.append((w.reshape(h2, 2, w2, 2).sum(axis=(1, 3)), v.reshape(h2, 2, w2, 2).sum(axis=(1, 3))))
+        levels.append((_sum2x2(w), _sum2x2(v)))
     # Push: from the coarsest level down, gaps take the upsampled coarser level.
     w, v = levels[-1]
     filled = np.where(w > 0, v / np.maximum(w, 1e-300), 0.0)
@@ -334,6 +354,12 @@ def terrain(grid: CellGrid) -> F64:
         up = ndimage.zoom(filled, zoom, order=1, mode="nearest", grid_mode=True)[:h, :wd]
         filled = np.where(w > 0, v / np.maximum(w, 1e-300), up)
     return filled
+
+
+def _sum2x2(a: F64) -> F64:
+    """Sums of the 2×2 blocks of an array of even shape, in the order ``a.reshape(h, 2, w, 2).sum(axis=(1, 3))``
+    adds them (each row's pair, then the two rows: the same floating-point result), ten times faster."""
+    return (a[0::2, 0::2] + a[0::2, 1::2]) + (a[1::2, 0::2] + a[1::2, 1::2])
 
 
 def _bilinear(field_: F64, grid: CellGrid, x: F64, y: F64) -> F64:
@@ -369,7 +395,7 @@ def _ground_fill(grid: CellGrid, dtm: F64, building: npt.NDArray[np.bool_], opts
     if not has_ground.any():
         return np.zeros((0, 3)), np.zeros((0, 3), np.float32), 0.0
     canopy = (p[_V_N] > 0) | ((p[_U_N] > 0) & (p[_U_ZMAX] > dtm + opts.canopy_m))
-    near_building = ndimage.binary_dilation(building, np.ones((3, 3), bool))
+    near_building = ndimage.maximum_filter(building, 3, mode="constant", cval=0)  # binary_dilation, 3×3, faster
     fill = canopy & ~has_ground & ~near_building & (p[_W_N] == 0)
     # The ground's own density: points per ground cell (median, robust to the cells a canopy half hides).
     per_cell = max(1, int(round(float(np.median(p[_G_N][has_ground])))))
@@ -394,10 +420,12 @@ def building_mask(grid: CellGrid, opts: CompleteOptions) -> npt.NDArray[np.bool_
 
     raw = grid.planes[_B_N] > 0
     m = raw | ndimage.binary_closing(raw, np.ones((3, 3), bool), border_value=0)
-    holes = ndimage.binary_fill_holes(m) & ~m
-    lab, n = ndimage.label(holes)
+    # Holes: the components of the rest (4-connected, as ``ndimage.binary_fill_holes`` fills) that do not
+    # touch the grid's border; one labelling instead of filling, then labelling the holes.
+    lab, n = ndimage.label(~m)
     if n:
         small = np.bincount(lab.ravel(), minlength=n + 1) * grid.cell ** 2 <= 4.0 * opts.min_building_m2
+        small[np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])] = False
         small[0] = False
         m |= small[lab]
     lab, n = ndimage.label(m)
@@ -417,7 +445,7 @@ def _roof(grid: CellGrid, mask: npt.NDArray[np.bool_]) -> F64:
     empty = bn == 0
     if empty.all():
         return z
-    _, (iy, ix) = ndimage.distance_transform_edt(empty, return_indices=True)
+    iy, ix = ndimage.distance_transform_edt(empty, return_distances=False, return_indices=True)
     z = np.where(mask & empty, z[iy, ix], z)
     return np.where(mask, z, np.nan)
 
@@ -439,49 +467,54 @@ class _Edges:
 
 
 def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions,
-               footprints: Sequence[Any] | None = None) -> _Edges:
+               footprints: Sequence[Any] | FootprintOutline | None = None) -> _Edges:
     """The walls: boundary edges (roof down to the terrain outside) and roof steps (higher roof down to
-    the lower one), with normals from the boundary direction. With ``footprints`` (shapely polygons), outer
+    the lower one), with normals from the boundary direction. With ``footprints`` (shapely polygons or their
+    :class:`FootprintOutline`), outer
     walls near a footprint come from :func:`footprint_edges` instead."""
     from scipy import ndimage
 
     p = grid.planes
     roof = _roof(grid, mask)
-    near_fp = np.zeros(mask.shape, bool)
-    fp_edges = None
-    if footprints:
-        fp_edges, near_fp = footprint_edges(footprints, grid, dtm, roof, opts)
-    has = p[_B_N] > 0
     c = grid.cell
     ny_, nx_ = grid.shape
-    # Boundary direction: the gradient of the smoothed building mask points inwards.
-    smooth = ndimage.gaussian_filter(mask.astype(np.float64), 1.5)
-    gy, gx = np.gradient(smooth)
-    parts: list[tuple[Any, ...]] = []
-    iy, ix = np.mgrid[0:ny_, 0:nx_]
-    x_lo = grid.lo[0] + ix * c
-    y_lo = grid.lo[1] + iy * c
-    # Four directions: (dy, dx), the cell extent that places the wall, the edge's endpoints.
+    # The neighbour of every cell in each of four directions (dy, dx): slices ``ys, xs`` of the neighbours
+    # of the cells ``yd, xd`` (a border cell has none that way). Only shifted views and boolean planes over
+    # the whole grid; values are gathered for the selected cells only.
+    shifts = []
     for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        nb_mask = np.zeros_like(mask)
-        nb_roof = np.full(mask.shape, np.nan)
         ys = slice(max(dy, 0), ny_ + min(dy, 0))
         xs = slice(max(dx, 0), nx_ + min(dx, 0))
         yd = slice(max(-dy, 0), ny_ + min(-dy, 0))
         xd = slice(max(-dx, 0), nx_ + min(-dx, 0))
+        nb_mask = np.zeros_like(mask)
         nb_mask[yd, xd] = mask[ys, xs]
-        nb_roof[yd, xd] = roof[ys, xs]
-        nb_dtm = dtm.copy()
-        nb_dtm[yd, xd] = dtm[ys, xs]
-        outer = mask & ~nb_mask & ~near_fp
-        step = mask & nb_mask & (roof - nb_roof > opts.step_m)
-        for sel, bottom_of in ((outer, nb_dtm), (step, nb_roof)):
+        shifts.append((dy, dx, ys, xs, yd, xd, mask & ~nb_mask))
+    near_fp = np.zeros(mask.shape, bool)
+    fp_edges = None
+    if footprints:
+        boundary = np.logical_or.reduce([s_[-1] for s_ in shifts])
+        fp_edges, near_fp = footprint_edges(footprints, grid, dtm, roof, opts, where=boundary)
+    has = p[_B_N] > 0
+    # Boundary direction: the gradient of the smoothed building mask points inwards.
+    smooth = ndimage.gaussian_filter(mask.astype(np.float64), 1.5)
+    gy, gx = np.gradient(smooth)
+    parts: list[tuple[Any, ...]] = []
+    # Four directions: (dy, dx), the cell extent that places the wall, the edge's endpoints.
+    for dy, dx, ys, xs, yd, xd, edge in shifts:
+        outer = edge & ~near_fp
+        step = np.zeros_like(mask)
+        step[yd, xd] = mask[yd, xd] & mask[ys, xs] & (roof[yd, xd] - roof[ys, xs] > opts.step_m)
+        for sel in (outer, step):
             cy, cx = np.nonzero(sel)
             if len(cy) == 0:
                 continue
             top = roof[cy, cx]
-            bottom = bottom_of[cy, cx]
-            x0c, y0c = x_lo[cy, cx], y_lo[cy, cx]
+            if sel is outer:  # down to the terrain of the neighbour (of the cell itself at the grid's border)
+                bottom = dtm[np.clip(cy + dy, 0, ny_ - 1), np.clip(cx + dx, 0, nx_ - 1)]
+            else:  # down to the neighbour's roof
+                bottom = roof[cy + dy, cx + dx]
+            x0c, y0c = grid.lo[0] + cx * c, grid.lo[1] + cy * c
             if sel is outer:
                 # At the outermost roof return of the cell, less the eaves' overhang ``eave_m``.
                 ext = {(0, 1): _B_XHI, (0, -1): _B_XLO, (1, 0): _B_YHI, (-1, 0): _B_YLO}[(dy, dx)]
@@ -518,22 +551,27 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
     return _Edges(x0, y0, x1, y1, nx, ny, bottom, top, cols[8][keep] > 0)
 
 
-def footprint_edges(footprints: Sequence[Any], grid: CellGrid, dtm: F64, roof: F64, opts: CompleteOptions,
-                    reach_m: float = 1.5) -> tuple[_Edges, npt.NDArray[np.bool_]]:
-    """Outer walls on the outline of the union of ``footprints`` (shapely polygons; walls shared by two
-    footprints, as in a terrace, are inside the union and get none), cut into pieces of at most one cell
-    so the top follows the roof: each piece rises from the terrain half a cell outside to the scanned roof
-    a quarter of a cell inside (the roof above the wall's line, under the eaves). Pieces with no scanned
-    roof there get no wall: the footprint is not backed by the scan. Also returns the cells within
-    ``reach_m`` of a footprint, whose roof-edge walls these replace.
+@dataclass(frozen=True)
+class FootprintOutline:
+    """The outline of the union of building footprints, cut into pieces of at most one ``cell`` (``p0`` to
+    ``p1``, (P, 2) each, with ``n`` the outward unit normals: the union's inside is on each piece's left),
+    and the union grown by ``reach_m`` (a shapely geometry). Depends on the footprints and the cell size
+    only, so the point build computes it while it decodes the points (:func:`start_footprint_outline`)."""
 
-    A footprint is where the wall meets the ground; the roof's outer returns overhang it by the eaves
-    (on Delft's AHN3 against the BGT, median 0.18 m, p75 0.43 m: docs/PERFORMANCE_LOG.md), so walls from
-    the roof edge stand that far outside the real wall."""
+    p0: F64
+    p1: F64
+    n: F64
+    grown: Any
+    cell: float
+    reach_m: float
+
+
+def footprint_outline(footprints: Sequence[Any], cell: float, reach_m: float = 1.5) -> FootprintOutline:
+    """:class:`FootprintOutline` of ``footprints`` (shapely polygons) for cells of ``cell`` metres."""
     import shapely
 
-    c = grid.cell
-    union = shapely.union_all([shapely.make_valid(f) for f in footprints])
+    c = cell
+    union = shapely.union_all(shapely.make_valid(np.asarray(footprints, dtype=object)))
     polys = [g for g in getattr(union, "geoms", [union]) if g.geom_type == "Polygon" and not g.is_empty]
     xs, ys = [], []
     for poly in polys:
@@ -543,8 +581,8 @@ def footprint_edges(footprints: Sequence[Any], grid: CellGrid, dtm: F64, roof: F
             xs.append(q[:-1])
             ys.append(q[1:])
     if not xs:
-        z = np.zeros(0)
-        return _Edges(z, z, z, z, z, z, z, z, np.zeros(0, bool)), np.zeros(grid.shape, bool)
+        z = np.zeros((0, 2))
+        return FootprintOutline(z, z, z, union.buffer(reach_m), float(cell), float(reach_m))
     a, b = np.concatenate(xs), np.concatenate(ys)
     seg = b - a
     length = np.hypot(seg[:, 0], seg[:, 1])
@@ -558,6 +596,53 @@ def footprint_edges(footprints: Sequence[Any], grid: CellGrid, dtm: F64, roof: F
     p1 = a[e] + t1[:, None] * seg[e]
     d = seg[e] / length[e][:, None]
     n = np.column_stack([d[:, 1], -d[:, 0]])  # right of the direction: outwards
+    return FootprintOutline(p0, p1, n, union.buffer(reach_m), float(cell), float(reach_m))
+
+
+def start_footprint_outline(opts: CompleteOptions) -> Future[FootprintOutline] | None:
+    """Read ``opts.footprints`` now (a bad file is refused at once) and compute their
+    :func:`footprint_outline` on a thread of its own; None without footprints or walls."""
+    from citylod.io.footprints import read_footprints
+
+    if not opts.footprints or opts.walls == "none":
+        return None
+    footprints = read_footprints(opts.footprints)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="citylod-footprints")
+    try:
+        return pool.submit(footprint_outline, footprints, opts.cell_m)
+    finally:
+        pool.shutdown(wait=False)
+
+
+def footprint_edges(footprints: Sequence[Any] | FootprintOutline, grid: CellGrid, dtm: F64, roof: F64, opts: CompleteOptions,
+                    reach_m: float = 1.5, where: npt.NDArray[np.bool_] | None = None
+                    ) -> tuple[_Edges, npt.NDArray[np.bool_]]:
+    """Outer walls on the outline of the union of ``footprints`` (shapely polygons, or their
+    :class:`FootprintOutline` for this grid's cells and ``reach_m``; walls shared by two
+    footprints, as in a terrace, are inside the union and get none), cut into pieces of at most one cell
+    so the top follows the roof: each piece rises from the terrain half a cell outside to the scanned roof
+    a quarter of a cell inside (the roof above the wall's line, under the eaves). Pieces with no scanned
+    roof there get no wall: the footprint is not backed by the scan. Also returns the cells within
+    ``reach_m`` of a footprint, whose roof-edge walls these replace, among the cells of the mask ``where``
+    (default: all cells; :func:`wall_edges` asks only about the building cells at the mask's boundary, the
+    only ones that can have a roof-edge wall: a few percent of the grid, and the point-in-polygon test is
+    most of this function's cost).
+
+    A footprint is where the wall meets the ground; the roof's outer returns overhang it by the eaves
+    (on Delft's AHN3 against the BGT, median 0.18 m, p75 0.43 m: docs/PERFORMANCE_LOG.md), so walls from
+    the roof edge stand that far outside the real wall."""
+    import shapely
+
+    c = grid.cell
+    if not isinstance(footprints, FootprintOutline):
+        footprints = footprint_outline(footprints, c, reach_m)
+    elif footprints.cell != c or footprints.reach_m != reach_m:
+        raise ValueError(f"the outline was cut for {footprints.cell} m cells and {footprints.reach_m} m of reach, "
+                         f"not {c} and {reach_m}")
+    p0, p1, n = footprints.p0, footprints.p1, footprints.n
+    if len(p0) == 0:
+        z = np.zeros(0)
+        return _Edges(z, z, z, z, z, z, z, z, np.zeros(0, bool)), np.zeros(grid.shape, bool)
     mid = (p0 + p1) / 2.0
     ny_, nx_ = grid.shape
 
@@ -572,8 +657,9 @@ def footprint_edges(footprints: Sequence[Any], grid: CellGrid, dtm: F64, roof: F
     top = np.where(rin, roof[ri, rj], np.nan)
     bottom = dtm[oi, oj]
     keep = oin & np.isfinite(top) & (top - bottom >= opts.min_wall_m)
-    iy, ix = np.mgrid[0:ny_, 0:nx_]
-    near = shapely.contains_xy(union.buffer(reach_m), grid.lo[0] + (ix + 0.5) * c, grid.lo[1] + (iy + 0.5) * c)
+    iy, ix = np.nonzero(np.ones(grid.shape, bool) if where is None else where)
+    near = np.zeros(grid.shape, bool)
+    near[iy, ix] = shapely.contains_xy(footprints.grown, grid.lo[0] + (ix + 0.5) * c, grid.lo[1] + (iy + 0.5) * c)
     edges = _Edges(p0[keep, 0], p0[keep, 1], p1[keep, 0], p1[keep, 1], n[keep, 0], n[keep, 1], bottom[keep],
                    top[keep], np.zeros(int(keep.sum()), bool))
     return edges, near
@@ -624,8 +710,19 @@ def _wall_quads(edges: _Edges) -> tuple[F64, F32]:
 
 
 # ------------------------------------------------------------------------------------------------ API
-def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions()) -> Augmentation:
-    """Ground under canopy and walls from a scanned grid (see the module docstring)."""
+def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions(), *,
+                 quads_later: bool = False, tiles_dir: str | PathLike[str] | None = None,
+                 outline: Future[FootprintOutline] | None = None) -> Augmentation:
+    """Ground under canopy and walls from a scanned grid (see the module docstring).
+
+    ``quads_later``: wall quads are computed on a thread of their own and the augmentation returned with
+    the added points at once (:attr:`Augmentation.walls_pending`; :meth:`Augmentation.wait_walls`), so the
+    point build can build its octree meanwhile: quads add no points, and take no random numbers, so they
+    are the same either way. The footprints are read before returning, so a bad file is refused first.
+    With ``tiles_dir`` too, that thread also writes the wall tiles there (:attr:`Augmentation.wall_tiles`,
+    which :func:`add_wall_tiles` then uses). ``outline``: the footprints' outline being computed
+    (:func:`start_footprint_outline`), used instead of reading ``opts.footprints`` here.
+    """
     t0 = time.perf_counter()
     n_ground = grid.class_n[GROUND]
     n_building = grid.class_n[BUILDING]
@@ -634,40 +731,65 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions()) -> A
         warnings.warn(msg, stacklevel=2)
         return _empty(msg)
     rng = np.random.default_rng(opts.seed)
-    dtm = terrain(grid)
-    mask = building_mask(grid, opts) if n_building else np.zeros(grid.shape, bool)
-    pieces: list[tuple[F64, F32, npt.NDArray[np.uint8], int]] = []
-    g_sp = w_sp = 0.0
-    if opts.ground and n_ground:
-        gxyz, gn, g_sp = _ground_fill(grid, dtm, mask, opts, rng)
-        pieces.append((gxyz, gn, np.full(len(gxyz), KIND_GROUND, np.uint8), GROUND))
-    quads, qn = np.zeros((0, 4, 3)), np.zeros((0, 3), np.float32)
-    if opts.walls != "none" and mask.any():
-        footprints = None
-        if opts.footprints:
-            from citylod.io.footprints import read_footprints
+    pool = ThreadPoolExecutor(1, thread_name_prefix="citylod-complete")
+    try:
+        # The building mask on the helper thread while this one fills the terrain (independent; scipy's
+        # filters let go of the GIL for much of it).
+        masking = pool.submit(building_mask, grid, opts) if n_building else None
+        dtm = terrain(grid)
+        mask = masking.result() if masking is not None else np.zeros(grid.shape, bool)
+        pieces: list[tuple[F64, F32, npt.NDArray[np.uint8], int]] = []
+        g_sp = w_sp = 0.0
+        if opts.ground and n_ground:
+            gxyz, gn, g_sp = _ground_fill(grid, dtm, mask, opts, rng)
+            pieces.append((gxyz, gn, np.full(len(gxyz), KIND_GROUND, np.uint8), GROUND))
+        quads, qn = np.zeros((0, 4, 3)), np.zeros((0, 3), np.float32)
+        pending = None
+        if opts.walls != "none" and mask.any():
+            footprints: Any = None
+            if outline is not None:
+                footprints = outline.result()
+            elif opts.footprints:
+                from citylod.io.footprints import read_footprints
 
-            footprints = read_footprints(opts.footprints)
-        edges = wall_edges(grid, dtm, mask, opts, footprints)
-        has = grid.planes[_B_N] > 0
-        w_sp = grid.cell / np.sqrt(max(1.0, float(np.median(grid.planes[_B_N][has]))) * opts.wall_density)
-        if opts.walls == "points":
-            wxyz, wn, wk = _wall_points(edges, w_sp, rng)
-            pieces.append((wxyz, wn, wk, BUILDING))
+                footprints = read_footprints(opts.footprints)
+            has = grid.planes[_B_N] > 0
+            w_sp = grid.cell / np.sqrt(max(1.0, float(np.median(grid.planes[_B_N][has]))) * opts.wall_density)
+            if opts.walls == "points":
+                wxyz, wn, wk = _wall_points(wall_edges(grid, dtm, mask, opts, footprints), w_sp, rng)
+                pieces.append((wxyz, wn, wk, BUILDING))
+            elif quads_later:
+                pending = pool.submit(_quads_of, grid, dtm, mask, opts, footprints, tiles_dir)
+            else:
+                quads, qn, *_ = _quads_of(grid, dtm, mask, opts, footprints)
+        mean_int = grid.class_intensity / np.maximum(grid.class_n, 1.0)
+        if pieces:
+            xyz = np.concatenate([pc[0] for pc in pieces])
+            nrm = np.concatenate([pc[1] for pc in pieces])
+            kind = np.concatenate([pc[2] for pc in pieces])
+            cls = np.concatenate([np.full(len(pc[0]), pc[3], np.uint8) for pc in pieces])
         else:
-            quads, qn = _wall_quads(edges)
-    mean_int = grid.class_intensity / np.maximum(grid.class_n, 1.0)
-    if pieces:
-        xyz = np.concatenate([pc[0] for pc in pieces])
-        nrm = np.concatenate([pc[1] for pc in pieces])
-        kind = np.concatenate([pc[2] for pc in pieces])
-        cls = np.concatenate([np.full(len(pc[0]), pc[3], np.uint8) for pc in pieces])
-    else:
-        xyz, nrm = np.zeros((0, 3)), np.zeros((0, 3), np.float32)
-        kind, cls = np.zeros(0, np.uint8), np.zeros(0, np.uint8)
-    inten = np.clip(np.round(mean_int[cls]), 0, 65535).astype(np.uint16)
+            xyz, nrm = np.zeros((0, 3)), np.zeros((0, 3), np.float32)
+            kind, cls = np.zeros(0, np.uint8), np.zeros(0, np.uint8)
+        inten = np.clip(np.round(mean_int[cls]), 0, 65535).astype(np.uint16)
+    finally:
+        pool.shutdown(wait=False)  # its thread ends with the walls' task, if there is one
     return Augmentation(xyz, nrm, kind, cls, inten, quads, qn, g_sp, w_sp,
-                        seconds={"augment": time.perf_counter() - t0})
+                        seconds={"augment": time.perf_counter() - t0}, walls_pending=pending)
+
+
+def _quads_of(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions,
+              footprints: Sequence[Any] | FootprintOutline | None, tiles_dir: str | PathLike[str] | None = None
+              ) -> tuple[F64, F32, float, list[Any] | None]:
+    """The wall quads and normals, the seconds they took, and their tiles when written to ``tiles_dir``."""
+    t0 = time.perf_counter()
+    quads, qn = _wall_quads(wall_edges(grid, dtm, mask, opts, footprints))
+    tiles = None
+    if tiles_dir is not None:
+        walls = _empty()
+        walls.quads, walls.quad_normals = quads, qn
+        tiles = write_wall_tiles(tiles_dir, walls)
+    return quads, qn, time.perf_counter() - t0, tiles
 
 
 def augment(files: Sequence[str | PathLike[str]], opts: CompleteOptions = CompleteOptions(), *,
@@ -775,52 +897,76 @@ def _write_added(aug: Augmentation, meta: Any, target: Path, template: Any) -> P
     return out
 
 
-def complete_records(recs: np.ndarray, meta: Any, target: Path, opts: CompleteOptions) -> tuple[Augmentation, Path | None]:
+def complete_records(recs: np.ndarray, meta: Any, target: Path, opts: CompleteOptions, *,
+                     quads_later: bool = False, tiles_dir: str | PathLike[str] | None = None,
+                     outline: Future[FootprintOutline] | None = None) -> tuple[Augmentation, Path | None]:
     """The in-memory point build's hook, after it decoded its input into ``recs``: complete them
     (:func:`scan_records`, :func:`augment_grid`) and write the added points to ``target`` (None: nothing
-    added)."""
+    added). ``quads_later``, ``tiles_dir``: wall quads (and their tiles) are still being computed on return;
+    ``outline``: the footprints' outline started earlier (see :func:`augment_grid`)."""
     refused = _geographic(meta)
     if refused:
         return _empty(refused), None
     t0 = time.perf_counter()
     grid = scan_records(recs, meta.lo, meta.hi, opts.cell_m, meta.files[0].path if meta.files else None)
     t_scan = time.perf_counter() - t0
-    aug = augment_grid(grid, opts)
+    aug = augment_grid(grid, opts, quads_later=quads_later, tiles_dir=tiles_dir, outline=outline)
     aug.seconds = {"scan": t_scan, **aug.seconds}
     return aug, _write_added(aug, meta, target, meta.files[0].path)
 
 
 def add_wall_tiles(out_dir: str | PathLike[str], root: Any, aug: Augmentation, block_m: float = 128.0) -> Any:
-    """Write the wall quads as tiles of ``block_m`` square blocks and return a new root whose children are
-    the point octree's root and the wall tiles (3D Tiles REPLACE: a root without content that always
-    refines, so the walls show at every level of the points)."""
-    from citylod.io.tiles3d import TileContent, TileSpec, write_content
+    """Write the wall quads as tiles of ``block_m`` square blocks (:func:`write_wall_tiles`, unless
+    :attr:`Augmentation.wall_tiles` holds them, written to ``out_dir``) and return a new root whose children
+    are the point octree's root and the wall tiles (3D Tiles REPLACE: a root without content that always
+    refines, so the walls show at every level of the points). Waits for quads still being computed."""
+    from citylod.io.tiles3d import TileSpec
 
+    aug.wait_walls()
     if len(aug.quads) == 0:
         return root
-    mid = aug.quads.mean(axis=1)[:, :2]
-    b = np.floor((mid - mid.min(axis=0)) / block_m).astype(np.int64)
-    keys = b[:, 0] * (1 << 20) + b[:, 1]
-    order = np.argsort(keys, kind="stable")
-    bounds_ = np.flatnonzero(np.diff(keys[order])) + 1
-    children = [root]
-    for part in np.split(order, bounds_):
-        sub = Augmentation(aug.xyz[:0], aug.normals[:0], aug.kind[:0], aug.classification[:0],
-                           aug.intensity[:0], aug.quads[part], aug.quad_normals[part])
-        corners = sub.quads.reshape(-1, 3)
-        lo, hi = corners.min(axis=0), corners.max(axis=0)
-        center = (lo + hi) / 2.0
-        bx, by = (int(v) for v in b[part[0]])
-        key = f"walls/{bx}-{by}"
-        uri = write_content(out_dir, key, TileContent(meshes=[wall_mesh(sub, center)]))
-        children.append(TileSpec(key=key, level=1, center=center, lo=lo, hi=hi, geometric_error=0.0,
-                                 content=uri, extras={"points": 0, "triangles": 2 * len(part),
-                                                      "quads": len(part), "walls": True}))
+    walls = aug.wall_tiles if aug.wall_tiles is not None else write_wall_tiles(out_dir, aug, block_m)
+    children = [root, *walls]
     lo = np.min([c.lo for c in children], axis=0)
     hi = np.max([c.hi for c in children], axis=0)
     return TileSpec(key="complete", level=0, center=(lo + hi) / 2.0, lo=lo, hi=hi,
                     geometric_error=max(float(root.geometric_error), float(np.linalg.norm(hi - lo))),
                     children=children, extras={"points": 0, "triangles": 0, "quads": 0})
+
+
+def _col_min(a: F64) -> F64:
+    """``a.min(axis=0)`` of an (N, k) array, column by column: numpy reduces a few columns of many rows
+    twenty times slower along axis 0."""
+    return np.array([a[:, k].min() for k in range(a.shape[1])])
+
+
+def write_wall_tiles(out_dir: str | PathLike[str], aug: Augmentation, block_m: float = 128.0) -> list[Any]:
+    """Write the wall quads of ``aug`` as tiles of ``block_m`` square blocks (``walls/X-Y``) and return their
+    :class:`~citylod.io.tiles3d.TileSpec` (none without quads)."""
+    from citylod.io.tiles3d import TileContent, TileSpec, write_content
+
+    if len(aug.quads) == 0:
+        return []
+    q = aug.quads[:, :, :2]
+    mid = (((q[:, 0] + q[:, 1]) + q[:, 2]) + q[:, 3]) / 4.0  # the corners' mean (numpy's ``mean`` is slower)
+    b = np.floor((mid - _col_min(mid)) / block_m).astype(np.int64)
+    keys = b[:, 0] * (1 << 20) + b[:, 1]
+    order = np.argsort(keys, kind="stable")
+    bounds_ = np.flatnonzero(np.diff(keys[order])) + 1
+    tiles = []
+    for part in np.split(order, bounds_):
+        sub = Augmentation(aug.xyz[:0], aug.normals[:0], aug.kind[:0], aug.classification[:0],
+                           aug.intensity[:0], aug.quads[part], aug.quad_normals[part])
+        corners = sub.quads.reshape(-1, 3)
+        lo, hi = _col_min(corners), -_col_min(-corners)
+        center = (lo + hi) / 2.0
+        bx, by = (int(v) for v in b[part[0]])
+        key = f"walls/{bx}-{by}"
+        uri = write_content(out_dir, key, TileContent(meshes=[wall_mesh(sub, center)]))
+        tiles.append(TileSpec(key=key, level=1, center=center, lo=lo, hi=hi, geometric_error=0.0,
+                              content=uri, extras={"points": 0, "triangles": 2 * len(part),
+                                                   "quads": len(part), "walls": True}))
+    return tiles
 
 
 __all__ = [
@@ -832,6 +978,7 @@ __all__ = [
     "Augmentation",
     "CellGrid",
     "CompleteOptions",
+    "FootprintOutline",
     "add_wall_tiles",
     "augment",
     "augment_grid",
@@ -839,10 +986,13 @@ __all__ = [
     "complete_inputs",
     "complete_records",
     "footprint_edges",
+    "footprint_outline",
     "scan_grid",
     "scan_records",
+    "start_footprint_outline",
     "terrain",
     "wall_edges",
     "wall_mesh",
     "write_las",
+    "write_wall_tiles",
 ]

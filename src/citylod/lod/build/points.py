@@ -67,7 +67,13 @@ from citylod.io.tiles3d import (
     write_content,
     write_tileset,
 )
-from citylod.lod.build.complete import CompleteOptions, add_wall_tiles, complete_inputs, complete_records
+from citylod.lod.build.complete import (
+    CompleteOptions,
+    add_wall_tiles,
+    complete_inputs,
+    complete_records,
+    start_footprint_outline,
+)
 from citylod.lod.build.executor import Completions, make_executor, progress_bar, run_tasks
 from citylod.lod.build.planes import find_planes, quad_mesh_arrays, splat_colors
 from citylod.lod.kernels.octree import (
@@ -782,6 +788,8 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
     memory = workers is None and scheduler is None and meta.point_count < INLINE_BELOW
     if memory:
         segment_points = max(segment_points, INLINE_BELOW)  # one segment per file: seeking in LAZ decodes
+    # The footprints' outline (completion) depends on them alone: computed while pass 1 decodes the points.
+    outline = start_footprint_outline(complete) if memory and complete is not None else None
     partial = out.with_name(out.name + ".partial")
     tmp = partial / ".build"
     if memory:
@@ -828,7 +836,10 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
                 ihist += sp
             if memory and complete is not None:
                 n_in = meta.point_count
-                aug, extra = complete_records(cloud[0][:n_in], meta, tmp / "complete.las", complete)
+                # Wall quads add no points: they are computed and written as tiles on a thread of their own
+                # while the octree is built, and waited for at the end (add_wall_tiles).
+                aug, extra = complete_records(cloud[0][:n_in], meta, tmp / "complete.las", complete,
+                                              quads_later=True, tiles_dir=partial, outline=outline)
                 n_add = 0 if extra is None else read_metadata([extra], meta.crs).point_count
                 if n_in + n_add > len(cloud[0]):
                     r0, x0, q0 = cloud
