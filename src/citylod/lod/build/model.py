@@ -100,6 +100,19 @@ class Shapes:
         return np.bincount((self.shape_map >= 0).sum(axis=1), minlength=shapes.MAX_IDS + 1)
 
 
+def _keep_mostly(label: npt.NDArray[np.int32], shapes_: F64, where: npt.NDArray[np.bool_]
+                 ) -> tuple[npt.NDArray[np.int32], F64]:
+    """Keep the shapes at least half of whose labelled samples lie ``where``; the others' samples get -1
+    and the kept shapes are renumbered in order."""
+    ok = label >= 0
+    n_all = np.bincount(label[ok], minlength=len(shapes_))
+    n_in = np.bincount(label[ok & where], minlength=len(shapes_))
+    keep = n_in >= 0.5 * np.maximum(n_all, 1)
+    remap = np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int32)
+    return (np.where(ok, remap[np.maximum(label, 0)], -1).astype(np.int32),
+            np.ascontiguousarray(shapes_[keep]))
+
+
 def detect_shapes(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, params: ShapeParams | None = None,
                   ground: F64 | None = None) -> Shapes:
     """Planes of a height grid and its shape map (steps 1–3 of the module docstring).
@@ -126,13 +139,7 @@ def detect_shapes(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, params
         # less than ``jump`` above the bare-earth estimate are dropped (the ground is left to QEM and the
         # certified bound).
         lifted = (F - (ground_height(F, V, spacing) if ground is None else ground)) > p.jump
-        ok = label >= 0
-        n_all = np.bincount(label[ok], minlength=len(planes))
-        n_up = np.bincount(label[ok & lifted], minlength=len(planes))
-        keep = n_up >= 0.5 * np.maximum(n_all, 1)
-        remap = np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int32)
-        label = np.where(ok, remap[np.maximum(label, 0)], -1).astype(np.int32)
-        planes = np.ascontiguousarray(planes[keep])
+        label, planes = _keep_mostly(label, planes, lifted)
     cols = shapes.facade_columns(F, V, dx, dy, p.jump)
     fl, fplanes = shapes.detect_facades(cols, spacing, p.facade_eps, p.facade_min_area / (spacing * spacing),
                                         p.seed, 24, 24, 4.0 * spacing, 2.5 * spacing)
@@ -141,14 +148,7 @@ def detect_shapes(F: F64, V: npt.NDArray[np.bool_], dx: float, dy: float, params
         # rims of tree crowns, terrain steps) are dropped, so they do not pin vertices on trees
         top = np.where(F.reshape(-1)[cols[:, 4].astype(np.int64)] > F.reshape(-1)[cols[:, 5].astype(np.int64)],
                        cols[:, 4], cols[:, 5]).astype(np.int64)
-        roofed = label.reshape(-1)[top] >= 0
-        on = fl >= 0
-        n_all = np.bincount(fl[on], minlength=len(fplanes))
-        n_roof = np.bincount(fl[on & roofed], minlength=len(fplanes))
-        fkeep = n_roof >= 0.5 * np.maximum(n_all, 1)
-        fremap = np.where(fkeep, np.cumsum(fkeep) - 1, -1).astype(np.int32)
-        fl = np.where(on, fremap[np.maximum(fl, 0)], -1).astype(np.int32)
-        fplanes = np.ascontiguousarray(fplanes[fkeep])
+        fl, fplanes = _keep_mostly(fl, fplanes, label.reshape(-1)[top] >= 0)
     smap = shapes.shape_map(F, V, dx, dy, label, planes, p.map_eps, fl, cols, fplanes, p.facade_eps, len(planes),
                             math.cos(math.radians(p.min_edge_angle_deg)))
     return Shapes(label, planes, fplanes, len(cols), smap)

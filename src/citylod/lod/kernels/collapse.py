@@ -460,27 +460,14 @@ def hausdorff_check(F, V, W, dx, dy, a, b, c, eps, cand, ncand, own, t2s, scratc
     i0 = int(min(ys0, min(ys1, ys2)))
     i1 = min(int(max(ys0, max(ys1, ys2))) - 1, H - 2)
     for i in range(max(i0, 0), i1 + 1):
-        lo = math.inf
-        hi = -math.inf
-        for e in range(3):
-            if e == 0:
-                y1, x1, y2, x2 = ys0, xs0, ys1, xs1
-            elif e == 1:
-                y1, x1, y2, x2 = ys1, xs1, ys2, xs2
-            else:
-                y1, x1, y2, x2 = ys2, xs2, ys0, xs0
-            if i <= y1 <= i + 1:
-                lo = min(lo, x1)
-                hi = max(hi, x1)
-            for yl in (float(i), float(i + 1)):
-                if (y1 - yl) * (y2 - yl) < 0.0:
-                    x = x1 + (yl - y1) * (x2 - x1) / (y2 - y1)
-                    lo = min(lo, x)
-                    hi = max(hi, x)
-        # the run of cells wholly inside the triangle: where its samples are all within eps vertically, its
-        # pieces (the cells' own triangles, linear on both surfaces) are certified by the samples alone
+        # The triangle's columns in the band of rows [i, i+1]: its vertices are grid samples (integer
+        # rows), so the band's extent is that of its two border rows.
         la, ra = _span(ys0, xs0, ys1, xs1, ys2, xs2, float(i))
         lb, rb = _span(ys0, xs0, ys1, xs1, ys2, xs2, float(i + 1))
+        lo = min(la, lb)
+        hi = max(ra, rb)
+        # the run of cells wholly inside the triangle: where its samples are all within eps vertically, its
+        # pieces (the cells' own triangles, linear on both surfaces) are certified by the samples alone
         ja = max(int(math.ceil(max(la, lb) - 1e-9)), 0)
         jb = min(int(math.floor(min(ra, rb) + 1e-9)) - 1, W - 2)
         run_ok = ja <= jb
