@@ -458,10 +458,41 @@ def _write_las_without_crs(path: Path, n: int = 3000) -> None:
     las.write(str(path))
 
 
+def type_into_dialog(dialog, text: str, *, delay_ms: int, first_ms: int, give_up_ms: int) -> list[bool]:
+    """Once ``dialog()`` shows a dialog, type ``text`` into it with real keys (select all, type, Return).
+
+    The timers run inside the dialog's own event loop (the call that opens it blocks there). Returns the
+    list that gets True once the keys are sent; the dialog is rejected after ``give_up_ms`` so the suite
+    never hangs on one that did not get them."""
+    from PySide6.QtCore import QTimer
+
+    typed: list[bool] = []
+
+    def answer() -> None:
+        dlg = dialog()
+        if dlg is None:
+            QTimer.singleShot(200, answer)
+            return
+        dlg.activateWindow()
+        dlg.raise_()
+        for args in (["key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", str(delay_ms), text],
+                     ["key", "Return"]):
+            subprocess.run(["xdotool", *args], check=True, timeout=30)
+        typed.append(True)
+
+    def give_up() -> None:
+        dlg = dialog()
+        if dlg is not None:
+            dlg.reject()
+
+    QTimer.singleShot(first_ms, answer)
+    QTimer.singleShot(give_up_ms, give_up)
+    return typed
+
+
 def test_laz_without_crs_prompts_and_builds(qtbot, window, xin, tmp_path) -> None:
     """Opening a LAS without a CRS asks for one (typed on the keyboard), builds and opens the octree; a
     build that fails leaves no progress dialog behind."""
-    from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication, QInputDialog, QProgressDialog
 
     las = tmp_path / "nocrs.las"
@@ -472,28 +503,7 @@ def test_laz_without_crs_prompts_and_builds(qtbot, window, xin, tmp_path) -> Non
         return next((w for w in QApplication.topLevelWidgets()
                      if isinstance(w, QInputDialog) and w.isVisible()), None)
 
-    typed = []
-
-    def answer() -> None:
-        # Runs inside the dialog's own event loop (open_path blocks in it): real keys into the dialog.
-        dlg = dialog()
-        if dlg is None:
-            QTimer.singleShot(200, answer)
-            return
-        dlg.activateWindow()
-        dlg.raise_()
-        for args in (["key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "20", "EPSG:28992"],
-                     ["key", "Return"]):
-            subprocess.run(["xdotool", *args], check=True, timeout=30)
-        typed.append(True)
-
-    def give_up() -> None:  # never hang the suite on a dialog that did not get the keys
-        dlg = dialog()
-        if dlg is not None:
-            dlg.reject()
-
-    QTimer.singleShot(500, answer)
-    QTimer.singleShot(20000, give_up)
+    typed = type_into_dialog(dialog, "EPSG:28992", delay_ms=20, first_ms=500, give_up_ms=20000)
     assert window.open_path(las), window.errors
     assert typed and dialog() is None
     qtbot.waitUntil(lambda: any(e.kind == "tileset" for e in window.document.entries), timeout=120000)

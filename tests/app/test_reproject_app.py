@@ -5,7 +5,6 @@ The old app refused the second source ("layers of one scene must share a CRS").
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -14,41 +13,19 @@ import pytest
 pytest.importorskip("PySide6")
 pytest.importorskip("pytestqt")
 
-from tests.app.test_real_input import _wait_resolved, pytestmark, window, xin  # noqa: F401
+from tests.app.test_real_input import _wait_resolved, pytestmark, type_into_dialog, window, xin  # noqa: F401
 from tests.render.test_reproject import two_crs  # noqa: F401  (the module fixture)
 
 
 def _open_with_dialog(qtbot, win, xin, path: Path) -> None:  # noqa: F811
     """Ctrl+O in the window, the file's path typed into Qt's file dialog, Return."""
-    from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication, QFileDialog
 
     def dialog():
         return next((w for w in QApplication.topLevelWidgets() if isinstance(w, QFileDialog) and w.isVisible()),
                     None)
 
-    typed: list[bool] = []
-
-    def answer() -> None:
-        # Runs inside the dialog's own event loop (the shortcut blocks in it): real keys into the dialog.
-        dlg = dialog()
-        if dlg is None:
-            QTimer.singleShot(200, answer)
-            return
-        dlg.activateWindow()
-        dlg.raise_()
-        for args in (["key", "--clearmodifiers", "ctrl+a"], ["type", "--delay", "5", str(path)],
-                     ["key", "Return"]):
-            subprocess.run(["xdotool", *args], check=True, timeout=30)
-        typed.append(True)
-
-    def give_up() -> None:  # never hang the suite on a dialog that did not get the keys
-        dlg = dialog()
-        if dlg is not None:
-            dlg.reject()
-
-    QTimer.singleShot(300, answer)
-    QTimer.singleShot(30000, give_up)
+    typed = type_into_dialog(dialog, str(path), delay_ms=5, first_ms=300, give_up_ms=30000)
     entries = len(win.document.entries)
     xin.key(win.view.vtk, "ctrl+o")
     # A raw file is built first (a subprocess with a progress dialog), then opened.
