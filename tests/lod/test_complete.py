@@ -334,10 +334,7 @@ def test_in_memory_build_completes_from_its_own_decode(cloud: tuple[Path, np.nda
     aug = augment([path])
     ts = open_tileset(tmp_path / "ts")
     n = syn = 0
-    stack = [ts.root]
-    while stack:
-        t = stack.pop()
-        stack.extend(t.children)
+    for t in ts.walk():
         if t.children or t.content_uri is None:
             continue
         p = t.load_content().points
