@@ -315,6 +315,33 @@ def test_terraced_houses_come_apart_at_valleys_and_steps() -> None:
     assert len(none) == 1
 
 
+def test_low_annex_and_shed_are_buildings_of_their_own() -> None:
+    """A gable house (rows 10..29, cols 10..29: 10 m square, eaves 6 m, ridge 9 m), a flat garage 3 m high
+    touching its east wall (rows 12..16, cols 30..35: 2.5 × 3 m, too small for a roof plane), and a free
+    standing shed 2.5 m high (rows 34..38, cols 50..54: 6.25 m²), all building points (class 6). The garage
+    stands 3 m below the house's eave, so it is not the house's wall or chimney: a building of its own (the
+    code before joined every sample on no plane to the nearest plane's building); the shed is under 12 m²
+    but carries building points, so it is kept."""
+    r, c = np.mgrid[0:48, 0:64].astype(float)
+    F = np.zeros_like(r)
+    house = (r >= 10) & (r <= 29) & (c >= 10) & (c <= 29)
+    F = np.where(house, 6.0 + 3.0 * (1 - np.abs(r - 19.5) / 10.0), F)
+    garage = (r >= 12) & (r <= 16) & (c >= 30) & (c <= 35)
+    shed = (r >= 34) & (r <= 38) & (c >= 50) & (c <= 54)
+    F = np.where(garage, 3.0, np.where(shed, 2.5, F))
+    V = np.ones_like(F, bool)
+    sh = detect_shapes(F, V, D, D)
+    classes = np.where(F > 1.0, 6.0, 2.0)
+    fps = extract_buildings(F, V, (D, 0.0, 0.0, 0.0, -D, 0.0), D, sh.roof_label, sh.roof_planes,
+                            ground=np.zeros_like(F), classes=classes, min_area=5.0)
+    got = sorted((round(fp.polygon.area, 1), round(fp.height, 1)) for fp in fps)
+    assert len(fps) == 3, got
+    (a_shed, h_shed), (a_garage, h_garage), (a_house, h_house) = got
+    assert abs(a_shed - 6.25) < 2.0 and abs(h_shed - 2.5) < 0.2, got
+    assert abs(a_garage - 7.5) < 2.5 and abs(h_garage - 3.0) < 0.2, got
+    assert abs(a_house - 100.0) < 12.0 and abs(h_house - 8.7) < 0.5, got
+
+
 def test_rasterize_las_writes_ground_and_class_bands(tmp_path: Path) -> None:
     import laspy
     import rasterio

@@ -274,10 +274,12 @@ def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.
     K = len(roof_planes)
     lab = np.where(mask & (roof_label >= 0), roof_label, -1).astype(np.int64)
     # the samples along a ridge or a valley are often on neither plane (their one-sided normals fit
-    # neither): planes are made to meet by giving mask samples next to a plane its label
+    # neither): planes are made to meet by giving mask samples next to a plane its label (not across a
+    # step: a lower roof next to a wall stays apart)
     if K and (lab >= 0).any():
         dist, idx = ndimage.distance_transform_edt(lab < 0, return_indices=True)
-        lab = np.where(mask & (lab < 0) & (dist <= 1.0), lab[tuple(idx)], lab)
+        near_f = F[tuple(idx)]
+        lab = np.where(mask & (lab < 0) & (dist <= 1.0) & (np.abs(near_f - F) <= step), lab[tuple(idx)], lab)
     parent = np.arange(K)
     apart: list[set[int]] = [set() for _ in range(K)]  # per root: the roots it must stay apart from
 
