@@ -342,6 +342,28 @@ def test_low_annex_and_shed_are_buildings_of_their_own() -> None:
     assert abs(a_house - 100.0) < 12.0 and abs(h_house - 8.7) < 0.5, got
 
 
+def test_lower_back_half_joins_its_house() -> None:
+    """A gable house (rows 10..29, cols 10..29, eaves 6 m, ridge 9 m) with a flat back half 3.5 m high along
+    its whole south side (rows 30..37): the roof split cuts it off at the 2.5 m step, and as it shares a third
+    of its outline with the house it is joined back (one building, as a cadastre counts it). With
+    ``annex_share=0`` the two stay apart; so they did before the annex rule."""
+    r, c = np.mgrid[0:48, 0:40].astype(float)
+    F = np.zeros_like(r)
+    house = (r >= 10) & (r <= 29) & (c >= 10) & (c <= 29)
+    F = np.where(house, 6.0 + 3.0 * (1 - np.abs(r - 19.5) / 10.0), F)
+    back = (r >= 30) & (r <= 37) & (c >= 10) & (c <= 29)
+    F = np.where(back, 3.5, F)
+    V = np.ones_like(F, bool)
+    sh = detect_shapes(F, V, D, D)
+    args = (F, V, (D, 0.0, 0.0, 0.0, -D, 0.0), D, sh.roof_label, sh.roof_planes)
+    kw = {"ground": np.zeros_like(F), "classes": np.where(F > 1.0, 6.0, 2.0)}
+    one = extract_buildings(*args, **kw)
+    assert len(one) == 1, [round(fp.polygon.area) for fp in one]
+    assert abs(one[0].polygon.area - 140.0) < 12.0 and abs(one[0].height - 8.7) < 0.5
+    two = extract_buildings(*args, **kw, annex_share=0.0)
+    assert sorted(round(fp.polygon.area) for fp in two) == pytest.approx([40, 100], abs=8)
+
+
 def test_rasterize_las_writes_ground_and_class_bands(tmp_path: Path) -> None:
     import laspy
     import rasterio

@@ -354,11 +354,55 @@ def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.
     return out.astype(np.int64)
 
 
+def merge_annexes(lab: npt.NDArray[np.int64], F: F64, *, step: float = 1.0, share: float = 0.3,
+                  rounds: int = 3) -> npt.NDArray[np.int64]:
+    """Join each building (``lab`` > 0) whose roof (90th percentile of ``F``) is more than ``step`` m below a
+    neighbour's and which shares at least ``share`` of its outline with it to that neighbour: a lower back
+    half, an annex or a porch belongs to the house it leans against (as a cadastral building does), where
+    the roof split cut it off at the step. The neighbour with the longest shared border wins; ``rounds``
+    passes follow chains (an annex of an annex). Returns the new labels (0 stays 0)."""
+    from scipy import ndimage
+
+    for _ in range(rounds):
+        uniq, inv = np.unique(lab, return_inverse=True)
+        lab = (inv.reshape(lab.shape) + (0 if uniq[0] == 0 else 1)).astype(np.int64)
+        n = int(lab.max())
+        if n < 2:
+            break
+        top = np.concatenate([[0.0], np.asarray(ndimage.labeled_comprehension(
+            F, lab, np.arange(1, n + 1), lambda a: np.percentile(a, 90), float, 0.0))])
+        outline = np.zeros(n + 1)
+        keys = []
+        for a_sl, b_sl in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
+                           ((slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
+            la, lb = lab[a_sl], lab[b_sl]
+            sel = la != lb
+            outline += np.bincount(la[sel], minlength=n + 1) + np.bincount(lb[sel], minlength=n + 1)
+            sel &= (la > 0) & (lb > 0)
+            keys += [la[sel] * (n + 1) + lb[sel], lb[sel] * (n + 1) + la[sel]]
+        if not keys:
+            break
+        uk, cnt = np.unique(np.concatenate(keys), return_counts=True)
+        x, y = uk // (n + 1), uk % (n + 1)
+        ok = (top[y] > top[x] + step) & (cnt >= share * outline[x])
+        target = np.arange(n + 1)
+        order = np.argsort(-cnt[ok], kind="stable")
+        for xi, yi in zip(x[ok][order], y[ok][order], strict=True):
+            if target[xi] == xi:
+                target[xi] = yi
+        if (target == np.arange(n + 1)).all():
+            break
+        for _ in range(8):
+            target = target[target]
+        lab = target[lab]
+    return lab
+
+
 def extract_buildings(F: F64, V: npt.NDArray[np.bool_], transform: tuple[float, ...], spacing: float,
                       roof_label: npt.NDArray[np.int32] | None = None, roof_planes: F64 | None = None, *,
                       min_height: float = 2.0, min_area: float = 12.0, min_planar: float = 0.5,
-                      ground: F64 | None = None, classes: F64 | None = None, core: npt.NDArray[np.bool_] | None = None
-                      ) -> list[Footprint]:
+                      ground: F64 | None = None, classes: F64 | None = None, core: npt.NDArray[np.bool_] | None = None,
+                      annex_share: float = 0.3, annex_step: float = 1.0) -> list[Footprint]:
     """Buildings standing ``min_height`` above the ground: footprints, heights, roof planes.
 
     The building samples are those classified as buildings (``classes`` == 6, the ASPRS class, where the
@@ -366,7 +410,9 @@ def extract_buildings(F: F64, V: npt.NDArray[np.bool_], transform: tuple[float, 
     connected part (tree crowns are rough and fail it; a tree touching a building is cut off by keeping only
     the planar samples, opened by one sample). They are cut into buildings along their roofs
     (:func:`split_roofs`: ridges join, valleys and steps separate, so terraced houses come apart); a
-    building under ``min_area`` m² joins the neighbour it shares the longest border with. Footprints are
+    building under ``min_area`` m² joins the neighbour it shares the longest border with, and a part more
+    than ``annex_step`` m lower than a neighbour sharing ``annex_share`` of its outline joins it
+    (:func:`merge_annexes`; 0 turns it off). Footprints are
     polygonised with rasterio (``rasterio.features.shapes``) and simplified by ¾ of the spacing (shapely).
     The height is the 90th percentile of the DSM over the footprint above the 10th percentile of the
     ground (3dfier's LoD1 defaults). ``ground`` defaults to a grey-scale opening of the DSM
@@ -432,6 +478,8 @@ def extract_buildings(F: F64, V: npt.NDArray[np.bool_], transform: tuple[float, 
         for _ in range(4):  # chains of small parts
             target = target[target]
         lab = target[lab]
+    if annex_share > 0:
+        lab = merge_annexes(lab, F, step=annex_step, share=annex_share)
     aff = Affine(*transform)
     objs = ndimage.find_objects(lab)
     counts = np.bincount(lab.reshape(-1), minlength=len(objs) + 1)
