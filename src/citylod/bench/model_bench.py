@@ -367,7 +367,46 @@ def reference_heights_from_points(truth: list[tuple[str, object, float | None]],
     return out
 
 
-def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool = False) -> dict[str, Any]:
+def plot_delft(tif: str, truth: list[tuple[str, Any, float | None]], derived: list[tuple[str, Any, float | None]],
+               per: list[dict[str, Any]], path: str) -> None:
+    """The DSM around the reference buildings in grey, their footprints in cyan with each one's IoU and
+    reference / derived height, the derived footprints in red (matplotlib, Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import rasterio
+
+    with rasterio.open(tif) as ds:
+        dsm, b = ds.read(1), ds.bounds
+    dsm = np.where(dsm < -1000, np.nan, dsm)
+    score = {p["id"]: p for p in per}
+    x0 = min(g.bounds[0] for _, g, _ in truth) - 5
+    y0 = min(g.bounds[1] for _, g, _ in truth) - 5
+    x1 = max(g.bounds[2] for _, g, _ in truth) + 5
+    y1 = max(g.bounds[3] for _, g, _ in truth) + 5
+    fig, ax = plt.subplots(figsize=(16, 16 * (y1 - y0) / (x1 - x0)))
+    ax.imshow(dsm, extent=(b.left, b.right, b.bottom, b.top), cmap="gray", vmin=-1, vmax=16, interpolation="nearest")
+    for _, g, _ in derived:
+        for poly in getattr(g, "geoms", [g]):
+            ax.plot(*poly.exterior.xy, "-", color="tab:red", lw=1.0)
+    for k, g, _ in truth:
+        for poly in getattr(g, "geoms", [g]):
+            ax.plot(*poly.exterior.xy, "-", color="c", lw=1.2)
+        if k in score:
+            sc = score[k]
+            dh = "–" if sc["derived_height"] is None else f"{sc['derived_height']:.1f}"
+            ax.text(g.centroid.x, g.centroid.y, f"{sc['iou']:.2f}\n{sc['height']:.1f}/{dh}", fontsize=5,
+                    ha="center", va="center", color="yellow")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_title("Delft: reference footprints (cyan; IoU, reference/derived height in m) and derived ones (red)")
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+
+
+def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool = False,
+          plot: str | None = None) -> dict[str, Any]:
     """Rasterise the two AHN3 tiles at ``spacing``, build the model, and compare the derived buildings with
     ``testarea.city.json`` (:func:`footprint_scores`: the asked per-building IoU and heights, and the
     block-wise IoU as a second measure). Two further, labelled, diagnostics of the heights: the reference
@@ -394,6 +433,8 @@ def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool =
     a, _, c, _, e, f = info.transform
     extent = box(c, f + e * info.height, c + a * info.width, f).buffer(-2.0)
     res = footprint_scores(truth, derived, extent)
+    if plot:
+        plot_delft(str(tif), truth, derived, res["per_building"], plot)
     res.update(triangles=rep.triangles, samples=rep.samples, seconds=rep.seconds)
     # diagnostics of the heights, under the reference footprints
     import rasterio
@@ -483,8 +524,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--max-error", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--share", type=float, default=0.9, help="share of a segment's points within 0.5 m to keep it")
-    ap.add_argument("--plot", help="PNG: the constrained mesh beside pymeshlab's at the same triangle count")
-    ap.add_argument("--work", help="folder for temporary files (default: the system's)")
+    ap.add_argument("--plot", help="PNG: the constrained mesh beside pymeshlab's at the same triangle count (with "
+                    "--delft: the derived footprints over the reference ones)")
+    ap.add_argument("--work", help="folder for temporary files (default: the system's; --delft keeps its raster "
+                    "and model there)")
     ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
     ap.add_argument("--memory-cell", type=int,
                     help="instead: build the model of the sample DSM with cells of this many samples in this process "
@@ -511,7 +554,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     if a.delft:
         with tempfile.TemporaryDirectory() as tmp:
-            res = delft(a.delft, a.work or tmp, progress=True)
+            res = delft(a.delft, a.work or tmp, progress=True, plot=a.plot)
         res.pop("per_building")
         print(res)
         return
