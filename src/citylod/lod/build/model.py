@@ -293,7 +293,7 @@ def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.
         rr, cc = np.mgrid[0:H, 0:W]
         n = roof_planes
         cos_par = math.cos(math.radians(parallel_deg))
-        keys, tots, joins, seps = [], [], [], []
+        keys, joins, seps = [], [], []
         for a_sl, b_sl in (((slice(None), slice(0, W - 1)), (slice(None), slice(1, W))),
                            ((slice(0, H - 1), slice(None)), (slice(1, H), slice(None)))):
             la, lb = lab[a_sl], lab[b_sl]
