@@ -764,7 +764,7 @@ def _cell_buildings(src: Any, r0: int, c0: int, cell: int, dx: float, dy: float,
     Fd = F
     if classes is not None:
         # a raster from points (it has their classes): the highest point per cell is noisy, so its roofs are
-        # found on the 3×3 median with looser thresholds (Delft AHN3: median IoU 0.18 → 0.28, see
+        # found on the 3×3 median with looser thresholds (measured on Delft AHN3, see
         # docs/PERFORMANCE_LOG.md)
         from dataclasses import replace
 
