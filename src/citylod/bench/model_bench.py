@@ -368,9 +368,11 @@ def reference_heights_from_points(truth: list[tuple[str, object, float | None]],
 
 
 def plot_delft(tif: str, truth: list[tuple[str, Any, float | None]], derived: list[tuple[str, Any, float | None]],
-               per: list[dict[str, Any]], path: str) -> None:
-    """The DSM around the reference buildings in grey, their footprints in cyan with each one's IoU and
-    reference / derived height, the derived footprints in red (matplotlib, Agg)."""
+               per: list[dict[str, Any]], path: str, ceiling: dict[str, float] | None = None) -> None:
+    """Left: the DSM around the reference buildings in grey, their footprints in cyan with each one's IoU
+    and reference / derived height, the derived footprints in red. Right: derived against reference heights
+    coloured by IoU, and ``ceiling`` (id → height from the points in the reference footprint) as crosses
+    (matplotlib, Agg)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -385,7 +387,27 @@ def plot_delft(tif: str, truth: list[tuple[str, Any, float | None]], derived: li
     y0 = min(g.bounds[1] for _, g, _ in truth) - 5
     x1 = max(g.bounds[2] for _, g, _ in truth) + 5
     y1 = max(g.bounds[3] for _, g, _ in truth) + 5
-    fig, ax = plt.subplots(figsize=(16, 16 * (y1 - y0) / (x1 - x0)))
+    fig, (ax, hx) = plt.subplots(1, 2, figsize=(23, 16 * (y1 - y0) / (x1 - x0)),
+                                 gridspec_kw={"width_ratios": [16, 7]})
+    ref_h = np.array([p["height"] for p in per], float)
+    der_h = np.array([np.nan if p["derived_height"] is None else p["derived_height"] for p in per], float)
+    iou = np.array([p["iou"] for p in per], float)
+    sc = hx.scatter(ref_h, der_h, c=iou, cmap="viridis", vmin=0, vmax=1, s=18)
+    lim = [0, float(np.nanmax(np.concatenate([ref_h, der_h]))) + 1]
+    hx.plot(lim, lim, "k-", lw=0.8)
+    hx.fill_between(lim, [v - 1 for v in lim], [v + 1 for v in lim], color="0.85", zorder=0)
+    if ceiling:
+        ch = np.array([ceiling.get(p["id"], np.nan) for p in per], float)
+        hx.scatter(ref_h, ch, marker="x", color="tab:red", s=14, lw=0.8,
+                   label="class-6 points' 90th percentile in the reference footprint")
+        hx.legend(loc="upper left", fontsize=8)
+    hx.set_xlim(lim)
+    hx.set_ylim(lim)
+    hx.set_aspect("equal")
+    hx.set_xlabel("reference measuredHeight (m)")
+    hx.set_ylabel("derived height of the best-overlapping footprint (m)")
+    hx.set_title("heights (grey: within 1 m; colour: IoU)")
+    fig.colorbar(sc, ax=hx, shrink=0.5, label="IoU")
     ax.imshow(dsm, extent=(b.left, b.right, b.bottom, b.top), cmap="gray", vmin=-1, vmax=16, interpolation="nearest")
     for _, g, _ in derived:
         for poly in getattr(g, "geoms", [g]):
@@ -433,8 +455,6 @@ def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool =
     a, _, c, _, e, f = info.transform
     extent = box(c, f + e * info.height, c + a * info.width, f).buffer(-2.0)
     res = footprint_scores(truth, derived, extent)
-    if plot:
-        plot_delft(str(tif), truth, derived, res["per_building"], plot)
     res.update(triangles=rep.triangles, samples=rep.samples, seconds=rep.seconds)
     # diagnostics of the heights, under the reference footprints
     import rasterio
@@ -456,6 +476,8 @@ def delft(data_dir: str, out_dir: str, *, spacing: float = 0.5, progress: bool =
         ok_pts.append(k in pts and abs(pts[k] - h) <= 1.0)
     res["heights_within_1m_points_in_reference_footprints"] = float(np.mean(ok_pts)) if ok_pts else float("nan")
     res["heights_within_1m_dsm_in_reference_footprints"] = float(np.mean(ok_dsm)) if ok_dsm else float("nan")
+    if plot:
+        plot_delft(str(tif), truth, derived, res["per_building"], plot, ceiling=pts)
     return res
 
 
