@@ -364,6 +364,26 @@ def test_lower_back_half_joins_its_house() -> None:
     assert sorted(round(fp.polygon.area) for fp in two) == pytest.approx([40, 100], abs=8)
 
 
+def test_tree_over_a_roof_with_point_classes() -> None:
+    """A flat house 8 m high (rows 10..29, cols 10..29) and a tree crown of radius 4 m, 12 m high, whose
+    centre stands just outside its north-east corner, with the classes a LAZ gives (6 roof, 1 crown, 2
+    ground): one building, no larger than the house, its height the roof's and not the crown's."""
+    r, c = np.mgrid[0:48, 0:48].astype(float)
+    house = (r >= 10) & (r <= 29) & (c >= 10) & (c <= 29)
+    F = np.where(house, 8.0, 0.0)
+    crown = np.hypot((r - 8) * D, (c - 31) * D) < 4.0
+    cap = 12.0 - 4.0 * (np.hypot((r - 8) * D, (c - 31) * D) / 4.0) ** 2
+    F = np.where(crown, np.maximum(F, cap), F)
+    classes = np.where(crown & (cap >= F - 1e-9), 1.0, np.where(house, 6.0, 2.0))
+    V = np.ones_like(F, bool)
+    sh = detect_shapes(F, V, D, D)
+    fps = extract_buildings(F, V, (D, 0.0, 0.0, 0.0, -D, 0.0), D, sh.roof_label, sh.roof_planes,
+                            ground=np.zeros_like(F), classes=classes)
+    assert len(fps) == 1, [round(fp.polygon.area) for fp in fps]
+    assert 80.0 <= fps[0].polygon.area <= 100.0 + 2.0
+    assert abs(fps[0].height - 8.0) < 0.2
+
+
 def test_rasterize_las_writes_ground_and_class_bands(tmp_path: Path) -> None:
     import laspy
     import rasterio
