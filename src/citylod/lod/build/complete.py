@@ -105,6 +105,10 @@ class CompleteOptions:
         Jitter of the added points (reproducible builds).
     wall_density
         Wall points per m² as a fraction of the roof's (1: the roof's spacing, as Gao samples them).
+    sink_m
+        Wall quads reach this far below the terrain outside them: the terrain is a mean over cells, the
+        ground's points are sparse, and a quad ending at the mean leaves a seam at the wall's foot where
+        the ground lies a little lower (below ground, the ground's points hide the rest).
     eave_m
         Walls from the roof edge stand this far inside the roof's outermost returns: the eaves' overhang
         (the roof overhangs the wall; 0: at the roof edge, as Gao places them).
@@ -125,6 +129,7 @@ class CompleteOptions:
     footprints: str | None = None
     eave_m: float = 0.0
     wall_density: float = 1.0
+    sink_m: float = 0.3
 
     def __post_init__(self) -> None:
         if self.walls not in WALL_MODES:
@@ -492,6 +497,8 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
         shifts.append((dy, dx, ys, xs, yd, xd, mask & ~nb_mask))
     near_fp = np.zeros(mask.shape, bool)
     fp_edges = None
+    if footprints and not isinstance(footprints, FootprintOutline):
+        footprints = footprint_outline(footprints, c)
     if footprints:
         boundary = np.logical_or.reduce([s_[-1] for s_ in shifts])
         fp_edges, near_fp = footprint_edges(footprints, grid, dtm, roof, opts, where=boundary)
@@ -505,6 +512,8 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
         outer = edge & ~near_fp
         step = np.zeros_like(mask)
         step[yd, xd] = mask[yd, xd] & mask[ys, xs] & (roof[yd, xd] - roof[ys, xs] > opts.step_m)
+        if fp_edges is not None:
+            _drop_overhanging_steps(step, dy, dx, grid, footprints)
         for sel in (outer, step):
             cy, cx = np.nonzero(sel)
             if len(cy) == 0:
@@ -551,6 +560,29 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
     return _Edges(x0, y0, x1, y1, nx, ny, bottom, top, cols[8][keep] > 0)
 
 
+def _drop_overhanging_steps(step: npt.NDArray[np.bool_], dy: int, dx: int, grid: CellGrid,
+                            outline: FootprintOutline) -> None:
+    """Clear the roof steps (``step`` cells and their neighbours ``(dy, dx)`` away) of which a cell lies
+    under the eaves of a footprint: outside its outline but within its reach. There the step between two
+    roofs is the roof's overhang over the street, not a wall: a step wall there would stand in front of
+    the facade on the footprint. Steps wholly inside the footprints (a higher house beside a lower one)
+    and far from any footprint (buildings the file lacks) stay."""
+    import shapely
+
+    if outline.union is None:
+        return
+    sy, sx = np.nonzero(step)
+    if len(sy) == 0:
+        return
+    c = grid.cell
+    bad = np.zeros(len(sy), bool)
+    for oy, ox in ((0, 0), (dy, dx)):
+        x = grid.lo[0] + (sx + ox + 0.5) * c
+        y = grid.lo[1] + (sy + oy + 0.5) * c
+        bad |= ~shapely.contains_xy(outline.union, x, y) & shapely.contains_xy(outline.grown, x, y)
+    step[sy[bad], sx[bad]] = False
+
+
 @dataclass(frozen=True)
 class FootprintOutline:
     """The outline of the union of building footprints, cut into pieces of at most one ``cell`` (``p0`` to
@@ -564,6 +596,7 @@ class FootprintOutline:
     grown: Any
     cell: float
     reach_m: float
+    union: Any = None
 
 
 def footprint_outline(footprints: Sequence[Any], cell: float, reach_m: float = 1.5) -> FootprintOutline:
@@ -582,7 +615,7 @@ def footprint_outline(footprints: Sequence[Any], cell: float, reach_m: float = 1
             ys.append(q[1:])
     if not xs:
         z = np.zeros((0, 2))
-        return FootprintOutline(z, z, z, union.buffer(reach_m), float(cell), float(reach_m))
+        return FootprintOutline(z, z, z, union.buffer(reach_m), float(cell), float(reach_m), union)
     a, b = np.concatenate(xs), np.concatenate(ys)
     seg = b - a
     length = np.hypot(seg[:, 0], seg[:, 1])
@@ -596,7 +629,8 @@ def footprint_outline(footprints: Sequence[Any], cell: float, reach_m: float = 1
     p1 = a[e] + t1[:, None] * seg[e]
     d = seg[e] / length[e][:, None]
     n = np.column_stack([d[:, 1], -d[:, 0]])  # right of the direction: outwards
-    return FootprintOutline(p0, p1, n, union.buffer(reach_m), float(cell), float(reach_m))
+    shapely.prepare(union)
+    return FootprintOutline(p0, p1, n, union.buffer(reach_m), float(cell), float(reach_m), union)
 
 
 def start_footprint_outline(opts: CompleteOptions) -> Future[FootprintOutline] | None:
@@ -655,6 +689,15 @@ def footprint_edges(footprints: Sequence[Any] | FootprintOutline, grid: CellGrid
     ri, rj, rin = cell_of(mid - 0.25 * c * n)
     oi, oj, oin = cell_of(mid + 0.5 * c * n)
     top = np.where(rin, roof[ri, rj], np.nan)
+    # Where the cell just inside has no roof (a gutter or a dark roof edge returned nothing, the building
+    # mask stops short of the footprint), the roof further in, up to ``reach_m``: else the wall would have
+    # a gap there, though the roof is scanned.
+    for k in range(1, int(reach_m / c) + 1):
+        gap = ~np.isfinite(top)
+        if not gap.any():
+            break
+        gi, gj, gin = cell_of(mid[gap] - (0.25 + k) * c * n[gap])
+        top[gap] = np.where(gin, roof[gi, gj], np.nan)
     bottom = dtm[oi, oj]
     keep = oin & np.isfinite(top) & (top - bottom >= opts.min_wall_m)
     iy, ix = np.nonzero(np.ones(grid.shape, bool) if where is None else where)
@@ -690,8 +733,9 @@ def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator
     return np.column_stack([x, y, z]), nrm, kind
 
 
-def _wall_quads(edges: _Edges) -> tuple[F64, F32]:
-    """One quad per edge, corners counter-clockwise seen from outside (along the normal)."""
+def _wall_quads(edges: _Edges, sink_m: float = 0.0) -> tuple[F64, F32]:
+    """One quad per edge, corners counter-clockwise seen from outside (along the normal); outer walls
+    (not roof steps) reach ``sink_m`` below their bottom."""
     p0 = np.column_stack([edges.x0, edges.y0])
     p1 = np.column_stack([edges.x1, edges.y1])
     # Seen from outside, counter-clockwise runs bottom-left, bottom-right, top-right, top-left with
@@ -701,8 +745,9 @@ def _wall_quads(edges: _Edges) -> tuple[F64, F32]:
     a = np.where(flip[:, None], p1, p0)
     b = np.where(flip[:, None], p0, p1)
     q = np.empty((len(a), 4, 3))
-    q[:, 0, :2], q[:, 0, 2] = a, edges.bottom
-    q[:, 1, :2], q[:, 1, 2] = b, edges.bottom
+    bottom = edges.bottom - np.where(edges.step, 0.0, sink_m)
+    q[:, 0, :2], q[:, 0, 2] = a, bottom
+    q[:, 1, :2], q[:, 1, 2] = b, bottom
     q[:, 2, :2], q[:, 2, 2] = b, edges.top
     q[:, 3, :2], q[:, 3, 2] = a, edges.top
     nrm = np.column_stack([edges.nx, edges.ny, np.zeros(len(a))]).astype(np.float32)
@@ -783,7 +828,7 @@ def _quads_of(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Compl
               ) -> tuple[F64, F32, float, list[Any] | None]:
     """The wall quads and normals, the seconds they took, and their tiles when written to ``tiles_dir``."""
     t0 = time.perf_counter()
-    quads, qn = _wall_quads(wall_edges(grid, dtm, mask, opts, footprints))
+    quads, qn = _wall_quads(wall_edges(grid, dtm, mask, opts, footprints), opts.sink_m)
     tiles = None
     if tiles_dir is not None:
         walls = _empty()
