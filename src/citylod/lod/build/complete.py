@@ -624,7 +624,7 @@ def _regularise(x0: F64, y0: F64, x1: F64, y1: F64, nx: F64, ny: F64, radius: fl
     length = np.hypot(x1 - x0, y1 - y0)
     facing = np.abs(nx * (y1 - y0) - ny * (x1 - x0)) / np.maximum(length, 1e-12)
     mid = np.column_stack([mx, my])
-    _, idx = cKDTree(mid).query(mid, k=min(len(mid), 24), distance_upper_bound=radius)
+    _, idx = cKDTree(mid).query(mid, k=min(len(mid), 16), distance_upper_bound=radius)
     idx = idx.reshape(len(mid), -1)
     ok = idx < len(mid)
     j = np.where(ok, idx, 0)
