@@ -456,3 +456,82 @@ def test_delft_walls_on_the_bgt_footprints() -> None:
     dd = shapely.distance(outline, pts) * np.where(shapely.contains(union, pts), -1.0, 1.0)
     near = np.abs(dd) < 1.5
     assert 0.1 <= np.median(dd[near]) <= 0.5
+
+
+# ------------------------------------------------------------------- a house of two heights, wide eaves
+EAVES = 0.8  # the roof overhangs the footprint by this much
+LOW_Z, HIGH_Z = 6.0, 10.0
+
+
+def _two_level_scene(path: Path) -> None:
+    """Ground at z = 0 and the house of :func:`scene` with its roof at LOW_Z for u < 0 and HIGH_Z for
+    u >= 0 (a 4 m step across the middle, down to the eaves), ≈ 11 points/m²."""
+    rng = np.random.default_rng(3)
+    g = rng.uniform(0, 40, (40 * 40 * 11, 2))
+    ground = g[~np.all(np.abs(_to_house(g)) <= HALF, axis=1)]
+    uv = rng.uniform(-HALF, HALF, (int(4 * HALF.prod() * 11), 2))
+    roof = np.column_stack([_from_house(uv), np.where(uv[:, 0] < 0, LOW_Z, HIGH_Z)])
+    xyz = np.concatenate([np.column_stack([ground, np.zeros(len(ground))]), roof])
+    _write(path, xyz, np.concatenate([np.full(len(ground), 2), np.full(len(roof), 6)]))
+
+
+def _outside(xy: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """How far points lie outside the house-frame rectangle ±half (0 inside)."""
+    uv = np.abs(_to_house(xy))
+    return np.hypot(np.maximum(uv[:, 0] - half[0], 0), np.maximum(uv[:, 1] - half[1], 0))
+
+
+def test_footprints_keep_roof_steps_out_of_the_eaves(tmp_path: Path) -> None:
+    """The step between the two roofs runs on to the roof's edge, over the eaves; with footprints the
+    step's wall stops at the footprint (within the half cell a cell edge reaches past its centre), where
+    the facade is: beyond it, it would stand in front of the facade."""
+    path, fp = tmp_path / "two.las", tmp_path / "pand.sqlite"
+    _two_level_scene(path)
+    inner = HALF - EAVES
+    _write_footprints(fp, inner)
+    for walls in ("points", "quads"):
+        aug = augment([path], CompleteOptions(walls=walls, footprints=str(fp)))
+        if walls == "points":
+            step = aug.xyz[aug.kind == KIND_STEP, :2] - [X0, Y0]
+        else:
+            q = aug.quads - [X0, Y0, 0]
+            is_step = q[:, 0, 2] > 1.0  # a step's quad stands on the lower roof; outer walls on the ground
+            step = q[is_step][:, :, :2].reshape(-1, 2)
+        assert len(step) > 0
+        # At most half a cell diagonal (0.35 m) past the footprint; the eaves reach 0.8 m past it.
+        assert _outside(step, inner).max() <= 0.36
+        # ... and the step still spans the house, facade to facade.
+        v = _to_house(step)[:, 1]
+        assert v.min() <= -inner[1] + 0.5 and v.max() >= inner[1] - 0.5
+
+
+def test_footprint_walls_where_the_roof_stops_short_of_the_footprint(tmp_path: Path) -> None:
+    """A footprint reaching 0.6 m past the scanned roof on one side (the roof's edge returned nothing
+    there): that side's wall takes its height from the roof further in instead of being left out."""
+    path, fp = tmp_path / "scene.las", tmp_path / "pand.sqlite"
+    scene(path)
+    wide = HALF + np.array([0.6, 0.0])
+    _write_footprints(fp, wide)
+    aug = augment([path], CompleteOptions(footprints=str(fp)))
+    w = aug.xyz[aug.kind == KIND_WALL] - [X0, Y0, 0]
+    uv = _to_house(w[:, :2])
+    side = np.abs(uv[:, 0] - wide[0]) <= 0.01  # on the footprint's side at u = +wide
+    assert side.sum() > 100
+    # Along that side (v in ±HALF[1]), every 0.5 m has wall points, up to the roof.
+    bins = np.histogram(uv[side, 1], bins=16, range=(-HALF[1], HALF[1]))[0]
+    assert np.all(bins > 0)
+    assert np.allclose(w[side, 2].max(), ROOF_Z, atol=0.3)
+
+
+def test_wall_quads_reach_below_the_terrain_steps_do_not(tmp_path: Path) -> None:
+    path, fp = tmp_path / "two.las", tmp_path / "pand.sqlite"
+    _two_level_scene(path)
+    _write_footprints(fp, HALF - EAVES)
+    for sink in (0.3, 0.0):
+        aug = augment([path], CompleteOptions(walls="quads", footprints=str(fp), sink_m=sink))
+        bottom = aug.quads[:, 0, 2]
+        outer = bottom < 1.0
+        assert outer.any() and (~outer).any()
+        assert np.allclose(bottom[outer], -sink, atol=0.02)  # flat ground at 0
+        # Steps end on the lower roof (a cell astride the step has a roof between the two), not below it.
+        assert bottom[~outer].min() >= LOW_Z - 0.05 and abs(np.median(bottom[~outer]) - LOW_Z) <= 0.05
