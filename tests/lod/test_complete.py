@@ -261,6 +261,33 @@ def test_cli_complete(cloud: tuple[Path, np.ndarray], tmp_path: Path, capsys: py
     assert "complete" in text and "0 ground points" in text
 
 
+def test_cli_eaves_moves_the_walls(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    """``--eaves M``: the walls of the built tileset (its synthetic points above the ground) stand M further
+    in than with ``--eaves 0`` (this house has no eaves: 0 puts them on its outline)."""
+    from citylod.cli import main
+
+    path, _ = cloud
+    med = {}
+    for eaves in ("0", "0.5"):
+        out = tmp_path / f"ts{eaves}"
+        assert main(["build", "points", str(path), "-o", str(out), "--crs", "EPSG:28992", "--workers", "0",
+                     "--complete", "--no-ground-fill", "--eaves", eaves]) == 0
+        xyz = []
+        stack = [open_tileset(out).root]
+        while stack:
+            t = stack.pop()
+            stack.extend(t.children)
+            if t.children or t.content_uri is None:
+                continue
+            p = t.load_content().points
+            syn = p.extra.get("synthetic", np.zeros(len(p.positions), np.uint8)) > 0
+            xyz.append(p.positions[syn].astype(np.float64) + t.matrix[:3, 3])
+        walls = np.concatenate(xyz) - [X0, Y0, 0]
+        walls = walls[walls[:, 2] > 0.5]
+        med[eaves] = float(np.median(_signed_distance(walls[:, :2])))
+    assert abs(med["0"]) <= 0.15 and abs((med["0"] - med["0.5"]) - 0.5) <= 0.06
+
+
 def test_degrees_are_not_completed(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
     # The same file read as degrees: a 0.5-"unit" grid would be half a degree; nothing is added, and
     # the warning says why.
