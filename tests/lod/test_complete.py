@@ -562,3 +562,23 @@ def test_wall_quads_reach_below_the_terrain_steps_do_not(tmp_path: Path) -> None
         assert np.allclose(bottom[outer], -sink, atol=0.02)  # flat ground at 0
         # Steps end on the lower roof (a cell astride the step has a roof between the two), not below it.
         assert bottom[~outer].min() >= LOW_Z - 0.05 and abs(np.median(bottom[~outer]) - LOW_Z) <= 0.05
+
+
+def test_roof_edge_quads_leave_no_slits(cloud: tuple[Path, np.ndarray]) -> None:
+    """Along each face of the house (corners apart), the roof-edge wall quads that face it cover at least
+    88 % of its length (seen along the face's normal: the union of the quads' extents along the face).
+    Regularised parts that reached only their own part of the wall left 18-26 % open."""
+    path, _ = cloud
+    aug = augment([path], CompleteOptions(walls="quads", eave_m=0.0))
+    q = aug.quads[:, [0, 1], :2] - [X0, Y0]
+    uv = np.stack([_to_house(q[:, 0]), _to_house(q[:, 1])], axis=1)
+    c, s = math.cos(ANGLE), math.sin(ANGLE)
+    nrm = aug.quad_normals[:, :2]
+    nuv = np.column_stack([c * nrm[:, 0] + s * nrm[:, 1], -s * nrm[:, 0] + c * nrm[:, 1]])
+    for axis, sign in ((0, 1), (0, -1), (1, 1), (1, -1)):
+        face = (nuv[:, axis] * sign > math.cos(math.radians(20))) & (
+            np.abs(uv.mean(axis=1)[:, axis] - sign * HALF[axis]) < 0.7)
+        lo, hi = np.sort(uv[face][:, :, 1 - axis], axis=1).T
+        along = np.linspace(-HALF[1 - axis] + 0.75, HALF[1 - axis] - 0.75, 2000)
+        covered = np.any((along[:, None] >= lo[None]) & (along[:, None] <= hi[None]), axis=1)
+        assert covered.mean() >= 0.88, (axis, sign, covered.mean())
