@@ -15,14 +15,16 @@ does the same on a 2D cell grid:
    with no ground return get ground points at the density of the real ground;
 3. *walls* — building cells (class 6, small gaps closed, specks dropped) are labelled; every edge between
    a building cell and a non-building cell is a wall from the roof height of that cell down to the
-   terrain outside, placed at the outermost roof return of the cell (walls stand under the eaves, not
+   terrain outside, placed at the outermost roof return of the cell, then moved onto the mean line of the
+   boundary around it (:func:`_regularise`) and ``eave_m`` inwards (walls stand under the eaves, not
    beyond them), and every edge between two building cells whose roof heights differ by more than
    ``step_m`` is a wall between the two roofs. Wall normals are the boundary direction, taken from the
    gradient of the smoothed building mask (Gao: normal from the boundary, not from the sparse returns).
    Walls become points at the roof's point spacing, or quads (one per edge; both of Gao's variants).
    With building footprints (``CompleteOptions.footprints``, e.g. the BGT) the outer walls stand on the
    footprints' outline instead (:func:`footprint_edges`): the roof's returns overhang the wall by the
-   eaves, which the scan alone cannot tell from wall.
+   eaves, which the scan alone cannot tell from wall; steps between roofs stop at the footprints
+   (:func:`_drop_overhanging_steps`).
 
 The in-memory point build decodes its input once and completes the decoded records
 (:func:`complete_records`); the out-of-core build scans the files in a pre-pass (:func:`complete_inputs`).
