@@ -258,7 +258,11 @@ def test_cli_complete(cloud: tuple[Path, np.ndarray], tmp_path: Path, capsys: py
                "--complete", "--no-ground-fill"])
     assert rc == 0
     text = capsys.readouterr().out
-    assert "complete" in text and "0 ground points" in text
+    assert "complete" in text and "0 ground points" in text and "roof points" not in text
+    # --roof-fill: the cells of the roof the random sampling left empty get roof points.
+    assert main(["build", "points", str(path), "-o", str(tmp_path / "ts2"), "--crs", "EPSG:28992", "--workers",
+                 "0", "--complete", "--no-ground-fill", "--roof-fill"]) == 0
+    assert "roof points in gaps" in capsys.readouterr().out
 
 
 def test_cli_eaves_moves_the_walls(cloud: tuple[Path, np.ndarray], tmp_path: Path) -> None:
@@ -582,3 +586,35 @@ def test_roof_edge_quads_leave_no_slits(cloud: tuple[Path, np.ndarray]) -> None:
         along = np.linspace(-HALF[1 - axis] + 0.75, HALF[1 - axis] - 0.75, 2000)
         covered = np.any((along[:, None] >= lo[None]) & (along[:, None] <= hi[None]), axis=1)
         assert covered.mean() >= 0.88, (axis, sign, covered.mean())
+
+
+def test_roof_fill_closes_a_dark_patch_on_the_roof(tmp_path: Path) -> None:
+    """A 2 m × 2 m patch of the flat roof returned nothing (a skylight): with ``roof_fill`` roof points fill
+    it at the roof's height and about its density, flagged KIND_ROOF (class 6); without, none."""
+    from citylod.lod.build.complete import KIND_ROOF
+
+    pts = scene(tmp_path / "full.las")
+    uv = _to_house(pts[:, :2])
+    patch = (np.abs(uv[:, 0] - 2.0) <= 1.0) & (np.abs(uv[:, 1]) <= 1.0) & (pts[:, 3] == 6)
+    path = tmp_path / "dark.las"
+    _write(path, pts[~patch, :3], pts[~patch, 3])
+    assert not np.any(augment([path]).kind == KIND_ROOF)
+    aug = augment([path], CompleteOptions(roof_fill=True))
+    roof = aug.kind == KIND_ROOF
+    r = aug.xyz[roof] - [X0, Y0, 0]
+    assert np.all(aug.classification[roof] == 6) and aug.counts["roof"] == int(roof.sum())
+    ruv = _to_house(r[:, :2])
+    # On the roof (within a cell diagonal of the house: the few cells the random sampling left empty get
+    # points too, as the patch does) ...
+    assert np.all(_outside(r[:, :2], HALF) <= 0.71) and np.allclose(r[:, 2], ROOF_Z, atol=0.02)
+    # ... covering the patch: every 0.25 m of it has a point within 0.5 m ...
+    g = np.stack(np.meshgrid(np.linspace(1.0, 3.0, 9), np.linspace(-1.0, 1.0, 9)), axis=-1).reshape(-1, 2)
+    from scipy.spatial import cKDTree
+
+    assert cKDTree(ruv).query(g)[0].max() <= 0.5
+    # ... at about the roof's density (11 points/m²) over the cells the patch empties: 4 m² to (2 + 1)² m².
+    inside = (np.abs(ruv[:, 0] - 2.0) <= 1.5) & (np.abs(ruv[:, 1]) <= 1.5)
+    assert 4.0 * 11 * 0.7 <= inside.sum() <= 9.0 * 11 * 1.3
+    # Nothing else changed: the same walls as without.
+    plain = augment([path])
+    assert np.array_equal(plain.xyz[plain.kind == KIND_WALL], aug.xyz[aug.kind == KIND_WALL])

@@ -69,7 +69,7 @@ GROUND, BUILDING, WATER, UNCLASSIFIED = 2, 6, 9, 1
 VEGETATION = (3, 4, 5)
 
 #: What an added point is, in :attr:`Augmentation.kind`.
-KIND_GROUND, KIND_WALL, KIND_STEP = 1, 2, 3
+KIND_GROUND, KIND_WALL, KIND_STEP, KIND_ROOF = 1, 2, 3, 4
 
 WALL_MODES = ("points", "quads", "none")
 
@@ -98,6 +98,10 @@ class CompleteOptions:
         "points" (wall points at the roof spacing), "quads" (one quad per boundary edge) or "none".
     ground
         Add ground points under canopy.
+    roof_fill
+        Add roof points in the building cells with no return (dark or glass roofs, which the building mask
+        closes), on the roof interpolated from the returns around them (pull-push, as the terrain), at the
+        roof's density (Gao's gap up-sampling, ch. 5). Off by default.
     cell_m
         Grid cell: about twice the point spacing (0.5 m for AHN3's 10-20 points/m²).
     min_wall_m
@@ -134,6 +138,7 @@ class CompleteOptions:
 
     walls: str = "points"
     ground: bool = True
+    roof_fill: bool = False
     cell_m: float = 0.5
     min_wall_m: float = 1.0
     step_m: float = 2.5
@@ -234,8 +239,9 @@ class Augmentation:
     @property
     def counts(self) -> dict[str, int]:
         self.wait_walls()
-        return {"ground": int(np.sum(self.kind == KIND_GROUND)), "wall": int(np.sum(self.kind >= KIND_WALL)),
-                "quads": len(self.quads)}
+        return {"ground": int(np.sum(self.kind == KIND_GROUND)),
+                "wall": int(np.sum((self.kind == KIND_WALL) | (self.kind == KIND_STEP))),
+                "roof": int(np.sum(self.kind == KIND_ROOF)), "quads": len(self.quads)}
 
     def summary(self) -> str:
         if self.skipped:
@@ -243,7 +249,8 @@ class Augmentation:
         c = self.counts  # waits for the walls
         return (f"complete   {c['ground']:,} ground points under canopy ({self.ground_spacing_m:.2f} m), "
                 f"{c['wall']:,} wall points ({self.wall_spacing_m:.2f} m), {c['quads']:,} wall quads, "
-                f"{sum(self.seconds.values()):.2f} s")
+                + (f"{c['roof']:,} roof points in gaps, " if c["roof"] else "")
+                + f"{sum(self.seconds.values()):.2f} s")
 
 
 def _empty(skipped: str | None = None) -> Augmentation:
@@ -346,13 +353,17 @@ def terrain(grid: CellGrid) -> F64:
     cells. Written here rather than ``scipy.interpolate.griddata`` over the cells bordering the gaps:
     qhull is slow on grid-aligned, co-circular points (docs/PERFORMANCE_LOG.md).
     """
-    from scipy import ndimage
-
     gn = grid.planes[_G_N]
     has = gn > 0
     if not has.any():
         return np.zeros(grid.shape)
-    z = np.where(has, grid.planes[_G_Z] / np.maximum(gn, 1.0), 0.0)
+    return _pull_push(np.where(has, grid.planes[_G_Z] / np.maximum(gn, 1.0), 0.0), has)
+
+
+def _pull_push(z: F64, has: npt.NDArray[np.bool_]) -> F64:
+    """``z`` where ``has``, the gaps filled by pull-push (see :func:`terrain`); ``has`` not all False."""
+    from scipy import ndimage
+
     if has.all():
         return z
     # Pull: weights and weighted sums, 2×2 at a time.
@@ -430,6 +441,26 @@ def _ground_fill(grid: CellGrid, dtm: F64, building: npt.NDArray[np.bool_], opts
     nrm = np.column_stack([nxv, nyv, np.ones_like(x)])
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     return np.column_stack([x, y, z]), nrm.astype(np.float32), spacing
+
+
+def _roof_fill(grid: CellGrid, mask: npt.NDArray[np.bool_], rng: np.random.Generator) -> tuple[F64, F32]:
+    """Roof points in the building cells without a return: (M, 3) positions on the roof interpolated by
+    pull-push from the cells with returns, at their median count per cell, and (M, 3) normals of that
+    surface."""
+    bn = grid.planes[_B_N]
+    has = bn > 0
+    gaps = mask & ~has
+    if not gaps.any() or not has.any():
+        return np.zeros((0, 3)), np.zeros((0, 3), np.float32)
+    roof = _pull_push(np.where(has, grid.planes[_B_Z] / np.maximum(bn, 1.0), 0.0), has)
+    per_cell = max(1, int(round(float(np.median(bn[has])))))
+    fy, fx = np.nonzero(gaps)
+    x, y = _jittered(fy, fx, per_cell, grid, rng)
+    z = _bilinear(roof, grid, x, y)
+    gy, gx = np.gradient(roof, grid.cell)
+    nrm = np.column_stack([-_bilinear(gx, grid, x, y), -_bilinear(gy, grid, x, y), np.ones_like(x)])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return np.column_stack([x, y, z]), nrm.astype(np.float32)
 
 
 # ----------------------------------------------------------------------------------------------- walls
@@ -876,6 +907,9 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions(), *,
                 pending = pool.submit(_quads_of, grid, dtm, mask, opts, footprints, tiles_dir)
             else:
                 quads, qn, *_ = _quads_of(grid, dtm, mask, opts, footprints)
+        if opts.roof_fill and mask.any():
+            rxyz, rn = _roof_fill(grid, mask, rng)
+            pieces.append((rxyz, rn, np.full(len(rxyz), KIND_ROOF, np.uint8), BUILDING))
         mean_int = grid.class_intensity / np.maximum(grid.class_n, 1.0)
         if pieces:
             xyz = np.concatenate([pc[0] for pc in pieces])
@@ -1085,6 +1119,7 @@ def write_wall_tiles(out_dir: str | PathLike[str], aug: Augmentation, block_m: f
 
 __all__ = [
     "KIND_GROUND",
+    "KIND_ROOF",
     "KIND_STEP",
     "KIND_WALL",
     "MAX_CELLS",
