@@ -9,7 +9,10 @@ The measure of issue #25, on Delft (AHN3 points + the CityJSON model made from t
   ``tol_m`` of the model's depth along the ray, which multiplies a wall's offset by 1/cos of the viewing
   angle). The headline share counts the wall pixels no tree hides that stand below the scanned roof
   (the model is LOD1: its walls rise to one height per building, above the eaves of pitched roofs, where
-  the scan shows roof; :class:`RoofGrid`); the share of all wall pixels no tree hides is reported too;
+  the scan shows roof; :class:`RoofGrid`); the share of all wall pixels no tree hides is reported too, and,
+  as a second measure beside the issue's, the share of the wall pixels below the eaves that no building
+  return of the plain build hides either (eaves, porches, ridges the LOD1 model lacks:
+  :attr:`CoverageFrame.building_front`);
 * **wall accuracy** — the distance from every added wall point to the model's nearest wall, computed
   on densely sampled wall triangles (``scipy.spatial.cKDTree``; independent of the augmentation);
 * **cost** — build times plain and completed, interleaved in one run, and the frame time of each
