@@ -17,7 +17,7 @@ import pytest
 from citylod.io.tiles3d import open_tileset
 from citylod.lod.build.complete import CompleteOptions
 from citylod.lod.build.points import build_points
-from citylod.lod.build.refine import REFINED
+from citylod.lod.build.refine import REFINED, refine_roofs
 from tests.io.test_validator import _validate, validator  # noqa: F401 - the fixture
 from tests.lod.test_complete import X0, Y0, _write
 
@@ -135,3 +135,13 @@ def test_without_the_option_nothing_moves(gable: Path, tmp_path: Path) -> None:
     assert rep.refined is None
     _, syn, _ = _leaves(out)
     assert not np.any(syn == REFINED)
+
+
+def test_compiled_passes_match_the_numpy_formulation(gable: Path) -> None:
+    back = laspy.read(str(gable))
+    m = np.asarray(back.classification) == 6
+    xyz = np.column_stack([back.x[m], back.y[m], back.z[m]])
+    a, na = refine_roofs(xyz, compiled=True)
+    b, nb = refine_roofs(xyz, compiled=False)
+    assert np.abs(a - b).max() < 1e-9 and np.abs(na - nb).max() < 1e-9
+    assert np.abs(a - xyz).max() > 0.01  # it did move them

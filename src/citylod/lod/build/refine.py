@@ -87,10 +87,11 @@ def pca_normals(xyz: F64, j: npt.NDArray[np.int64], ok: npt.NDArray[np.bool_]) -
 
 
 def refine_roofs(xyz: F64, labels: npt.NDArray[np.integer] | None = None,
-                 opts: RefineOptions = RefineOptions()) -> tuple[F64, F64]:
+                 opts: RefineOptions = RefineOptions(), *, compiled: bool = True) -> tuple[F64, F64]:
     """Refined positions (N, 3) and smoothed unit normals (N, 3) of roof points ``xyz`` (one building's, or
     many with ``labels`` naming each point's building: each building is refined as if alone). See the
-    module docstring."""
+    module docstring. ``compiled``: the passes as numba kernels (:mod:`citylod.lod.kernels.bilateral`, ≈ 2×
+    faster on Delft); False: the numpy formulation below, the reference they are tested against."""
     p = np.asarray(xyz, np.float64)
     if labels is not None:
         lab = np.asarray(labels)
@@ -98,7 +99,7 @@ def refine_roofs(xyz: F64, labels: npt.NDArray[np.integer] | None = None,
         order = np.argsort(lab, kind="stable")
         cuts = np.flatnonzero(np.diff(lab[order])) + 1
         for part in np.split(order, cuts):
-            out[part], nrm[part] = refine_roofs(p[part], None, opts)
+            out[part], nrm[part] = refine_roofs(p[part], None, opts, compiled=compiled)
         return out, nrm
     if len(p) < 3:
         return p.copy(), np.tile([0.0, 0.0, 1.0], (len(p), 1))
@@ -106,6 +107,15 @@ def refine_roofs(xyz: F64, labels: npt.NDArray[np.integer] | None = None,
     p = p - origin  # large map coordinates: keep the covariances well conditioned
     j, ok, d = _neighbours(p, opts.k, opts.radius_m)
     w_s = np.where(ok, np.exp(-0.5 * (d / opts.sigma_s_m) ** 2), 0.0)
+    if compiled:
+        from citylod.lod.kernels.bilateral import bilateral, covariances
+
+        _, vecs = np.linalg.eigh(covariances(p, j, ok))
+        n = vecs[:, :, 0]
+        n = np.ascontiguousarray(n * np.where(n[:, 2] < 0, -1.0, 1.0)[:, None])
+        q, n = bilateral(p, n, j, w_s, float(opts.sigma_n), int(opts.normal_passes), int(opts.position_passes),
+                         float(opts.max_move_m))
+        return q + origin, n
     n = pca_normals(p, j, ok)
     for _ in range(opts.normal_passes):
         agree = 1.0 - np.einsum("ni,nki->nk", n, n[j])
