@@ -145,3 +145,28 @@ def test_compiled_passes_match_the_numpy_formulation(gable: Path) -> None:
     b, nb = refine_roofs(xyz, compiled=False)
     assert np.abs(a - b).max() < 1e-9 and np.abs(na - nb).max() < 1e-9
     assert np.abs(a - xyz).max() > 0.01  # it did move them
+
+
+def test_refine_roofs_on_dask_writes_what_the_local_build_writes(gable: Path, tmp_path: Path) -> None:
+    distributed = pytest.importorskip("distributed")
+    small = {"max_chunk_points": 3_000, "complete": CompleteOptions(), "refine_roofs": True}
+    a = build_points([gable], tmp_path / "local", crs="EPSG:28992", progress=False, workers=0, **small)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://",
+                                  host="127.0.0.1", dashboard_address=None) as cluster:
+        b = build_points([gable], tmp_path / "dask", crs="EPSG:28992", scheduler=cluster.scheduler_address,
+                         progress=False, **small)
+    assert b.chunks > 1 and a.refined == b.refined
+    assert (tmp_path / "local/tileset.json").read_text() == (tmp_path / "dask/tileset.json").read_text()
+    _check(tmp_path / "dask", gable)
+
+
+def test_unclassified_input_warns_and_moves_nothing(tmp_path: Path) -> None:
+    from tests.lod.test_complete import scene
+
+    path = tmp_path / "raw.las"
+    scene(path, classified=False)
+    with pytest.warns(UserWarning, match="no building-class"):
+        rep = build_points([path], tmp_path / "ts", crs="EPSG:28992", progress=False, refine_roofs=True)
+    assert rep.refined == 0
+    _, syn, _ = _leaves(tmp_path / "ts")
+    assert not np.any(syn == REFINED)

@@ -42,8 +42,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pt.add_argument("--roof-fill", action="store_true",
                     help="with --complete: also roof points where the roof returned nothing (dark, glass)")
     pt.add_argument("--refine-roofs", action="store_true",
-                    help="smooth the roofs' range noise per building, ridges kept (bilateral, Gao ch. 5); the "
-                         "moved points replace their originals in the tileset, flagged synthetic = 2")
+                    help="smooth the range noise of the building-class (6) roofs per building, ridges kept "
+                         "(bilateral, Gao ch. 5); the moved points replace their originals in the tileset, "
+                         "flagged synthetic = 2; unclassified input is left as it is")
     pt.add_argument("--workers", type=int)
     pt.add_argument("--scheduler")
     m = bsub.add_parser("model", help="DSM raster to a simplified city mesh (3D Tiles) and buildings (CityJSON)")

@@ -921,6 +921,9 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         **({} if refine is None else {"refined_roof_points": stats.refined})}})
     _finish(partial, out)
     seconds = time.perf_counter() - t_start
+    if refine is not None and stats.refined == 0:
+        warnings.warn(f"{paths[0]}: no building-class (6) points to refine (unclassified input?): roofs left as "
+                      "scanned", stacklevel=2)
     note = missing_vertical_datum(meta.crs)
     if note:
         # The user can know better (--crs EPSG:7415): said once, after the build, where the progress bars do
