@@ -129,8 +129,8 @@ def plot(res: dict[str, object], out: str | os.PathLike[str]) -> None:
             a.axvspan(i - 0.5, i + 0.5, color="#e0e0e0", lw=0)
     ax.set_ylabel("frame time (ms)")
     lo, hi = res["load"]  # type: ignore[misc]
-    ax.set_title(f"Budget mode, off-screen renderer, load average {lo:.1f}–{hi:.1f}; same frame drawn twice "
-                 f"within ±20 %: {100 * res['noise_within']:.0f} % (fixed), "  # type: ignore[operator]
+    ax.set_title(f"Budget mode off screen, load {lo:.1f}–{hi:.1f}; one frame drawn twice within ±20 %: "
+                 f"{100 * res['noise_within']:.0f} % (fixed), "  # type: ignore[operator]
                  f"{100 * res['noise_within_at_target']:.0f} % (budget mode)", fontsize=9)  # type: ignore[operator]
     ax.set_ylim(0, min(max(max(fixed), max(steered), max(old)) * 1.05, 6 * t))  # type: ignore[arg-type]
     ax.legend(fontsize=7, loc="upper right")
