@@ -5,7 +5,7 @@ draws its building geometry, into one off-screen window each.
 (``geometricError`` at its distance, docs/DESIGN.md decision 2) is at most τ is drawn as its terrain quad with
 the field evaluated on the CPU for the direction from the cell's centre to the eye (bilinear between the four
 nearest stored directions, depth-corrected with the cell's building tops,
-:func:`citylod.lod.kernels.slf.evaluate_parallax`; re-evaluated only when that direction moves by more than
+:func:`citylod.lod.kernels.slf.depth_corrected_blend`; re-evaluated only when that direction moves by more than
 ``reeval_deg``). Only the direction patch that holds the four directions is read, on first use. A cell above τ is refined into its children; a finest cell above τ shows
 its buildings (the city tiles the ordinary selection picks at τ, split by object between cells) on the bare
 ground. Around the
@@ -38,10 +38,11 @@ from citylod.io.tiles3d import Tile, open_tileset
 from citylod.lod.build.slf import read_cell_arrays, read_group
 from citylod.lod.kernels.slf import (
     DirectionSet,
+    depth_corrected_blend,
     direction_set,
     evaluate,
-    evaluate_parallax,
     interpolation,
+    march_heights,
     patch_of,
 )
 from citylod.render import _vtk
@@ -140,6 +141,7 @@ class _Cell:
         self.last_alpha = -1.0
         self.colours: U8 | None = None
         self.fields: dict[int, tuple[Any, ...]] = {}
+        self.images: dict[tuple[int, int], tuple[Any, Any]] = {}  # (patch, direction) -> image, ray march
         self.files: tuple[str, str] | None = None  # the field files of the patch last drawn
 
 
@@ -161,7 +163,7 @@ class SlfView:
         more bytes); None: the switching error alone decides.
     depth_correct
         Evaluate cells that store building heights with the depth-corrected lookup
-        (:func:`~citylod.lod.kernels.slf.evaluate_parallax`); False: the plain blend of four directions.
+        (:func:`~citylod.lod.kernels.slf.depth_corrected_blend`); False: the plain blend of four directions.
     """
 
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
@@ -448,8 +450,19 @@ class SlfView:
             cl, q, top, mean, basis, *files = self._field(cell, patch)
             loc = np.searchsorted(sel, idx)  # the blended directions' rows in the patch's lumispheres
             if top is not None and self.depth_correct:
-                cell.colours = evaluate_parallax(cl, q, mean, basis, loc, w, self.ds.dirs[sel], top,
-                                                 cell.size / cl.shape[0], v)
+                texel = cell.size / cl.shape[0]
+                images, seen = [], []
+                for jl in loc:  # a stored direction's image and ray march do not depend on the view: kept
+                    got = cell.images.get((patch, int(jl)))
+                    if got is None:
+                        img = mean[cl, jl] + np.einsum("...k,...kc->...c", q, basis[cl, :, jl])
+                        got = cell.images[(patch, int(jl))] = (
+                            img.astype(np.float32), march_heights(top, texel, self.ds.dirs[sel[jl]]).astype(np.float32))
+                    images.append(got[0])
+                    seen.append(got[1])
+                out = depth_corrected_blend(np.stack(images), loc, w, self.ds.dirs[sel], top, texel, v,
+                                            seen_heights=seen)
+                cell.colours = np.clip(np.rint(out), 0, 255).astype(np.uint8)
             else:
                 cell.colours = evaluate(cl, q, mean, basis, loc, w)
             cell.files = (files[0], files[1])

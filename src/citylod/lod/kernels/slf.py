@@ -274,7 +274,8 @@ def _bilinear(img: F64, rr: F64, cc: F64) -> F64:
 
 
 def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDArray[np.floating],
-                          texel_m: float, v: npt.ArrayLike, tolerance_m: float = 1.0) -> F64:
+                          texel_m: float, v: npt.ArrayLike, tolerance_m: float = 1.0,
+                          seen_heights: list[npt.NDArray[np.floating]] | None = None) -> F64:
     """Blend ``images`` (4, T, T, 3), the field of stored directions ``idx`` with bilinear weights ``w``, for
     the view ``v`` (unit, towards the viewer) with the depth correction of the module's docstring: ``dirs``
     (N, 3) the stored directions, ``top`` (T, T) building-top heights (m), ``texel_m`` the texel size.
@@ -282,7 +283,8 @@ def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDA
     A stored direction whose own ray march meets, at the texel where the viewed point should lie, a surface
     more than ``tolerance_m`` higher or lower, does not see that point (it is hidden there, or the height
     field is too coarse to tell): its weight goes to the directions that do; where none does, the plain
-    weights stay."""
+    weights stay. ``seen_heights``: the ray marches of the stored directions (``march_heights(top, texel_m,
+    dirs[j])`` for each of ``idx``), when the caller keeps them between views."""
     vv = np.asarray(v, np.float64)
     vv = vv / np.linalg.norm(vv)
     h = march_heights(top, texel_m, vv)
@@ -292,13 +294,13 @@ def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDA
     acc = np.zeros((t, t, 3))
     wsum = np.zeros((t, t))
     fallback = np.zeros((t, t, 3))
-    for img, j, wj in zip(images, idx, w, strict=True):
+    for k, (img, j, wj) in enumerate(zip(images, idx, w, strict=True)):
         if wj <= 0.0:
             continue
         shift = a - dirs[j, :2] / max(dirs[j, 2], 1e-6)
         rr, cc = r - h * shift[1] / texel_m, c + h * shift[0] / texel_m
         sample = _bilinear(np.asarray(img, np.float64), rr, cc)
-        hj = march_heights(top, texel_m, dirs[j])
+        hj = march_heights(top, texel_m, dirs[j]) if seen_heights is None else seen_heights[k]
         seen = hj[np.clip(np.rint(rr).astype(np.int64), 0, t - 1), np.clip(np.rint(cc).astype(np.int64), 0, t - 1)]
         ok = (np.abs(seen - h) <= tolerance_m) * wj
         acc += ok[..., None] * sample
