@@ -218,7 +218,7 @@ def _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0
 
 @njit(cache=True, nogil=True)
 def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_faces, cell_err, tr0, tc0, stride,
-                    best, track, floor, reach):  # pragma: no cover - compiled
+                    best, track, floor, reach, evaluate):  # pragma: no cover - compiled
     """Update ``best`` = [bound, row, col] (and ``cell_err`` when ``track``) with the pieces of one block.
 
     Parameters
@@ -240,6 +240,8 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
         Pieces whose bound is at most this are not searched further (their bound is recorded as it is).
     reach : int
         Rings of raster cells searched around a piece for S-side candidates.
+    evaluate : (M,) bool
+        The faces whose pieces are bounded; the others serve as TIN-side candidates only.
     """
     bh, bw = F.shape
     ax_, bx_, ay_, by_ = aff[0], aff[1], aff[2], aff[3]
@@ -268,6 +270,8 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
     ncl = cell_err.shape[0]
     ncc = cell_err.shape[1]
     for t in range(nf):
+        if not evaluate[t]:
+            continue
         a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
         ys0, ys1, ys2 = vr[a], vr[b], vr[c]
         xs0, xs1, xs2 = vc[a], vc[b], vc[c]
@@ -374,7 +378,8 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
                       vc: npt.NDArray[np.float64], vz: npt.NDArray[np.float64], faces: npt.NDArray[np.int64],
                       cells: tuple[int, int], stride: int, affine: tuple[float, float, float, float],
                       block: int = 1024, per_cell: bool = True, floor: float = 0.0,
-                      reach: int = 8) -> tuple[float, np.ndarray, tuple[float, float]]:
+                      reach: int = 8, evaluate: npt.NDArray[np.bool_] | None = None
+                      ) -> tuple[float, np.ndarray, tuple[float, float]]:
     """Certified upper bound of the symmetric Hausdorff distance between a TIN and the raster surface.
 
     Parameters
@@ -399,6 +404,9 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
         not matter.
     reach : int
         Rings of raster cells searched around a piece for a closer part of the raster surface.
+    evaluate : (M,) bool, optional
+        Bound only the pieces of these faces (default: all); every face stays a candidate for the others'
+        S → T search, so each evaluated piece gets the bound it gets in the whole TIN's certificate.
 
     Returns
     -------
@@ -424,6 +432,7 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
     f = np.ascontiguousarray(faces, dtype=np.int64)
     vr, vc, vz = (np.ascontiguousarray(a, dtype=np.float64) for a in (vr, vc, vz))
     start, around = vertex_faces(f, len(vr))
+    ev = np.ones(len(f), np.bool_) if evaluate is None else np.ascontiguousarray(evaluate, dtype=np.bool_)
     aff = np.asarray(affine, np.float64)
     # Each block's cells are evaluated with a margin of ``reach`` samples around them, read with the block,
     # so that the candidate search sees across block seams.
@@ -439,5 +448,5 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
                 continue
             kernel(hausdorff_block, np.ascontiguousarray(heights, np.float64), np.ascontiguousarray(valid, np.bool_),
                    hr, hc, own, aff, vr, vc, vz, f, start, around, cell_err, float(r0), float(c0), float(stride),
-                   best, bool(per_cell), float(floor), int(reach))
+                   best, bool(per_cell), float(floor), int(reach), ev)
     return float(best[0]), cell_err, (float(best[1]), float(best[2]))
