@@ -551,10 +551,11 @@ def build_tile(job: DsmJob) -> TileResult:
         # costs its slope's offset, not its height. That measure is a guide, not a bound: the certificate
         # decides. The coarsest tolerance whose certificate is within _HAUSDORFF_ACCEPT × the target is
         # kept (the issue allows 1.5× per level; a level's count of triangles falls with its tolerance); a
-        # finer one only when it lowers the certificate clearly.
+        # finer one only when it lowers the certificate clearly. Lattice seeds spare the kernel the rescans of
+        # large triangles at about the same triangles (docs/PERFORMANCE_LOG.md).
         kept = None
         for frac in _HAUSDORFF_TOLERANCES:
-            trial = attempt(frac * job.target, None, per_cell=False)
+            trial = attempt(frac * job.target, None, per_cell=False, lattice=True)
             if len(trial[2]) == 0:
                 break
             if kept is not None and trial[0] >= kept[0] * _REFINE_GAIN:
