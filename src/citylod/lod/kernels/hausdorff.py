@@ -92,6 +92,14 @@ def _clip(qy, qx, n, y1, x1, y2, x2, sgn, oy, ox):  # pragma: no cover - compile
     return m
 
 
+@njit(cache=True, nogil=True, inline="always", **NO_NRT)
+def _inner(y, x, y0, x0, y1, x1, y2, x2, sgn):  # pragma: no cover - compiled
+    """Whether point (y, x) is on the inner side of the triangle's three edges, by `_clip`'s own test."""
+    return (sgn * ((y1 - y0) * (x - x0) - (x1 - x0) * (y - y0)) >= -_EPS
+            and sgn * ((y2 - y1) * (x - x1) - (x2 - x1) * (y - y1)) >= -_EPS
+            and sgn * ((y0 - y2) * (x - x2) - (x0 - x2) * (y - y2)) >= -_EPS)
+
+
 @njit(cache=True, nogil=True, **NO_NRT)
 def _piece_bound(pxT, pyT, pzT, pzS, n, vmax, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin,
                  reach, t, faces, fx, fy, fz, ring_start, ring_faces):  # pragma: no cover - compiled
@@ -315,6 +323,12 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
                 z00, z01, z10, z11 = F[li, lj], F[li, lj + 1], F[li + 1, lj], F[li + 1, lj + 1]
                 ci = min(max(int(math.floor((i + 0.5 - tr0) / stride)), 0), ncl - 1)
                 cj = min(max(int(math.floor((j + 0.5 - tc0) / stride)), 0), ncc - 1)
+                # A cell wholly inside the face (its four corners pass `_clip`'s test for all three edges) is its
+                # own two pieces: the clips are skipped, with the same numbers as a result.
+                whole = (_inner(float(i), float(j), ys0, xs0, ys1, xs1, ys2, xs2, sgn)
+                         and _inner(float(i), float(j + 1), ys0, xs0, ys1, xs1, ys2, xs2, sgn)
+                         and _inner(float(i + 1), float(j), ys0, xs0, ys1, xs1, ys2, xs2, sgn)
+                         and _inner(float(i + 1), float(j + 1), ys0, xs0, ys1, xs1, ys2, xs2, sgn))
                 for lower in (True, False):
                     # the cell triangle: lower (i,j),(i+1,j),(i+1,j+1); upper (i,j),(i,j+1),(i+1,j+1)
                     qy[0], qx[0] = float(i), float(j)
@@ -324,11 +338,16 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
                         qy[1], qx[1] = float(i), float(j + 1)
                     qy[2], qx[2] = float(i + 1), float(j + 1)
                     n = 3
-                    n = _clip(qy, qx, n, ys0, xs0, ys1, xs1, sgn, wy, wx)
-                    if n >= 3:
-                        n = _clip(wy, wx, n, ys1, xs1, ys2, xs2, sgn, qy, qx)
-                    if n >= 3:
-                        n = _clip(qy, qx, n, ys2, xs2, ys0, xs0, sgn, wy, wx)
+                    if whole:
+                        # every corner is on the inner side of every edge: each clip returns its input
+                        for k in range(3):
+                            wy[k], wx[k] = qy[k], qx[k]
+                    else:
+                        n = _clip(qy, qx, n, ys0, xs0, ys1, xs1, sgn, wy, wx)
+                        if n >= 3:
+                            n = _clip(wy, wx, n, ys1, xs1, ys2, xs2, sgn, qy, qx)
+                        if n >= 3:
+                            n = _clip(qy, qx, n, ys2, xs2, ys0, xs0, sgn, wy, wx)
                     if n < 3:
                         continue
                     # the piece (wy, wx)[:n]: heights on T and on S, vertical bound
