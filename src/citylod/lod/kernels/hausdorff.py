@@ -424,8 +424,9 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
     reach : int
         Rings of raster cells searched around a piece for a closer part of the raster surface.
     evaluate : (M,) bool, optional
-        Bound only the pieces of these faces (default: all); every face stays a candidate for the others'
-        S → T search, so each evaluated piece gets the bound it gets in the whole TIN's certificate.
+        Bound only the pieces of these faces (default: all); every face stays a candidate for their S → T
+        search, so each evaluated piece is bounded against the same candidates as in the whole TIN's
+        certificate, and the other faces' bounds from an earlier certificate of the same faces still hold.
 
     Returns
     -------
