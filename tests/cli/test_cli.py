@@ -84,3 +84,15 @@ def test_build_city_textured_warns_about_a_missing_image(tmp_path: Path, capsys)
     assert "BLDG_T0001_roof.jpg" in out and "missing" in out
     ts = open_tileset(tmp_path / "c_tiles")
     assert ts.citylod["textured"] and ts.citylod["atlas_px"] == 256
+
+
+def test_python_dash_m_citylod_runs_the_command_line() -> None:
+    import subprocess
+    import sys
+
+    import citylod
+
+    r = subprocess.run([sys.executable, "-m", "citylod", "--version"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"citylod {citylod.__version__}"

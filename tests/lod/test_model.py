@@ -315,6 +315,75 @@ def test_terraced_houses_come_apart_at_valleys_and_steps() -> None:
     assert len(none) == 1
 
 
+def test_low_annex_and_shed_are_buildings_of_their_own() -> None:
+    """A gable house (rows 10..29, cols 10..29: 10 m square, eaves 6 m, ridge 9 m), a flat garage 3 m high
+    touching its east wall (rows 12..16, cols 30..35: 2.5 × 3 m, too small for a roof plane), and a free
+    standing shed 2.5 m high (rows 34..38, cols 50..54: 6.25 m²), all building points (class 6). The garage
+    stands 3 m below the house's eave, so it is not the house's wall or chimney: a building of its own (the
+    code before joined every sample on no plane to the nearest plane's building); the shed is under 12 m²
+    but carries building points, so it is kept."""
+    r, c = np.mgrid[0:48, 0:64].astype(float)
+    F = np.zeros_like(r)
+    house = (r >= 10) & (r <= 29) & (c >= 10) & (c <= 29)
+    F = np.where(house, 6.0 + 3.0 * (1 - np.abs(r - 19.5) / 10.0), F)
+    garage = (r >= 12) & (r <= 16) & (c >= 30) & (c <= 35)
+    shed = (r >= 34) & (r <= 38) & (c >= 50) & (c <= 54)
+    F = np.where(garage, 3.0, np.where(shed, 2.5, F))
+    V = np.ones_like(F, bool)
+    sh = detect_shapes(F, V, D, D)
+    classes = np.where(F > 1.0, 6.0, 2.0)
+    fps = extract_buildings(F, V, (D, 0.0, 0.0, 0.0, -D, 0.0), D, sh.roof_label, sh.roof_planes,
+                            ground=np.zeros_like(F), classes=classes, min_area=5.0)
+    got = sorted((round(fp.polygon.area, 1), round(fp.height, 1)) for fp in fps)
+    assert len(fps) == 3, got
+    (a_shed, h_shed), (a_garage, h_garage), (a_house, h_house) = got
+    assert abs(a_shed - 6.25) < 2.0 and abs(h_shed - 2.5) < 0.2, got
+    assert abs(a_garage - 7.5) < 2.5 and abs(h_garage - 3.0) < 0.2, got
+    assert abs(a_house - 100.0) < 12.0 and abs(h_house - 8.7) < 0.5, got
+
+
+def test_lower_back_half_joins_its_house() -> None:
+    """A gable house (rows 10..29, cols 10..29, eaves 6 m, ridge 9 m) with a flat back half 3.5 m high along
+    its whole south side (rows 30..37): the roof split cuts it off at the 2.5 m step, and as it shares a third
+    of its outline with the house it is joined back (one building, as a cadastre counts it). With
+    ``annex_share=0`` the two stay apart; so they did before the annex rule."""
+    r, c = np.mgrid[0:48, 0:40].astype(float)
+    F = np.zeros_like(r)
+    house = (r >= 10) & (r <= 29) & (c >= 10) & (c <= 29)
+    F = np.where(house, 6.0 + 3.0 * (1 - np.abs(r - 19.5) / 10.0), F)
+    back = (r >= 30) & (r <= 37) & (c >= 10) & (c <= 29)
+    F = np.where(back, 3.5, F)
+    V = np.ones_like(F, bool)
+    sh = detect_shapes(F, V, D, D)
+    args = (F, V, (D, 0.0, 0.0, 0.0, -D, 0.0), D, sh.roof_label, sh.roof_planes)
+    kw = {"ground": np.zeros_like(F), "classes": np.where(F > 1.0, 6.0, 2.0)}
+    one = extract_buildings(*args, **kw)
+    assert len(one) == 1, [round(fp.polygon.area) for fp in one]
+    assert abs(one[0].polygon.area - 140.0) < 12.0 and abs(one[0].height - 8.7) < 0.5
+    two = extract_buildings(*args, **kw, annex_share=0.0)
+    assert sorted(round(fp.polygon.area) for fp in two) == pytest.approx([40, 100], abs=8)
+
+
+def test_tree_over_a_roof_with_point_classes() -> None:
+    """A flat house 8 m high (rows 10..29, cols 10..29) and a tree crown of radius 4 m, 12 m high, whose
+    centre stands just outside its north-east corner, with the classes a LAZ gives (6 roof, 1 crown, 2
+    ground): one building, no larger than the house, its height the roof's and not the crown's."""
+    r, c = np.mgrid[0:48, 0:48].astype(float)
+    house = (r >= 10) & (r <= 29) & (c >= 10) & (c <= 29)
+    F = np.where(house, 8.0, 0.0)
+    crown = np.hypot((r - 8) * D, (c - 31) * D) < 4.0
+    cap = 12.0 - 4.0 * (np.hypot((r - 8) * D, (c - 31) * D) / 4.0) ** 2
+    F = np.where(crown, np.maximum(F, cap), F)
+    classes = np.where(crown & (cap >= F - 1e-9), 1.0, np.where(house, 6.0, 2.0))
+    V = np.ones_like(F, bool)
+    sh = detect_shapes(F, V, D, D)
+    fps = extract_buildings(F, V, (D, 0.0, 0.0, 0.0, -D, 0.0), D, sh.roof_label, sh.roof_planes,
+                            ground=np.zeros_like(F), classes=classes)
+    assert len(fps) == 1, [round(fp.polygon.area) for fp in fps]
+    assert 80.0 <= fps[0].polygon.area <= 100.0 + 2.0
+    assert abs(fps[0].height - 8.0) < 0.2
+
+
 def test_rasterize_las_writes_ground_and_class_bands(tmp_path: Path) -> None:
     import laspy
     import rasterio

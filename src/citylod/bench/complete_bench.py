@@ -9,7 +9,10 @@ The measure of issue #25, on Delft (AHN3 points + the CityJSON model made from t
   ``tol_m`` of the model's depth along the ray, which multiplies a wall's offset by 1/cos of the viewing
   angle). The headline share counts the wall pixels no tree hides that stand below the scanned roof
   (the model is LOD1: its walls rise to one height per building, above the eaves of pitched roofs, where
-  the scan shows roof; :class:`RoofGrid`); the share of all wall pixels no tree hides is reported too;
+  the scan shows roof; :class:`RoofGrid`); the share of all wall pixels no tree hides is reported too, and,
+  as a second measure beside the issue's, the share of the wall pixels below the eaves that no building
+  return of the plain build hides either (eaves, porches, ridges the LOD1 model lacks:
+  :attr:`CoverageFrame.building_front`);
 * **wall accuracy** — the distance from every added wall point to the model's nearest wall, computed
   on densely sampled wall triangles (``scipy.spatial.cKDTree``; independent of the augmentation);
 * **cost** — build times plain and completed, interleaved in one run, and the frame time of each
@@ -163,11 +166,19 @@ class CoverageFrame:
     cannot be covered, and the tree is right), ``covered`` (the LiDAR surface lies within the tolerance of
     the wall point *along the ray*), ``covered_plane`` (within the tolerance of the wall's plane, along the
     wall's normal), ``eave`` (wall pixels no tree hides that stand below the scanned roof there, see
-    :class:`RoofGrid`), ``eave_covered``, ``eave_covered_plane`` (the two criteria on those)."""
+    :class:`RoofGrid`), ``eave_covered``, ``eave_covered_plane`` (the two criteria on those); with
+    ``hidden`` masks given to :func:`wall_coverage`, also ``eave_open`` (those of the eave pixels the
+    scanned buildings do not hide) and ``eave_open_covered``.
+
+    ``building_front``: the wall pixels where a building return (class 6) of this render lies more than
+    the tolerance in front of the wall along the ray. Of the *plain* build (input points only) this is
+    where the scan saw a building part the model lacks in front of the wall (eaves, balconies, porches,
+    ridges above the LOD1 block): the ``hidden`` masks for the other variants."""
 
     counts: dict[str, int]
     draw_s: float
     rgb: npt.NDArray[np.uint8]
+    building_front: npt.NDArray[np.bool_] | None = None
 
     def share(self, key: str = "eave_covered_plane", of: str = "eave") -> float:
         """``key`` pixels over ``of`` pixels (``of="visible"``: wall pixels no tree hides)."""
@@ -227,17 +238,20 @@ class RoofGrid:
 
 def wall_coverage(tileset: str | PathLike[str], mesh: ModelMesh, cameras: Sequence[Camera], *,
                   size: tuple[int, int] = (960, 540), tol_m: float = 0.5, tau_px: float = 1.0,
-                  point_size_px: float = 2.0, repeats: int = 3, roofs: RoofGrid | None = None
-                  ) -> list[CoverageFrame]:
+                  point_size_px: float = 2.0, repeats: int = 3, roofs: RoofGrid | None = None,
+                  hidden: Sequence[npt.NDArray[np.bool_] | None] | None = None) -> list[CoverageFrame]:
     """Render ``tileset`` (as a user sees it: view-dependent selection at ``tau_px``) and the model from
     each camera; count wall pixels and those the LiDAR covers within ``tol_m`` (:class:`CoverageFrame`).
 
     Points are coloured by class (unlit, so a pixel's colour is its point's class): a wall pixel whose
     LiDAR surface lies in front of the wall, farther than ``tol_m`` from its plane, in the colour of
-    vegetation (class 1, where AHN puts trees, or 3-5) is counted as hidden by a tree."""
+    vegetation (class 1, where AHN puts trees, or 3-5) is counted as hidden by a tree. ``hidden``: one
+    mask per camera of the pixels to count apart as hidden by scanned buildings (the plain build's
+    :attr:`CoverageFrame.building_front`)."""
     from citylod.render.colors import classification_rgb
 
     veg = classification_rgb(np.array([1, 3, 4, 5])).astype(np.int16)
+    bldg = classification_rgb(np.array([6])).astype(np.int16)[0]
     out = []
     with OffscreenRenderer([tileset], size=size, tau_px=tau_px, point_size_px=point_size_px,
                            color_by="classification") as r:
@@ -246,7 +260,7 @@ def wall_coverage(tileset: str | PathLike[str], mesh: ModelMesh, cameras: Sequen
         wall_n = _mesh_actor(mesh.walls, origin, normal_colors=True)
         for a in (walls, others, wall_n):
             r.renderer.AddActor(a)
-        for cam in cameras:
+        for ci, cam in enumerate(cameras):
             r.prepare(cam)
             r.draw()
             draw_s = statistics.median(r.draw() for _ in range(repeats))
@@ -270,13 +284,16 @@ def wall_coverage(tileset: str | PathLike[str], mesh: ModelMesh, cameras: Sequen
             for a, v in shown:
                 a.SetVisibility(v)
             is_veg = np.any(np.all(rgb[:, :, None, :].astype(np.int16) == veg[None, None], axis=-1), axis=-1)
-            out.append(_frame(cam, lidar, d_all, d_wall, normals, is_veg, draw_s, rgb, tol_m, roofs))
+            is_bldg = np.all(rgb.astype(np.int16) == bldg, axis=-1)
+            out.append(_frame(cam, lidar, d_all, d_wall, normals, is_veg, draw_s, rgb, tol_m, roofs,
+                              hidden[ci] if hidden is not None else None, is_bldg))
     return out
 
 
 def pixel_classes(cam: Camera, lidar: npt.NDArray[np.float32], d_all: npt.NDArray[np.float32],
                   d_wall: npt.NDArray[np.float32], normals: F64, is_veg: npt.NDArray[np.bool_], tol_m: float,
-                  roofs: RoofGrid | None) -> dict[str, npt.NDArray[np.bool_]]:
+                  roofs: RoofGrid | None, hidden: npt.NDArray[np.bool_] | None = None,
+                  is_bldg: npt.NDArray[np.bool_] | None = None) -> dict[str, npt.NDArray[np.bool_]]:
     """The pixel masks behind :class:`CoverageFrame`'s counts (same keys), plus ``gap`` (LiDAR depth minus
     the model's, along the ray) and ``plane`` (distance of the LiDAR surface from the wall's plane:
     ``|gap · (ray · n)|``).
@@ -285,7 +302,11 @@ def pixel_classes(cam: Camera, lidar: npt.NDArray[np.float32], d_all: npt.NDArra
     cosine between the ray and the wall's normal: from 30-45° down and 45° aside that is 1.6-2.0 ``d``,
     and it grows without bound at grazing angles, so the depth criterion judges the viewing angle as much
     as the wall; the plane criterion measures where the LiDAR's surface is (what the 0.5 m bound on the
-    wall points measures too). Both are reported."""
+    wall points measures too). Both are reported.
+
+    ``is_bldg`` (pixels whose LiDAR colour is the building class) gives ``building_front``: wall pixels
+    with a building return more than ``tol_m`` in front along the ray; ``hidden`` (such a mask of the
+    plain build) gives ``eave_open`` and ``eave_open_covered`` (see :class:`CoverageFrame`)."""
     from citylod.render.depth import points_from_distance, world_rays
 
     h, w = d_all.shape
@@ -309,14 +330,22 @@ def pixel_classes(cam: Camera, lidar: npt.NDArray[np.float32], d_all: npt.NDArra
     m["eave"] = eave
     m["eave_covered"] = eave & m["covered"]
     m["eave_covered_plane"] = eave & m["covered_plane"]
+    if is_bldg is not None:
+        m["building_front"] = wall & (gap < -tol_m) & is_bldg
+    if hidden is not None:
+        m["eave_open"] = eave & ~hidden
+        m["eave_open_covered"] = m["eave_open"] & m["covered"]
     return m
 
 
 def _frame(cam: Camera, lidar: npt.NDArray[np.float32], d_all: npt.NDArray[np.float32],
            d_wall: npt.NDArray[np.float32], normals: F64, is_veg: npt.NDArray[np.bool_], draw_s: float,
-           rgb: npt.NDArray[np.uint8], tol_m: float, roofs: RoofGrid | None) -> CoverageFrame:
-    m = pixel_classes(cam, lidar, d_all, d_wall, normals, is_veg, tol_m, roofs)
-    return CoverageFrame({k: int(v.sum()) for k, v in m.items() if v.dtype == bool}, draw_s, rgb)
+           rgb: npt.NDArray[np.uint8], tol_m: float, roofs: RoofGrid | None,
+           hidden: npt.NDArray[np.bool_] | None = None, is_bldg: npt.NDArray[np.bool_] | None = None
+           ) -> CoverageFrame:
+    m = pixel_classes(cam, lidar, d_all, d_wall, normals, is_veg, tol_m, roofs, hidden, is_bldg)
+    return CoverageFrame({k: int(v.sum()) for k, v in m.items() if v.dtype == bool}, draw_s, rgb,
+                         m.get("building_front"))
 
 
 def _grab_depth(window: Any, renderer: Any, size: tuple[int, int]) -> npt.NDArray[np.float32]:
@@ -475,7 +504,10 @@ def _totals(frames: Sequence[CoverageFrame]) -> dict[str, Any]:
 
     ``coverage`` is the headline (covered within the tolerance of the wall's plane, over the wall pixels
     below the scanned eaves that no tree hides); ``coverage_ray`` the same with the depth along the ray;
-    ``coverage_visible[_ray]`` over every wall pixel no tree hides, LOD1 walls above the eaves included."""
+    ``coverage_visible[_ray]`` over every wall pixel no tree hides, LOD1 walls above the eaves included;
+    ``coverage_open_ray`` (a second measure, not the issue's) the ray criterion over the wall pixels below
+    the eaves that neither a tree nor a scanned building part in front of the wall hides (the plain build's
+    :attr:`CoverageFrame.building_front`: eaves, balconies, porches, ridges the LOD1 model lacks)."""
     c = {k: sum(f.counts[k] for f in frames) for k in frames[0].counts}
 
     def ratio(a: int, b: int) -> float | None:
@@ -489,6 +521,7 @@ def _totals(frames: Sequence[CoverageFrame]) -> dict[str, Any]:
         "coverage_visible": ratio(c["covered_plane"], vis),
         "coverage_visible_ray": ratio(c["covered"], vis),
         "coverage_all_ray": ratio(c["covered"], c["wall"]),
+        "coverage_open_ray": ratio(c["eave_open_covered"], c["eave_open"]) if "eave_open" in c else None,
         "coverage_per_camera": [f.share() for f in frames],
         "draw_s_median": statistics.median(f.draw_s for f in frames),
     }
@@ -526,8 +559,12 @@ def run(data_dir: Path, out_dir: Path, *, repeats: int = 3, size: tuple[int, int
     cams = oblique_cameras(blo, bhi, ground_z=float(np.percentile(mesh.walls[..., 2], 5)))
     result: dict[str, Any] = {"cameras": [c.to_dict() for c in cams], "size": list(size), "variants": {}}
     roofs = RoofGrid.from_las(files)
-    for name in variants:
-        frames = wall_coverage(work / name, mesh, cams, size=size, roofs=roofs)
+    hidden = None
+    for name in variants:  # "plain" first: its building returns in front of the walls are the ``hidden`` masks
+        frames = wall_coverage(work / name, mesh, cams, size=size, roofs=roofs, hidden=hidden)
+        if hidden is None:
+            hidden = [f.building_front for f in frames]
+            frames = wall_coverage(work / name, mesh, cams, size=size, roofs=roofs, hidden=hidden)
         result["variants"][name] = {
             **_totals(frames), "build_s_median": statistics.median(times[name]), "build_s": times[name],
             "summary": reports[name].summary(),
@@ -614,7 +651,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         build = f"build {v['build_s_median']:.2f} s  " if "build_s_median" in v else ""
         print(f"{name:20s} below the eaves: {100 * v['coverage']:.1f} % (plane), {100 * v['coverage_ray']:.1f} % "
               f"(ray); all walls no tree hides: {100 * v['coverage_visible']:.1f} % / "
-              f"{100 * v['coverage_visible_ray']:.1f} %  "
+              f"{100 * v['coverage_visible_ray']:.1f} %; not hidden by scanned buildings "
+              f"{100 * (v['coverage_open_ray'] or float('nan')):.1f} % (ray)  "
               f"{build}frame {1e3 * v['draw_s_median']:.1f} ms{extra}")
     for key in ("wall_points", "wall_points_footprints"):
         w = res[key]

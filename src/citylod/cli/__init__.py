@@ -19,6 +19,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any, TextIO
 
+from citylod._version import __version__
 from citylod.core.errors import CitylodError
 
 #: Subcommand name -> module of this package that defines ``add_parser(sub)`` and ``run(args, progress)``.
@@ -41,6 +42,7 @@ COMMANDS: dict[str, str] = {
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="citylod", description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+    p.add_argument("--version", action="version", version=f"citylod {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in dict.fromkeys(COMMANDS.values()):
         importlib.import_module(f"citylod.cli.{module}").add_parser(sub)

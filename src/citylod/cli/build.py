@@ -36,6 +36,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pt.add_argument("--no-ground-fill", action="store_true", help="with --complete: walls only")
     pt.add_argument("--footprints", type=Path, help="with --complete: building footprints (GeoPackage or OGR "
                     "SQLite, the points' CRS); outer walls stand on their outlines, not under the roof edge")
+    pt.add_argument("--eaves", type=float, default=0.25, metavar="M",
+                    help="with --complete: walls from the roof edge stand this far inside it, under the eaves "
+                         "(default 0.25; 0 for roofs without overhang)")
+    pt.add_argument("--roof-fill", action="store_true",
+                    help="with --complete: also roof points where the roof returned nothing (dark, glass)")
     pt.add_argument("--workers", type=int)
     pt.add_argument("--scheduler")
     m = bsub.add_parser("model", help="DSM raster to a simplified city mesh (3D Tiles) and buildings (CityJSON)")
@@ -110,7 +115,8 @@ def run(args: argparse.Namespace, progress: bool) -> int:
             read_footprints(args.footprints)  # a bad file is refused before the build starts
         complete = (None if args.complete is None
                     else CompleteOptions(walls=args.complete, ground=not args.no_ground_fill,
-                                         footprints=None if args.footprints is None else str(args.footprints)))
+                                         footprints=None if args.footprints is None else str(args.footprints),
+                                         eave_m=args.eaves, roof_fill=args.roof_fill))
         report = build_points(
             args.files, args.output, crs=args.crs, hybrid=not args.no_hybrid, workers=args.workers,
             scheduler=args.scheduler, progress=progress, complete=complete,

@@ -15,14 +15,16 @@ does the same on a 2D cell grid:
    with no ground return get ground points at the density of the real ground;
 3. *walls* — building cells (class 6, small gaps closed, specks dropped) are labelled; every edge between
    a building cell and a non-building cell is a wall from the roof height of that cell down to the
-   terrain outside, placed at the outermost roof return of the cell (walls stand under the eaves, not
+   terrain outside, placed at the outermost roof return of the cell, then moved onto the mean line of the
+   boundary around it (:func:`_regularise`) and ``eave_m`` inwards (walls stand under the eaves, not
    beyond them), and every edge between two building cells whose roof heights differ by more than
    ``step_m`` is a wall between the two roofs. Wall normals are the boundary direction, taken from the
    gradient of the smoothed building mask (Gao: normal from the boundary, not from the sparse returns).
    Walls become points at the roof's point spacing, or quads (one per edge; both of Gao's variants).
    With building footprints (``CompleteOptions.footprints``, e.g. the BGT) the outer walls stand on the
    footprints' outline instead (:func:`footprint_edges`): the roof's returns overhang the wall by the
-   eaves, which the scan alone cannot tell from wall.
+   eaves, which the scan alone cannot tell from wall; steps between roofs stop at the footprints
+   (:func:`_drop_overhanging_steps`).
 
 The in-memory point build decodes its input once and completes the decoded records
 (:func:`complete_records`); the out-of-core build scans the files in a pre-pass (:func:`complete_inputs`).
@@ -67,9 +69,14 @@ GROUND, BUILDING, WATER, UNCLASSIFIED = 2, 6, 9, 1
 VEGETATION = (3, 4, 5)
 
 #: What an added point is, in :attr:`Augmentation.kind`.
-KIND_GROUND, KIND_WALL, KIND_STEP = 1, 2, 3
+KIND_GROUND, KIND_WALL, KIND_STEP, KIND_ROOF = 1, 2, 3, 4
 
 WALL_MODES = ("points", "quads", "none")
+
+#: How far a regularised roof-edge wall quad reaches past its part of the wall at either end (see
+#: :func:`wall_edges`): on Delft the slits between the parts left 15 % of the wall pixels below the eaves
+#: open (ray coverage of roof-edge quads 57.2 %; 0.1 m: 66.7 %, 0.2 m: 68.9 %, docs/PERFORMANCE_LOG.md).
+QUAD_PAD_M = 0.2
 
 #: Most cells a completion grid may have (5.6 GB of accumulators; 12.5 km² at 0.5 m).
 MAX_CELLS = 50_000_000
@@ -91,6 +98,10 @@ class CompleteOptions:
         "points" (wall points at the roof spacing), "quads" (one quad per boundary edge) or "none".
     ground
         Add ground points under canopy.
+    roof_fill
+        Add roof points in the building cells with no return (dark or glass roofs, which the building mask
+        closes), on the roof interpolated from the returns around them (pull-push, as the terrain), at the
+        roof's density (Gao's gap up-sampling, ch. 5). Off by default.
     cell_m
         Grid cell: about twice the point spacing (0.5 m for AHN3's 10-20 points/m²).
     min_wall_m
@@ -105,9 +116,20 @@ class CompleteOptions:
         Jitter of the added points (reproducible builds).
     wall_density
         Wall points per m² as a fraction of the roof's (1: the roof's spacing, as Gao samples them).
+    regularise_m
+        Walls from the roof edge stand on the mean line of the boundary within this radius (see
+        :func:`_regularise`; 0: each at its own cell's outermost return, a staircase on walls at an angle
+        to the grid).
+    sink_m
+        Wall quads reach this far below the terrain outside them: the terrain is a mean over cells, the
+        ground's points are sparse, and a quad ending at the mean leaves a seam at the wall's foot where
+        the ground lies a little lower (below ground, the ground's points hide the rest).
     eave_m
-        Walls from the roof edge stand this far inside the roof's outermost returns: the eaves' overhang
-        (the roof overhangs the wall; 0: at the roof edge, as Gao places them).
+        Walls from the roof edge stand this far inside the roof's outermost returns, along their normal:
+        the eaves' overhang (the roof overhangs the wall; 0: at the roof edge, as Gao places them). The
+        default is a typical overhang of pitched roofs: on Delft, AHN3's building returns overhang the BGT
+        footprints by a median 0.18 m, p75 0.43 m (docs/PERFORMANCE_LOG.md). Flat roofs without eaves get
+        their walls this much too far in.
     footprints
         A GeoPackage / OGR SQLite file of building footprints in the points' CRS (e.g. the BGT): outer
         walls then stand on the footprints' outlines (see :func:`footprint_edges`) instead of under the
@@ -116,6 +138,7 @@ class CompleteOptions:
 
     walls: str = "points"
     ground: bool = True
+    roof_fill: bool = False
     cell_m: float = 0.5
     min_wall_m: float = 1.0
     step_m: float = 2.5
@@ -123,8 +146,10 @@ class CompleteOptions:
     min_building_m2: float = 4.0
     seed: int = 0
     footprints: str | None = None
-    eave_m: float = 0.0
+    eave_m: float = 0.25
     wall_density: float = 1.0
+    sink_m: float = 0.3
+    regularise_m: float = 1.5
 
     def __post_init__(self) -> None:
         if self.walls not in WALL_MODES:
@@ -214,8 +239,9 @@ class Augmentation:
     @property
     def counts(self) -> dict[str, int]:
         self.wait_walls()
-        return {"ground": int(np.sum(self.kind == KIND_GROUND)), "wall": int(np.sum(self.kind >= KIND_WALL)),
-                "quads": len(self.quads)}
+        return {"ground": int(np.sum(self.kind == KIND_GROUND)),
+                "wall": int(np.sum((self.kind == KIND_WALL) | (self.kind == KIND_STEP))),
+                "roof": int(np.sum(self.kind == KIND_ROOF)), "quads": len(self.quads)}
 
     def summary(self) -> str:
         if self.skipped:
@@ -223,7 +249,8 @@ class Augmentation:
         c = self.counts  # waits for the walls
         return (f"complete   {c['ground']:,} ground points under canopy ({self.ground_spacing_m:.2f} m), "
                 f"{c['wall']:,} wall points ({self.wall_spacing_m:.2f} m), {c['quads']:,} wall quads, "
-                f"{sum(self.seconds.values()):.2f} s")
+                + (f"{c['roof']:,} roof points in gaps, " if c["roof"] else "")
+                + f"{sum(self.seconds.values()):.2f} s")
 
 
 def _empty(skipped: str | None = None) -> Augmentation:
@@ -326,13 +353,17 @@ def terrain(grid: CellGrid) -> F64:
     cells. Written here rather than ``scipy.interpolate.griddata`` over the cells bordering the gaps:
     qhull is slow on grid-aligned, co-circular points (docs/PERFORMANCE_LOG.md).
     """
-    from scipy import ndimage
-
     gn = grid.planes[_G_N]
     has = gn > 0
     if not has.any():
         return np.zeros(grid.shape)
-    z = np.where(has, grid.planes[_G_Z] / np.maximum(gn, 1.0), 0.0)
+    return _pull_push(np.where(has, grid.planes[_G_Z] / np.maximum(gn, 1.0), 0.0), has)
+
+
+def _pull_push(z: F64, has: npt.NDArray[np.bool_]) -> F64:
+    """``z`` where ``has``, the gaps filled by pull-push (see :func:`terrain`); ``has`` not all False."""
+    from scipy import ndimage
+
     if has.all():
         return z
     # Pull: weights and weighted sums, 2×2 at a time.
@@ -410,6 +441,26 @@ def _ground_fill(grid: CellGrid, dtm: F64, building: npt.NDArray[np.bool_], opts
     nrm = np.column_stack([nxv, nyv, np.ones_like(x)])
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     return np.column_stack([x, y, z]), nrm.astype(np.float32), spacing
+
+
+def _roof_fill(grid: CellGrid, mask: npt.NDArray[np.bool_], rng: np.random.Generator) -> tuple[F64, F32]:
+    """Roof points in the building cells without a return: (M, 3) positions on the roof interpolated by
+    pull-push from the cells with returns, at their median count per cell, and (M, 3) normals of that
+    surface."""
+    bn = grid.planes[_B_N]
+    has = bn > 0
+    gaps = mask & ~has
+    if not gaps.any() or not has.any():
+        return np.zeros((0, 3)), np.zeros((0, 3), np.float32)
+    roof = _pull_push(np.where(has, grid.planes[_B_Z] / np.maximum(bn, 1.0), 0.0), has)
+    per_cell = max(1, int(round(float(np.median(bn[has])))))
+    fy, fx = np.nonzero(gaps)
+    x, y = _jittered(fy, fx, per_cell, grid, rng)
+    z = _bilinear(roof, grid, x, y)
+    gy, gx = np.gradient(roof, grid.cell)
+    nrm = np.column_stack([-_bilinear(gx, grid, x, y), -_bilinear(gy, grid, x, y), np.ones_like(x)])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return np.column_stack([x, y, z]), nrm.astype(np.float32)
 
 
 # ----------------------------------------------------------------------------------------------- walls
@@ -492,10 +543,13 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
         shifts.append((dy, dx, ys, xs, yd, xd, mask & ~nb_mask))
     near_fp = np.zeros(mask.shape, bool)
     fp_edges = None
+    if footprints and not isinstance(footprints, FootprintOutline):
+        footprints = footprint_outline(footprints, c)
     if footprints:
         boundary = np.logical_or.reduce([s_[-1] for s_ in shifts])
         fp_edges, near_fp = footprint_edges(footprints, grid, dtm, roof, opts, where=boundary)
     has = p[_B_N] > 0
+    outer_parts: list[tuple[Any, ...]] = []
     # Boundary direction: the gradient of the smoothed building mask points inwards.
     smooth = ndimage.gaussian_filter(mask.astype(np.float64), 1.5)
     gy, gx = np.gradient(smooth)
@@ -505,6 +559,8 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
         outer = edge & ~near_fp
         step = np.zeros_like(mask)
         step[yd, xd] = mask[yd, xd] & mask[ys, xs] & (roof[yd, xd] - roof[ys, xs] > opts.step_m)
+        if fp_edges is not None:
+            _drop_overhanging_steps(step, dy, dx, grid, footprints)
         for sel in (outer, step):
             cy, cx = np.nonzero(sel)
             if len(cy) == 0:
@@ -516,10 +572,9 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
                 bottom = roof[cy + dy, cx + dx]
             x0c, y0c = grid.lo[0] + cx * c, grid.lo[1] + cy * c
             if sel is outer:
-                # At the outermost roof return of the cell, less the eaves' overhang ``eave_m``.
+                # At the outermost roof return of the cell (less the eaves' overhang ``eave_m``, below).
                 ext = {(0, 1): _B_XHI, (0, -1): _B_XLO, (1, 0): _B_YHI, (-1, 0): _B_YLO}[(dy, dx)]
                 e = np.where(has[cy, cx], p[ext][cy, cx], (x0c if dy == 0 else y0c) + (c if dx + dy > 0 else 0))
-                e = e - (dx + dy) * opts.eave_m
                 nrm_x = -gx[cy, cx]
                 nrm_y = -gy[cy, cx]
             else:
@@ -537,7 +592,23 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
             nrm_x = np.where(bad, float(dx), nrm_x)
             nrm_y = np.where(bad, float(dy), nrm_y)
             norm = np.hypot(nrm_x, nrm_y)
-            parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, float(sel is step)))
+            if sel is outer:
+                outer_parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, 0.0))
+            else:
+                parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, 1.0))
+    if outer_parts:
+        cols_ = [np.concatenate([np.broadcast_to(np.asarray(pt[k], np.float64), (len(pt[7]),)) for pt in outer_parts])
+                 for k in range(8)]
+        if opts.regularise_m > 0:
+            # Quads reach QUAD_PAD_M past their part of the wall at either end: the cell edges' outermost
+            # returns scatter along the wall too, and the parts, turned, leave slits between them that an
+            # opaque quad shows and jittered points drawn a few pixels wide mostly do not.
+            pad = QUAD_PAD_M if opts.walls == "quads" else 0.0
+            cols_[:4] = _regularise(*cols_[:6], opts.regularise_m, pad)
+        if opts.eave_m:  # inwards, along the wall's normal
+            for k, nk in ((0, 4), (1, 5), (2, 4), (3, 5)):
+                cols_[k] = cols_[k] - opts.eave_m * cols_[nk]
+        parts.append((*cols_, 0.0))
     if fp_edges is not None and len(fp_edges.x0):
         fe = fp_edges
         parts.append((fe.x0, fe.y0, fe.x1, fe.y1, fe.nx, fe.ny, fe.bottom, fe.top, 0.0))
@@ -549,6 +620,67 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
     keep = cols[7] - cols[6] >= opts.min_wall_m
     x0, y0, x1, y1, nx, ny, bottom, top = (a[keep] for a in cols[:8])
     return _Edges(x0, y0, x1, y1, nx, ny, bottom, top, cols[8][keep] > 0)
+
+
+def _drop_overhanging_steps(step: npt.NDArray[np.bool_], dy: int, dx: int, grid: CellGrid,
+                            outline: FootprintOutline) -> None:
+    """Clear the roof steps (``step`` cells and their neighbours ``(dy, dx)`` away) of which a cell lies
+    under the eaves of a footprint: outside its outline but within its reach. There the step between two
+    roofs is the roof's overhang over the street, not a wall: a step wall there would stand in front of
+    the facade on the footprint. Steps wholly inside the footprints (a higher house beside a lower one)
+    and far from any footprint (buildings the file lacks) stay."""
+    import shapely
+
+    if outline.union is None:
+        return
+    sy, sx = np.nonzero(step)
+    if len(sy) == 0:
+        return
+    c = grid.cell
+    bad = np.zeros(len(sy), bool)
+    for oy, ox in ((0, 0), (dy, dx)):
+        x = grid.lo[0] + (sx + ox + 0.5) * c
+        y = grid.lo[1] + (sy + oy + 0.5) * c
+        bad |= ~shapely.contains_xy(outline.union, x, y) & shapely.contains_xy(outline.grown, x, y)
+    step[sy[bad], sx[bad]] = False
+
+
+def _regularise(x0: F64, y0: F64, x1: F64, y1: F64, nx: F64, ny: F64, radius: float, pad: float = 0.0
+                ) -> tuple[F64, F64, F64, F64]:
+    """Roof-edge walls moved onto the local line of their boundary: each cell edge's midpoint moves along
+    its normal by the mean offset, along that normal, of the edges within ``radius`` whose normals are
+    within 15° of its own, and the edge turns to run along the wall (perpendicular to its normal), over
+    the part of the wall it faces (a monotone staircase's edges, so turned, tile the wall's line). Edges
+    with fewer than six such neighbours (corners, where the smoothed normal turns; short walls) stay as
+    they are: there the mean would cut the corner. ``pad``: how far a turned edge reaches past its part of
+    the wall at either end.
+
+    Why: each cell edge stands at its own cell's outermost roof return, which lies up to a point spacing
+    inside the roof's edge, and a wall at an angle to the grid is a staircase of such edges; the mean
+    over a few metres of the same wall averages the spacing's jitter and the staircase's teeth into the
+    line they scatter about (Gao's boundary regularisation, ch. 5, done here on the edges rather than on
+    the points). The mean of offsets measured along one normal is exact for a straight wall.
+    """
+    from scipy.spatial import cKDTree
+
+    mx, my = (x0 + x1) / 2.0, (y0 + y1) / 2.0
+    length = np.hypot(x1 - x0, y1 - y0)
+    facing = np.abs(nx * (y1 - y0) - ny * (x1 - x0)) / np.maximum(length, 1e-12)
+    mid = np.column_stack([mx, my])
+    _, idx = cKDTree(mid).query(mid, k=min(len(mid), 16), distance_upper_bound=radius)
+    idx = idx.reshape(len(mid), -1)
+    ok = idx < len(mid)
+    j = np.where(ok, idx, 0)
+    w = ok & (nx[:, None] * nx[j] + ny[:, None] * ny[j] >= np.cos(np.radians(15.0)))
+    off = (mx[j] - mx[:, None]) * nx[:, None] + (my[j] - my[:, None]) * ny[:, None]
+    count = w.sum(axis=1)
+    shift = np.sum(np.where(w, off, 0.0), axis=1) / np.maximum(count, 1)
+    cx, cy = mx + shift * nx, my + shift * ny
+    half = 0.5 * length * facing + pad
+    tx, ty = -ny, nx
+    keep = count < 6
+    return (np.where(keep, x0, cx - half * tx), np.where(keep, y0, cy - half * ty),
+            np.where(keep, x1, cx + half * tx), np.where(keep, y1, cy + half * ty))
 
 
 @dataclass(frozen=True)
@@ -564,6 +696,7 @@ class FootprintOutline:
     grown: Any
     cell: float
     reach_m: float
+    union: Any = None
 
 
 def footprint_outline(footprints: Sequence[Any], cell: float, reach_m: float = 1.5) -> FootprintOutline:
@@ -582,7 +715,7 @@ def footprint_outline(footprints: Sequence[Any], cell: float, reach_m: float = 1
             ys.append(q[1:])
     if not xs:
         z = np.zeros((0, 2))
-        return FootprintOutline(z, z, z, union.buffer(reach_m), float(cell), float(reach_m))
+        return FootprintOutline(z, z, z, union.buffer(reach_m), float(cell), float(reach_m), union)
     a, b = np.concatenate(xs), np.concatenate(ys)
     seg = b - a
     length = np.hypot(seg[:, 0], seg[:, 1])
@@ -596,7 +729,8 @@ def footprint_outline(footprints: Sequence[Any], cell: float, reach_m: float = 1
     p1 = a[e] + t1[:, None] * seg[e]
     d = seg[e] / length[e][:, None]
     n = np.column_stack([d[:, 1], -d[:, 0]])  # right of the direction: outwards
-    return FootprintOutline(p0, p1, n, union.buffer(reach_m), float(cell), float(reach_m))
+    shapely.prepare(union)
+    return FootprintOutline(p0, p1, n, union.buffer(reach_m), float(cell), float(reach_m), union)
 
 
 def start_footprint_outline(opts: CompleteOptions) -> Future[FootprintOutline] | None:
@@ -655,6 +789,15 @@ def footprint_edges(footprints: Sequence[Any] | FootprintOutline, grid: CellGrid
     ri, rj, rin = cell_of(mid - 0.25 * c * n)
     oi, oj, oin = cell_of(mid + 0.5 * c * n)
     top = np.where(rin, roof[ri, rj], np.nan)
+    # Where the cell just inside has no roof (a gutter or a dark roof edge returned nothing, the building
+    # mask stops short of the footprint), the roof further in, up to ``reach_m``: else the wall would have
+    # a gap there, though the roof is scanned.
+    for k in range(1, int(reach_m / c) + 1):
+        gap = ~np.isfinite(top)
+        if not gap.any():
+            break
+        gi, gj, gin = cell_of(mid[gap] - (0.25 + k) * c * n[gap])
+        top[gap] = np.where(gin, roof[gi, gj], np.nan)
     bottom = dtm[oi, oj]
     keep = oin & np.isfinite(top) & (top - bottom >= opts.min_wall_m)
     iy, ix = np.nonzero(np.ones(grid.shape, bool) if where is None else where)
@@ -690,8 +833,9 @@ def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator
     return np.column_stack([x, y, z]), nrm, kind
 
 
-def _wall_quads(edges: _Edges) -> tuple[F64, F32]:
-    """One quad per edge, corners counter-clockwise seen from outside (along the normal)."""
+def _wall_quads(edges: _Edges, sink_m: float = 0.0) -> tuple[F64, F32]:
+    """One quad per edge, corners counter-clockwise seen from outside (along the normal); outer walls
+    (not roof steps) reach ``sink_m`` below their bottom."""
     p0 = np.column_stack([edges.x0, edges.y0])
     p1 = np.column_stack([edges.x1, edges.y1])
     # Seen from outside, counter-clockwise runs bottom-left, bottom-right, top-right, top-left with
@@ -701,8 +845,9 @@ def _wall_quads(edges: _Edges) -> tuple[F64, F32]:
     a = np.where(flip[:, None], p1, p0)
     b = np.where(flip[:, None], p0, p1)
     q = np.empty((len(a), 4, 3))
-    q[:, 0, :2], q[:, 0, 2] = a, edges.bottom
-    q[:, 1, :2], q[:, 1, 2] = b, edges.bottom
+    bottom = edges.bottom - np.where(edges.step, 0.0, sink_m)
+    q[:, 0, :2], q[:, 0, 2] = a, bottom
+    q[:, 1, :2], q[:, 1, 2] = b, bottom
     q[:, 2, :2], q[:, 2, 2] = b, edges.top
     q[:, 3, :2], q[:, 3, 2] = a, edges.top
     nrm = np.column_stack([edges.nx, edges.ny, np.zeros(len(a))]).astype(np.float32)
@@ -762,6 +907,9 @@ def augment_grid(grid: CellGrid, opts: CompleteOptions = CompleteOptions(), *,
                 pending = pool.submit(_quads_of, grid, dtm, mask, opts, footprints, tiles_dir)
             else:
                 quads, qn, *_ = _quads_of(grid, dtm, mask, opts, footprints)
+        if opts.roof_fill and mask.any():
+            rxyz, rn = _roof_fill(grid, mask, rng)
+            pieces.append((rxyz, rn, np.full(len(rxyz), KIND_ROOF, np.uint8), BUILDING))
         mean_int = grid.class_intensity / np.maximum(grid.class_n, 1.0)
         if pieces:
             xyz = np.concatenate([pc[0] for pc in pieces])
@@ -783,7 +931,7 @@ def _quads_of(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Compl
               ) -> tuple[F64, F32, float, list[Any] | None]:
     """The wall quads and normals, the seconds they took, and their tiles when written to ``tiles_dir``."""
     t0 = time.perf_counter()
-    quads, qn = _wall_quads(wall_edges(grid, dtm, mask, opts, footprints))
+    quads, qn = _wall_quads(wall_edges(grid, dtm, mask, opts, footprints), opts.sink_m)
     tiles = None
     if tiles_dir is not None:
         walls = _empty()
@@ -971,6 +1119,7 @@ def write_wall_tiles(out_dir: str | PathLike[str], aug: Augmentation, block_m: f
 
 __all__ = [
     "KIND_GROUND",
+    "KIND_ROOF",
     "KIND_STEP",
     "KIND_WALL",
     "MAX_CELLS",

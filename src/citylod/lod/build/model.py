@@ -247,16 +247,26 @@ def ground_height(F: F64, V: npt.NDArray[np.bool_], spacing: float, window_m: fl
 
 
 def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.int32], roof_planes: F64,
-                dx: float, dy: float, *, step: float = 1.0) -> npt.NDArray[np.int64]:
+                dx: float, dy: float, *, step: float = 1.0, parallel_deg: float = 10.0, offset: float = 0.3,
+                attach: float = 1.5, meet: float = 1.5) -> npt.NDArray[np.int64]:
     """Cut a building mask into buildings along the roof: (H, W) int64 building per sample (0 none).
 
     Two roof planes that share a border belong to the same building when they meet at a ridge (convex:
-    each plane, extended across the border, passes above the other's samples), not at a valley (concave:
-    the gables of terraced houses side by side) or at a height step over ``step`` metres (an annex, a
-    neighbour of another height), decided by the majority of the sample pairs along their border. Planes
-    are joined with a union-find; samples of the mask on no plane (walls, chimneys, small dormers) take the
-    building of the nearest plane sample in their connected part of the mask; parts with no plane at all
-    are one building each.
+    each plane, extended across the border, passes above the other's samples; and the two planes'
+    heights at the border within ``meet`` m, so that they do meet there), or when they are nearly the
+    same plane (normals within ``parallel_deg``, heights at the border within ``offset`` m: one roof that
+    RANSAC cut in two). They belong to *different* buildings when nearly parallel but offset by more than
+    ``offset`` (the slopes of terraced houses whose roofs are not flush) or when a height step over ``step``
+    metres separates them (an annex, a neighbour of another height); a valley (concave) decides nothing,
+    so the wings of an L-shaped roof still join through their hips. Each verdict is the majority of the
+    sample pairs along the border. Joins are made longest border first with a union-find that refuses a
+    join putting two separated planes into one building (otherwise one ridge shared along a row would
+    glue every house back together).
+
+    Samples of the mask on no plane (walls, chimneys, small dormers, roofs too small for a plane) take the
+    building of the nearest plane sample in their connected part of the mask when within ``attach`` m of
+    its height; the rest (a lower annex or garage next to a higher roof) are buildings of their own, one
+    per connected part.
     """
     from scipy import ndimage
 
@@ -264,11 +274,14 @@ def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.
     K = len(roof_planes)
     lab = np.where(mask & (roof_label >= 0), roof_label, -1).astype(np.int64)
     # the samples along a ridge or a valley are often on neither plane (their one-sided normals fit
-    # neither): planes are made to meet by giving mask samples next to a plane its label
+    # neither): planes are made to meet by giving mask samples next to a plane its label (not across a
+    # step: a lower roof next to a wall stays apart)
     if K and (lab >= 0).any():
         dist, idx = ndimage.distance_transform_edt(lab < 0, return_indices=True)
-        lab = np.where(mask & (lab < 0) & (dist <= 1.0), lab[tuple(idx)], lab)
+        near_f = F[tuple(idx)]
+        lab = np.where(mask & (lab < 0) & (dist <= 1.0) & (np.abs(near_f - F) <= step), lab[tuple(idx)], lab)
     parent = np.arange(K)
+    apart: list[set[int]] = [set() for _ in range(K)]  # per root: the roots it must stay apart from
 
     def find(i: int) -> int:
         while parent[i] != i:
@@ -279,6 +292,8 @@ def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.
     if K:
         rr, cc = np.mgrid[0:H, 0:W]
         n = roof_planes
+        cos_par = math.cos(math.radians(parallel_deg))
+        keys, joins, seps = [], [], []
         for a_sl, b_sl in (((slice(None), slice(0, W - 1)), (slice(None), slice(1, W))),
                            ((slice(0, H - 1), slice(None)), (slice(1, H), slice(None)))):
             la, lb = lab[a_sl], lab[b_sl]
@@ -292,37 +307,105 @@ def split_roofs(F: F64, mask: npt.NDArray[np.bool_], roof_label: npt.NDArray[np.
             with np.errstate(divide="ignore", invalid="ignore"):
                 zi_b = -(n[i, 0] * xb + n[i, 1] * yb + n[i, 3]) / n[i, 2]
                 zj_a = -(n[j, 0] * xa + n[j, 1] * ya + n[j, 3]) / n[j, 2]
+                zi_a = -(n[i, 0] * xa + n[i, 1] * ya + n[i, 3]) / n[i, 2]
+                zj_b = -(n[j, 0] * xb + n[j, 1] * yb + n[j, 3]) / n[j, 2]
+            parallel = np.abs(np.einsum("ij,ij->i", n[i, :3], n[j, :3])) >= cos_par
+            gap = 0.5 * (np.abs(zi_a - zj_a) + np.abs(zi_b - zj_b))  # the two planes' heights apart, at the border
             convex = (zi_b - fb) + (zj_a - fa) > 0
             stepped = np.abs(fa - fb) > step
-            key = np.minimum(i, j) * K + np.maximum(i, j)
+            flush = parallel & (gap <= offset)
+            keys.append(np.minimum(i, j) * K + np.maximum(i, j))
+            joins.append(np.where(parallel, flush, convex & (gap <= meet)) & ~stepped)
+            seps.append(stepped | (parallel & ~flush))
+        if keys:
+            key = np.concatenate(keys)
             uk, inv = np.unique(key, return_inverse=True)
             tot = np.bincount(inv)
-            cvx = np.bincount(inv, weights=convex & ~stepped)
-            stp = np.bincount(inv, weights=stepped)
-            for k, t, cv, st in zip(uk, tot, cvx, stp, strict=True):
-                if t >= 3 and st < 0.3 * t and cv > 0.5 * t:
-                    pa, pb = find(int(k // K)), find(int(k % K))
-                    if pa != pb:
-                        parent[max(pa, pb)] = min(pa, pb)
+            join = np.bincount(inv, weights=np.concatenate(joins))
+            sep = np.bincount(inv, weights=np.concatenate(seps))
+            ok = tot >= 3
+            for k in uk[ok & (sep > 0.5 * tot)]:
+                a, b = int(k // K), int(k % K)
+                apart[a].add(b)
+                apart[b].add(a)
+            cand = ok & (join > 0.5 * tot)
+            for k in uk[cand][np.argsort(-tot[cand], kind="stable")]:
+                pa, pb = find(int(k // K)), find(int(k % K))
+                if pa == pb or pb in apart[pa]:
+                    continue
+                lo, hi = min(pa, pb), max(pa, pb)
+                parent[hi] = lo
+                apart[lo] |= apart[hi]
+                for o in apart[hi]:
+                    apart[o].discard(hi)
+                    apart[o].add(lo)
     roots = np.array([find(i) for i in range(K)] or [0], np.int64)
     group = np.where(lab >= 0, roots[np.maximum(lab, 0)] + 1, 0)
-    # samples on no plane: the nearest plane sample's building, within the same part of the mask
+    # samples on no plane: the nearest plane sample's building, within the same part of the mask and
+    # within ``attach`` of its height
     parts, _ = ndimage.label(mask)
     idx = ndimage.distance_transform_edt(group == 0, return_distances=False, return_indices=True)
     near = group[tuple(idx)]
-    same = parts[tuple(idx)] == parts
+    same = (parts[tuple(idx)] == parts) & (np.abs(F[tuple(idx)] - F) <= attach)
     out = np.where(mask, np.where(group > 0, group, np.where(same & (near > 0), near, 0)), 0)
-    # parts with no plane: one building each
-    rest = mask & (out == 0)
-    out = np.where(rest, parts + K + 1, out)
+    # the rest: one building per connected part
+    rest, _ = ndimage.label(mask & (out == 0))
+    out = np.where(rest > 0, rest + K + 1, out)
     return out.astype(np.int64)
+
+
+def merge_annexes(lab: npt.NDArray[np.int64], F: F64, *, step: float = 1.0, share: float = 0.3,
+                  rounds: int = 3) -> npt.NDArray[np.int64]:
+    """Join each building (``lab`` > 0) whose roof (90th percentile of ``F``) is more than ``step`` m below a
+    neighbour's and which shares at least ``share`` of its outline with it to that neighbour: a lower back
+    half, an annex or a porch belongs to the house it leans against (as a cadastral building does), where
+    the roof split cut it off at the step. The neighbour with the longest shared border wins; ``rounds``
+    passes follow chains (an annex of an annex). Returns the new labels (0 stays 0)."""
+
+    for _ in range(rounds):
+        uniq, inv = np.unique(lab, return_inverse=True)
+        lab = (inv.reshape(lab.shape) + (0 if uniq[0] == 0 else 1)).astype(np.int64)
+        n = int(lab.max())
+        if n < 2:
+            break
+        # 90th percentile per building (nearest rank): samples sorted by building, then height
+        flat, fz = lab.reshape(-1), F.reshape(-1)
+        order = np.lexsort((fz, flat))
+        cnt_l = np.bincount(flat, minlength=n + 1)
+        start = np.concatenate([[0], np.cumsum(cnt_l)[:-1]])
+        top = fz[order][np.minimum(start + (0.9 * np.maximum(cnt_l - 1, 0)).astype(np.int64), len(fz) - 1)]
+        outline = np.zeros(n + 1)
+        keys = []
+        for a_sl, b_sl in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
+                           ((slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
+            la, lb = lab[a_sl], lab[b_sl]
+            sel = la != lb
+            outline += np.bincount(la[sel], minlength=n + 1) + np.bincount(lb[sel], minlength=n + 1)
+            sel &= (la > 0) & (lb > 0)
+            keys += [la[sel] * (n + 1) + lb[sel], lb[sel] * (n + 1) + la[sel]]
+        if not keys:
+            break
+        uk, cnt = np.unique(np.concatenate(keys), return_counts=True)
+        x, y = uk // (n + 1), uk % (n + 1)
+        ok = (top[y] > top[x] + step) & (cnt >= share * outline[x])
+        target = np.arange(n + 1)
+        order = np.argsort(-cnt[ok], kind="stable")
+        for xi, yi in zip(x[ok][order], y[ok][order], strict=True):
+            if target[xi] == xi:
+                target[xi] = yi
+        if (target == np.arange(n + 1)).all():
+            break
+        for _ in range(8):
+            target = target[target]
+        lab = target[lab]
+    return lab
 
 
 def extract_buildings(F: F64, V: npt.NDArray[np.bool_], transform: tuple[float, ...], spacing: float,
                       roof_label: npt.NDArray[np.int32] | None = None, roof_planes: F64 | None = None, *,
                       min_height: float = 2.0, min_area: float = 12.0, min_planar: float = 0.5,
-                      ground: F64 | None = None, classes: F64 | None = None, core: npt.NDArray[np.bool_] | None = None
-                      ) -> list[Footprint]:
+                      ground: F64 | None = None, classes: F64 | None = None, core: npt.NDArray[np.bool_] | None = None,
+                      annex_share: float = 0.3, annex_step: float = 1.0) -> list[Footprint]:
     """Buildings standing ``min_height`` above the ground: footprints, heights, roof planes.
 
     The building samples are those classified as buildings (``classes`` == 6, the ASPRS class, where the
@@ -330,7 +413,9 @@ def extract_buildings(F: F64, V: npt.NDArray[np.bool_], transform: tuple[float, 
     connected part (tree crowns are rough and fail it; a tree touching a building is cut off by keeping only
     the planar samples, opened by one sample). They are cut into buildings along their roofs
     (:func:`split_roofs`: ridges join, valleys and steps separate, so terraced houses come apart); a
-    building under ``min_area`` m² joins the neighbour it shares the longest border with. Footprints are
+    building under ``min_area`` m² joins the neighbour it shares the longest border with, and a part more
+    than ``annex_step`` m lower than a neighbour sharing ``annex_share`` of its outline joins it
+    (:func:`merge_annexes`; 0 turns it off). Footprints are
     polygonised with rasterio (``rasterio.features.shapes``) and simplified by ¾ of the spacing (shapely).
     The height is the 90th percentile of the DSM over the footprint above the 10th percentile of the
     ground (3dfier's LoD1 defaults). ``ground`` defaults to a grey-scale opening of the DSM
@@ -396,6 +481,8 @@ def extract_buildings(F: F64, V: npt.NDArray[np.bool_], transform: tuple[float, 
         for _ in range(4):  # chains of small parts
             target = target[target]
         lab = target[lab]
+    if annex_share > 0:
+        lab = merge_annexes(lab, F, step=annex_step, share=annex_share)
     aff = Affine(*transform)
     objs = ndimage.find_objects(lab)
     counts = np.bincount(lab.reshape(-1), minlength=len(objs) + 1)
@@ -677,7 +764,7 @@ def _cell_buildings(src: Any, r0: int, c0: int, cell: int, dx: float, dy: float,
     Fd = F
     if classes is not None:
         # a raster from points (it has their classes): the highest point per cell is noisy, so its roofs are
-        # found on the 3×3 median with looser thresholds (Delft AHN3: median IoU 0.18 → 0.28, see
+        # found on the 3×3 median with looser thresholds (measured on Delft AHN3, see
         # docs/PERFORMANCE_LOG.md)
         from dataclasses import replace
 
@@ -689,8 +776,9 @@ def _cell_buildings(src: Any, r0: int, c0: int, cell: int, dx: float, dy: float,
     sh = detect_shapes(Fd, V, dx, dy, params, ground)
     core = np.zeros((nr, nc), bool)
     core[r0 - rh0: r0 - rh0 + cell, c0 - ch0: c0 - ch0 + cell] = True
+    # with point classes a small blob of building points is a shed or a garage, not noise: 5 m² is enough
     return extract_buildings(F, V, _window_transform(info, rh0, ch0), 0.5 * (dx + dy), sh.roof_label, sh.roof_planes,
-                             ground=ground, classes=classes, core=core)
+                             ground=ground, classes=classes, core=core, min_area=12.0 if classes is None else 5.0)
 
 
 def _spacing_xy(info: Any) -> tuple[float, float]:
