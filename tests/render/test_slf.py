@@ -63,6 +63,28 @@ def test_field_image_matches_the_geometry(box_slf: Path, az: float, el: float) -
     assert (box_ref & box_img).sum() >= 0.4 * box_ref.sum()  # and in the same place
 
 
+@pytest.mark.parametrize(("az", "el"), [(200.0, 40.0), (75.0, 30.0)])
+def test_depth_correction_draws_the_box_once(box_slf: Path, az: float, el: float) -> None:
+    """Nearer than its switching error (τ forced high), the plain blend of four directions draws the box
+    in up to four places; the depth-corrected lookup with the stored building tops puts it in one, so its
+    picture is much closer to the geometry's (same window, same camera, the two evaluations)."""
+    cam = _camera(400.0, az, el)
+    errs = []
+    for depth in (False, True):
+        with SlfView(box_slf, size=BIG, tau_px=1e6, depth_correct=depth) as sv:
+            f = sv.prepare(cam)
+            assert f.cells == 1 and f.geometry_cells == 0
+            sv.draw()
+            img, mask = sv.grab_rgb(), sv.field_mask()
+        errs.append(img)
+    with GeometryView(box_slf, size=BIG) as gv:
+        gv.prepare(cam, full_resolution=True)
+        gv.draw()
+        ref = gv.grab_rgb()
+    plain, fixed = (float(np.abs(e.astype(int) - ref.astype(int)).mean(axis=2)[mask].mean()) for e in errs)
+    assert fixed < 0.6 * plain, (plain, fixed)
+
+
 def test_buildings_grow_out_of_the_field_without_popping(box_slf: Path) -> None:
     """Walking the camera in, the cell goes from field to geometry through a fade; no step between two
     frames changes the picture by much more than the same step does with the geometry alone (camera

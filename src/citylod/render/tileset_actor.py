@@ -703,6 +703,9 @@ class Scene:
         # None admits all. An interactive view sets it so one frame's uploads stay bounded.
         self.admit_cost: int | None = None
         self.admitted_cost = 0  # what the last update() admitted, same units
+        # Called with the frame's view before its selection (budget mode plans the point budget from the
+        # view's candidate tiles: citylod.render.frame_budget). None: nothing is called.
+        self.before_select: Callable[[View], None] | None = None
         self.crs: Any = None
         self.elevation_range = (0.0, 1.0)
         # Counters that tests and the HUD read.
@@ -875,6 +878,8 @@ class Scene:
 
     def select_all(self, view: View) -> list[Selection]:
         """Run selection for every layer against what is resident now (no loading, no showing)."""
+        if self.before_select is not None:
+            self.before_select(view)
         residency = self.cache.residency()
         failed = self.loader.failed_keys()
         sels = []

@@ -13,21 +13,29 @@ terrain is a plane at the city's lowest point, which hides no texel, so no hidde
 numba rasteriser, not VTK: the mapping from pixels to terrain texels is then exact (no resampling of a
 screen image) and the lod layer stays free of VTK (docs/DESIGN.md, layout).
 
-**Compression** (Per Cluster Factorisation): the texels of the 2 × 2 siblings of one parent share
-``clusters`` clusters (k-means in a 12-dimensional PCA projection of the lumispheres, then the nearest
-centroid for every texel); each cluster keeps its mean lumisphere and its ``components`` leading
+**Compression** (Per Cluster Factorisation over direction patches): the stored directions are split into
+overlapping patches of 3 × 3 lattice points (:func:`~citylod.lod.kernels.slf.direction_patches`; any
+bilinear blend of four directions lies in one), and each patch is compressed on its own: the texels of the
+``group`` × ``group`` neighbouring cells of one level share ``clusters`` clusters (k-means in a
+12-dimensional PCA projection of the lumispheres, then the nearest centroid for every texel, refined by
+reconstruction error); each cluster keeps its mean lumisphere and its ``components`` leading
 eigen-lumispheres (orthogonal iteration), each texel its cluster and weights, quantised to 8 bits per
-cluster and component. Per cell of 128² texels and 97 directions: 16 KiB of cluster ids, 48 KiB of weights
-(deflated) and a quarter of the group's 256 × (97 × 3 + 3 × 97 × 3) bytes of lumispheres, against 128² × 97 ×
-3 = 4.77 MB uncompressed.
+cluster and component. A texel's lumisphere over all directions is of high rank (it sees ground, façades and
+roofs of different houses from different directions: 3 components of 69 directions leave a mean error of
+22 of 255); over the 9 directions of one patch it is not (the same clusters leave 11, orbit frame of the
+sample city, docs/PERFORMANCE_LOG.md). A view loads one patch per cell: 4 bytes per texel (deflated) and
+its share of a table of 256 × 9 × 3 × 4 bytes.
 
 **Storage.** Every cell is an ordinary 3D Tiles tile: a textured quad whose texture is the field's average
-over all directions (what other clients draw). Its ``extras.citylod_slf`` names its two binary files
-(``slf/cells/KEY.bin`` texels, ``slf/groups/KEY.bin`` lumispheres; format in :func:`read_cell` and
-:func:`read_group`); the tileset's ``extras.citylod`` holds ``kind: "slf"``, the direction set, the ground and
-the city tileset it was baked from. ``geometricError`` is the texel size plus the mean parallax displacement
-of the view-direction interpolation (:func:`parallax_factor`) times the mean building height above the
-ground in the cell's 3 × 3 neighbourhood: an expected displacement, not a bound.
+over all directions (what other clients draw). Its ``extras.citylod_slf`` names its binary files per patch
+(``slf/cells/KEY_{patch}.bin`` texels and building tops, ``slf/groups/KEY_{patch}.bin`` lumispheres; format
+in :func:`read_cell_arrays` and :func:`read_group`); the tileset's ``extras.citylod`` holds ``kind: "slf"``,
+the direction set and its ``patches``, the ground and the city tileset it was baked from.
+``geometricError`` is the texel size plus the mean parallax displacement of the view-direction
+interpolation (:func:`parallax_factor`) times a height: without stored heights the mean building height in
+the cell's 3 × 3 neighbourhood, with them what the depth-corrected lookup
+(:func:`~citylod.lod.kernels.slf.evaluate_parallax`) gets wrong, the mean amount by which the texel's top
+overstates the surface under it plus half a ray-march step. An expected displacement, not a bound.
 """
 
 from __future__ import annotations
@@ -51,10 +59,11 @@ from citylod.core.errors import InputError
 from citylod.core.fileio import publish_dir
 from citylod.io.image import decode_image, encode_image, resize_image
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, open_tileset, write_content, write_tileset
-from citylod.lod.kernels.slf import DirectionSet, direction_set, interpolation, rasterise
+from citylod.lod.kernels.slf import DirectionSet, direction_patches, direction_set, interpolation, rasterise
 
-__all__ = ["Cpca", "SlfReport", "bake_cell", "build_slf", "city_triangles", "compress", "parallax_factor",
-           "read_cell", "read_group", "reconstruct"]
+__all__ = ["Cpca", "SlfReport", "bake_cell", "bake_heights", "build_slf", "city_triangles", "compress", "parallax_factor",
+           "read_cell", "read_cell_arrays", "read_group", "read_heights",
+           "reconstruct"]
 
 F64 = npt.NDArray[np.float64]
 U8 = npt.NDArray[np.uint8]
@@ -154,6 +163,31 @@ def bake_cell(scene: CityTriangles, x0: float, y0: float, size_m: float, texels:
         avg = col.reshape(texels, oversample, texels, oversample, 3).astype(np.float32).mean(axis=(1, 3))
         out[:, :, j] = np.rint(avg).astype(np.uint8)
     return out
+
+
+def bake_heights(scene: CityTriangles, x0: float, y0: float, size_m: float, texels: int, z0: float, *,
+                 oversample: int = 2) -> tuple[npt.NDArray[np.float32], float]:
+    """Building-top heights of a cell for the depth-corrected evaluation
+    (:func:`citylod.lod.kernels.slf.evaluate_parallax`): (texels, texels) metres above ``z0``, row 0 north,
+    the highest of ``oversample``² samples per texel seen from straight above; and the mean amount by which
+    that overstates the true height of the building samples (the height error the lookup is left with)."""
+    n = texels * oversample
+    step = size_m / n
+    z = scene.tri[:, :, 2]
+    cx = (scene.tri[:, :, 0] - x0) / step
+    cy = (y0 + size_m - scene.tri[:, :, 1]) / step
+    sel = (cx.max(axis=1) >= 0) & (cx.min(axis=1) <= n) & (cy.max(axis=1) >= 0) & (cy.min(axis=1) <= n)
+    sel &= (z - z0).max(axis=1) > 1e-3
+    zbuf = np.full((n, n), z0 + 1e-3)
+    col = np.zeros((n, n, 3), np.uint8)
+    rasterise(np.ascontiguousarray(np.stack([cx[sel], cy[sel]], axis=-1)), np.ascontiguousarray(z[sel]),
+              np.ascontiguousarray(scene.uv[sel]), np.ascontiguousarray(scene.tex[sel]),
+              np.ascontiguousarray(scene.rgb[sel]), scene.textures, zbuf, col)
+    h = np.maximum(zbuf - z0, 0.0).reshape(texels, oversample, texels, oversample)
+    top = h.max(axis=(1, 3))
+    built = h > 0.01
+    over = (top[:, None, :, None] - h)[built]
+    return top.astype(np.float32), float(over.mean()) if over.size else 0.0
 
 
 def parallax_factor(ds: DirectionSet, min_elevation_deg: float = 10.0, samples: int = 4000) -> float:
@@ -297,33 +331,56 @@ def _unpack(data: bytes, magic: bytes, source: str) -> tuple[dict[str, Any], byt
     return header, data[12 + hl:]
 
 
-def write_cell(c: Cpca, rows: slice, texels: int) -> bytes:
-    """A cell's file: ``CLSLFC1\\0``, header length (u32), JSON header, deflated (cluster ids, weights)."""
-    payload = zlib.compress(c.cluster[rows].tobytes() + c.q[rows].tobytes(), 6)
-    return _pack(MAGIC_CELL, {"texels": texels, "components": int(c.q.shape[1])}, payload)
+def write_cell(c: Cpca, rows: slice, texels: int, heights: npt.NDArray[np.floating] | None = None) -> bytes:
+    """A cell's file: ``CLSLFC1\\0``, header length (u32), JSON header, deflated (cluster ids, weights and,
+    with ``heights`` (T, T) metres, the building tops as u8 in steps of the header's ``height_step``)."""
+    header: dict[str, Any] = {"texels": texels, "components": int(c.q.shape[1])}
+    raw = c.cluster[rows].tobytes() + c.q[rows].tobytes()
+    if heights is not None:
+        hs = max(float(np.max(heights)), 1e-3) / 255.0
+        header["height_step"] = hs
+        # Rounded up: a top never drops below the surface it stands for (the ray march would miss it).
+        raw += np.clip(np.ceil(np.asarray(heights) / hs - 1e-6), 0, 255).astype(np.uint8).tobytes()
+    return _pack(MAGIC_CELL, header, zlib.compress(raw, 9))
+
+
+def read_cell_arrays(data: bytes, source: str = "") -> tuple[U8, U8, npt.NDArray[np.float32] | None]:
+    """(cluster ids (T, T), weights (T, T, K), building-top heights (T, T) metres or None) of a cell file."""
+    header, payload = _unpack(data, MAGIC_CELL, source)
+    try:
+        t, k = int(header["texels"]), int(header["components"])
+        hs = header.get("height_step")
+        hs = None if hs is None else float(hs)
+        raw = zlib.decompress(payload)
+    except (KeyError, TypeError, ValueError, zlib.error) as exc:
+        raise InputError(f"surface light field cell is damaged ({exc})", source) from exc
+    per = 1 + k + (hs is not None)
+    if not (0 < t <= 4096 and 0 < k <= 16) or len(raw) != t * t * per or (hs is not None and not 0 < hs < 1e3):
+        raise InputError(f"surface light field cell holds {len(raw)} bytes, not {t}² texels × {per}", source)
+    arr = np.frombuffer(raw, np.uint8)
+    top = None if hs is None else (arr[t * t * (1 + k):].reshape(t, t).astype(np.float32) * np.float32(hs))
+    return arr[:t * t].reshape(t, t), arr[t * t:t * t * (1 + k)].reshape(t, t, k), top
 
 
 def read_cell(data: bytes, source: str = "") -> tuple[U8, U8]:
     """(cluster ids (T, T) uint8, weights (T, T, K) uint8) of a cell file."""
-    header, payload = _unpack(data, MAGIC_CELL, source)
-    try:
-        t, k = int(header["texels"]), int(header["components"])
-        raw = zlib.decompress(payload)
-    except (KeyError, TypeError, ValueError, zlib.error) as exc:
-        raise InputError(f"surface light field cell is damaged ({exc})", source) from exc
-    if not (0 < t <= 4096 and 0 < k <= 16) or len(raw) != t * t * (1 + k):
-        raise InputError(f"surface light field cell holds {len(raw)} bytes, not {t}² texels × {1 + k}", source)
-    arr = np.frombuffer(raw, np.uint8)
-    return arr[:t * t].reshape(t, t), arr[t * t:].reshape(t, t, k)
+    cl, q, _ = read_cell_arrays(data, source)
+    return cl, q
+
+
+def read_heights(data: bytes, source: str = "") -> npt.NDArray[np.float32] | None:
+    """The building-top heights (T, T) in metres of a cell file, None for a file without them."""
+    return read_cell_arrays(data, source)[2]
 
 
 def write_group(c: Cpca) -> bytes:
-    """A group's file: ``CLSLFG1\\0``, header, then mean (C, N, 3) u8, lo, step, scale (C, K) f32 each,
-    basis (C, K, N, 3) i8."""
+    """A group's file: ``CLSLFG1\\0``, header, then deflated (header ``deflate``): mean (C, N, 3) u8, lo, step,
+    scale (C, K) f32 each, basis (C, K, N, 3) i8."""
     cl, k, nd, _ = c.basis.shape
     payload = (c.mean.tobytes() + c.lo.astype("<f4").tobytes() + c.step.astype("<f4").tobytes()
                + c.scale.astype("<f4").tobytes() + c.basis.tobytes())
-    return _pack(MAGIC_GROUP, {"clusters": cl, "components": k, "directions": nd}, payload)
+    return _pack(MAGIC_GROUP, {"clusters": cl, "components": k, "directions": nd, "deflate": True},
+                 zlib.compress(payload, 9))
 
 
 def read_group(data: bytes, source: str = "") -> Cpca:
@@ -331,7 +388,9 @@ def read_group(data: bytes, source: str = "") -> Cpca:
     header, p = _unpack(data, MAGIC_GROUP, source)
     try:
         cl, k, nd = int(header["clusters"]), int(header["components"]), int(header["directions"])
-    except (KeyError, TypeError, ValueError) as exc:
+        if header.get("deflate"):
+            p = zlib.decompress(p)
+    except (KeyError, TypeError, ValueError, zlib.error) as exc:
         raise InputError(f"surface light field group header is damaged ({exc})", source) from exc
     sizes = [cl * nd * 3, 4 * cl * k, 4 * cl * k, 4 * cl * k, cl * k * nd * 3]
     if not (0 < cl <= 256 and 0 < k <= 16 and 0 < nd <= 4225) or len(p) != sum(sizes):
@@ -348,9 +407,11 @@ def read_group(data: bytes, source: str = "") -> Cpca:
 # ---------------------------------------------------------------------------------------------- build
 @dataclass(frozen=True)
 class SlfReport:
-    """What :func:`build_slf` wrote: ``cells`` over ``levels``, ``directions``, the bytes of one cell
-    (texels + its share of the group) against ``raw_cell_bytes`` uncompressed, the compression's RMS and
-    p99 colour error (0..255) over every texel and direction, seconds baking and compressing."""
+    """What :func:`build_slf` wrote: ``cells`` over ``levels``, ``directions``, the mean bytes one view loads
+    per cell (``cell_bytes``: one direction patch of the cell + its share of that patch's cluster table) and
+    all a cell stores on disk (``disk_cell_bytes``, every patch) against ``raw_cell_bytes`` uncompressed, the
+    compression's RMS and p99 colour error (0..255) over every texel and direction of every patch, seconds
+    baking and compressing."""
 
     path: Path
     cells: int
@@ -358,6 +419,7 @@ class SlfReport:
     directions: int
     texels: int
     cell_bytes: float
+    disk_cell_bytes: float
     raw_cell_bytes: int
     rms_error: float
     p99_error: float
@@ -367,8 +429,10 @@ class SlfReport:
 
     def summary(self) -> str:
         return (f"{self.path}: {self.cells} cells over {self.levels} levels, {self.directions} directions, "
-                f"{self.texels}² texels; {self.cell_bytes / 1024:.0f} KiB per cell against "
-                f"{self.raw_cell_bytes / 1e6:.2f} MB uncompressed ({self.raw_cell_bytes / self.cell_bytes:.0f}×), "
+                f"{self.texels}² texels; {self.cell_bytes / 1024:.0f} KiB per cell and view "
+                f"({self.disk_cell_bytes / 1024:.0f} KiB stored) against {self.raw_cell_bytes / 1e6:.2f} MB "
+                f"uncompressed ({self.raw_cell_bytes / self.cell_bytes:.0f}×, "
+                f"{self.raw_cell_bytes / self.disk_cell_bytes:.1f}× stored), "
                 f"compression error RMS {self.rms_error:.2f}, p99 {self.p99_error:.1f} (of 255); "
                 f"bake {self.bake_s:.0f} s, compress {self.compress_s:.0f} s")
 
@@ -385,8 +449,8 @@ def _quad(size_m: float, z: float, texture: bytes) -> TileContent:
 def build_slf(city_dir: str | PathLike[str], out_dir: str | PathLike[str], *, texel_m: float = 2.0,
               texels: int = 64, grid: int = 11, oversample: int = 3, clusters: int = 256, components: int = 3,
               min_elevation_deg: float = 5.0, ground_z: float | None = None,
-              ground_rgb: tuple[int, int, int] = GROUND_RGB, tex_px: int = 64,
-              progress: bool = True) -> SlfReport:
+              ground_rgb: tuple[int, int, int] = GROUND_RGB, tex_px: int = 64, group: int = 4,
+              heights: bool = True, patches: bool = True, progress: bool = True) -> SlfReport:
     """Bake, compress and write the far-field surface light fields of a city tileset.
 
     Parameters
@@ -409,11 +473,23 @@ def build_slf(city_dir: str | PathLike[str], out_dir: str | PathLike[str], *, te
         Height of the terrain plane (default: the city's lowest point).
     tex_px
         Side to which atlases are filtered before sampling.
+    group
+        Cells per side of the squares that share one cluster table (4: 16 neighbouring cells share the
+        ``clusters`` lumispheres; a level with fewer cells shares one table).
+    heights
+        Store the building-top heights per texel for the depth-corrected evaluation; the cells'
+        ``geometricError`` then carries the height error left to that lookup instead of the whole height.
+    patches
+        Compress the directions in overlapping patches of 3 × 3 lattice points
+        (:func:`~citylod.lod.kernels.slf.direction_patches`), one file per cell and patch, so that a view
+        loads one patch; False: one clustered PCA over all directions.
     """
     from tqdm import tqdm
 
     if texels < 8 or texels & (texels - 1) or texels > 1024:
         raise InputError(f"--texels must be a power of two in 8..1024, got {texels}", city_dir)
+    if group < 1 or group & (group - 1):
+        raise InputError(f"group must be a power of two, got {group}", city_dir)
     if not texel_m > 0 or oversample < 1 or not 1 <= clusters <= 256 or not 1 <= components <= 8:
         raise InputError("texel size must be > 0, oversample ≥ 1, clusters 1..256, components 1..8", city_dir)
     ds = direction_set(grid, min_elevation_deg)
@@ -438,51 +514,71 @@ def build_slf(city_dir: str | PathLike[str], out_dir: str | PathLike[str], *, te
     sq_err = 0.0
     count = 0
     p99s: list[float] = []
-    cell_bytes: list[int] = []
+    cell_bytes: list[float] = []
+    view_bytes: list[float] = []
+    patch_sets = direction_patches(ds) if patches else [np.arange(len(ds))]
     specs: dict[tuple[int, int, int], TileSpec] = {}
     try:
-        jobs = [(lv, gi, gj) for lv in range(levels) for gi in range(max(1, 2 ** (lv - 1)))
-                for gj in range(max(1, 2 ** (lv - 1)))]
+        jobs = [(lv, gi, gj) for lv in range(levels) for gi in range(max(1, 2 ** lv // group))
+                for gj in range(max(1, 2 ** lv // group))]
         for lv, gi, gj in tqdm(jobs, desc="slf groups", unit="group", disable=not progress):
             n = 2 ** lv
             size = side / n
-            members = [(lv, gi, gj)] if lv == 0 else [(lv, 2 * gi + a, 2 * gj + b) for a in (0, 1) for b in (0, 1)]
+            g = min(n, group)
+            members = [(lv, g * gi + a, g * gj + b) for a in range(g) for b in range(g)]
             tb = time.perf_counter()
-            fields = []
+            fields, tops = [], []
             for _, i, j in members:  # i: column (x), j: row (y, south to north)
                 fields.append(bake_cell(scene, x0 + i * size, y0 + j * size, size, texels, z0, ds,
                                         oversample=oversample, ground_rgb=ground_rgb))
+                tops.append(bake_heights(scene, x0 + i * size, y0 + j * size, size, texels, z0,
+                                         oversample=oversample) if heights else None)
             tc = time.perf_counter()
             bake_s += tc - tb
             stacked = np.concatenate([f.reshape(texels * texels, len(ds), 3) for f in fields])
-            cp = compress(stacked, clusters, components, seed=lv * 7919 + gi * 31 + gj)
-            err = reconstruct(cp) - stacked
-            sq_err += float((err ** 2).sum())
-            count += err.size
-            p99s.append(float(np.percentile(np.abs(err), 99)))
-            comp_s += time.perf_counter() - tc
             gkey = f"{lv}_{gi}_{gj}"
-            gbytes = write_group(cp)
-            (partial / "slf" / "groups" / f"{gkey}.bin").write_bytes(gbytes)
+            cell_files: list[list[int]] = [[] for _ in members]
+            group_files: list[int] = []
+            for pi, sel in enumerate(patch_sets):
+                part = np.ascontiguousarray(stacked[:, sel])
+                cp = compress(part, clusters, components, seed=lv * 7919 + gi * 31 + gj + 104729 * pi)
+                err = reconstruct(cp) - part
+                sq_err += float((err ** 2).sum())
+                count += err.size
+                p99s.append(float(np.percentile(np.abs(err), 99)))
+                gbytes = write_group(cp)
+                (partial / "slf" / "groups" / f"{gkey}_{pi}.bin").write_bytes(gbytes)
+                group_files.append(len(gbytes))
+                for m, (_, i, j) in enumerate(members):
+                    rows = slice(m * texels * texels, (m + 1) * texels * texels)
+                    top = tops[m]
+                    cbytes = write_cell(cp, rows, texels, None if top is None else top[0])
+                    (partial / "slf" / "cells" / f"{lv}_{i}_{j}_{pi}.bin").write_bytes(cbytes)
+                    cell_files[m].append(len(cbytes))
+            comp_s += time.perf_counter() - tc
             for m, ((_, i, j), fld) in enumerate(zip(members, fields, strict=True)):
                 key = f"{lv}_{i}_{j}"
-                rows = slice(m * texels * texels, (m + 1) * texels * texels)
-                cbytes = write_cell(cp, rows, texels)
-                (partial / "slf" / "cells" / f"{key}.bin").write_bytes(cbytes)
-                cell_bytes.append(len(cbytes) + len(gbytes) // len(members))
+                top = tops[m]
+                # What one view loads: one patch of the cell and its share of that patch's cluster table.
+                view_bytes.append(float(np.mean(cell_files[m])) + float(np.mean(group_files)) / len(members))
+                cell_bytes.append(sum(cell_files[m]) + sum(group_files) / len(members))
                 cx, cy = x0 + (i + 0.5) * size, y0 + (j + 0.5) * size
                 avg = np.rint(fld.astype(np.float32).mean(axis=2)).astype(np.uint8)
                 uri = write_content(partial, key, _quad(size, 0.0, encode_image(avg, "jpg", 90)), atomic=False)
                 near = ((np.abs(tri_c[:, 0] - cx) <= 1.5 * size) & (np.abs(tri_c[:, 1] - cy) <= 1.5 * size))
                 h_mean = float(height[near].mean()) if near.any() else 0.0
+                if top is not None:  # what the depth-corrected lookup gets wrong: its height error + ½ march step
+                    h_mean = min(h_mean, top[1] + 0.25)
                 error = size / texels + factor * h_mean
                 centre = np.array([cx, cy, z0])
                 specs[(lv, i, j)] = TileSpec(key=key, level=lv, center=centre,
                                              lo=np.array([cx - size / 2, cy - size / 2, z0]),
                                              hi=np.array([cx + size / 2, cy + size / 2, z0 + 1e-3]),
                                              geometric_error=error, content=uri, extras={"citylod_slf": {
-                                                 "cell": f"slf/cells/{key}.bin", "group": f"slf/groups/{gkey}.bin",
-                                                 "texel_m": size / texels, "parallax_m": factor * h_mean}})
+                                                 "cell": f"slf/cells/{key}_{{patch}}.bin",
+                                                 "group": f"slf/groups/{gkey}_{{patch}}.bin",
+                                                 "texel_m": size / texels, "parallax_m": factor * h_mean,
+                                                 "heights": top is not None}})
         for (lv, i, j), spec in specs.items():
             if lv + 1 < levels:
                 spec.children = [specs[(lv + 1, 2 * i + a, 2 * j + b)] for b in (0, 1) for a in (0, 1)]
@@ -496,11 +592,13 @@ def build_slf(city_dir: str | PathLike[str], out_dir: str | PathLike[str], *, te
             "texels": texels, "levels": levels, "ground_z": z0, "ground_rgb": list(ground_rgb),
             "city": os.path.relpath(Path(scene.path).resolve().parent if Path(scene.path).is_file()
                                     else Path(scene.path).resolve(), out.resolve()),
-            "parallax_factor": factor, "clusters": clusters, "components": components}})
+            "parallax_factor": factor, "clusters": clusters, "components": components, "group": group,
+            "heights": heights, "patches": [p.tolist() for p in patch_sets]}})
         publish_dir(partial, out)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise
     raw = texels * texels * len(ds) * 3
-    return SlfReport(out, len(specs), levels, len(ds), texels, float(np.mean(cell_bytes)), raw,
+    return SlfReport(out, len(specs), levels, len(ds), texels, float(np.mean(view_bytes)), float(np.mean(cell_bytes)),
+                     raw,
                      math.sqrt(sq_err / max(count, 1)), float(np.median(p99s)), bake_s, comp_s)

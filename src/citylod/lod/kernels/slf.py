@@ -23,6 +23,16 @@ weights ``w_k``; its colour for stored direction ``j`` is ``mean[c, j] + Σ_k w_
 bilinear blend of four directions is applied to the clusters' lumispheres first (256 × 4 rows), then every
 texel costs one gather and three multiply-adds (:func:`evaluate`).
 
+**Depth-corrected evaluation.** Blending four stored directions draws a point of height ``h`` in up to four
+places, ``h·|v/v_z − d_j/d_jz|`` apart (the parallax of the blend). With a per-texel height of the building
+tops ``T`` (the highest surface over each texel seen from straight above) :func:`evaluate_parallax` first
+finds the point the view ray through texel ``q`` meets, ``P = (q + h·v_xy/v_z, h)`` with ``h`` the largest
+height at which ``T(q + h·v_xy/v_z) ≥ h`` (a ray march over the height field: the viewer is above, so the
+first surface met is the highest), then reads each stored direction where *that point* lies in its image,
+``q_j = q + h·(v_xy/v_z − d_j,xy/d_j,z)`` (bilinear in the texel grid), and blends those. A point visible in
+the view and in the four stored directions is then drawn once, at its place; what one of the directions
+does not see (disocclusion) still blends in its occluder.
+
 numpy and numba only (see lod/kernels/__init__).
 """
 
@@ -34,7 +44,8 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["DirectionSet", "direction_set", "evaluate", "interpolation", "parabolic", "rasterise"]
+__all__ = ["DirectionSet", "depth_corrected_blend", "direction_patches", "direction_set", "evaluate", "evaluate_parallax", "interpolation", "march_heights",
+           "parabolic", "patch_of", "rasterise"]
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -101,15 +112,42 @@ def parabolic(d: npt.ArrayLike) -> F64:
     return a[..., :2] / (1.0 + np.maximum(a[..., 2:3], 0.0))
 
 
-def interpolation(ds: DirectionSet, d: npt.ArrayLike) -> tuple[I64, F64]:
-    """The four stored directions around ``d`` (3,) (towards the viewer) and their bilinear weights."""
+def _lattice(ds: DirectionSet, d: npt.ArrayLike) -> tuple[I64, F64]:
+    """Lattice (column, row) of the lower corner of the lattice square around ``d`` and the fractions."""
     p = parabolic(d)
     r = float(np.hypot(*p))
     if r > 1.0:
         p = p / r
     g = (np.clip(p, -1.0, 1.0) + 1.0) * 0.5 * (ds.grid - 1)
     c0 = np.minimum(np.floor(g).astype(np.int64), ds.grid - 2)
-    f = g - c0
+    return c0, g - c0
+
+
+def direction_patches(ds: DirectionSet) -> list[I64]:
+    """The stored directions split into overlapping patches of 3 × 3 lattice points, one starting at every
+    second lattice point (the last ones clamped to the lattice), so that the four directions of any
+    bilinear blend lie in one patch (:func:`patch_of`). Each patch: its stored direction indices, ascending.
+
+    >>> [len(p) for p in direction_patches(direction_set(5))]
+    [8, 8, 8, 8]
+    """
+    starts = sorted({min(2 * k, ds.grid - 3) for k in range(ds.grid // 2)})
+    return [np.array(sorted({int(ds.table[r, c]) for r in range(r0, r0 + 3) for c in range(c0, c0 + 3)}), np.int64)
+            for r0 in starts for c0 in starts]
+
+
+def patch_of(ds: DirectionSet, d: npt.ArrayLike) -> int:
+    """Index in :func:`direction_patches` of the patch holding the four directions blended for ``d``."""
+    c0, _ = _lattice(ds, d)
+    starts = sorted({min(2 * k, ds.grid - 3) for k in range(ds.grid // 2)})
+    col = max(i for i, s in enumerate(starts) if s <= c0[0])
+    row = max(i for i, s in enumerate(starts) if s <= c0[1])
+    return row * len(starts) + col
+
+
+def interpolation(ds: DirectionSet, d: npt.ArrayLike) -> tuple[I64, F64]:
+    """The four stored directions around ``d`` (3,) (towards the viewer) and their bilinear weights."""
+    c0, f = _lattice(ds, d)
     idx = np.array([ds.table[c0[1], c0[0]], ds.table[c0[1], c0[0] + 1], ds.table[c0[1] + 1, c0[0]],
                     ds.table[c0[1] + 1, c0[0] + 1]], np.int64)
     w = np.array([(1 - f[0]) * (1 - f[1]), f[0] * (1 - f[1]), (1 - f[0]) * f[1], f[0] * f[1]])
@@ -190,4 +228,93 @@ def evaluate(cluster: npt.NDArray[np.uint8], weights: F64, mean: F64, basis: F64
     b = np.tensordot(basis[:, :, idx, :], w, axes=([2], [0]))  # (C, K, 3)
     c = cluster.astype(np.int64)
     out = m[c] + np.einsum("...k,...kc->...c", weights, b[c])
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def march_heights(top: npt.NDArray[np.floating], texel_m: float, v: npt.ArrayLike) -> F64:
+    """Height (m above the ground) of the point each texel's view ray meets, (T, T).
+
+    ``top`` (T, T): height of the building tops per texel, row 0 at the north edge; ``v`` (3,): unit view
+    direction towards the viewer. The ray through the ground point of texel ``q`` rises along
+    ``q + s·v_xy/v_z`` at height ``s``; the answer is the largest sampled ``s`` where ``top`` (nearest texel)
+    reaches ``s`` (0 where none: the ground). Steps keep the horizontal advance within half a texel; outside
+    the cell the ground is assumed.
+    """
+    t = top.shape[0]
+    vv = np.asarray(v, np.float64)
+    a = vv[:2] / max(vv[2], 1e-6)
+    hmax = float(top.max()) if top.size else 0.0
+    if hmax <= 0.0:
+        return np.zeros(top.shape)
+    ds = min(0.5, 0.5 * texel_m / max(float(np.hypot(a[0], a[1])), 1e-9))
+    s = np.arange(ds, hmax + ds, ds)
+    r, c = np.mgrid[0:t, 0:t].astype(np.float64)
+    h = np.zeros(top.shape)
+    for s0 in range(0, len(s), 64):  # blocks of heights bound the memory to 64·T² samples
+        ss = s[s0:s0 + 64][:, None, None]
+        ci = np.floor(c[None] + 0.5 + ss * (a[0] / texel_m)).astype(np.int64)
+        ri = np.floor(r[None] + 0.5 - ss * (a[1] / texel_m)).astype(np.int64)
+        ok = (ci >= 0) & (ci < t) & (ri >= 0) & (ri < t)
+        hit = ok & (top[np.clip(ri, 0, t - 1), np.clip(ci, 0, t - 1)] >= ss - 1e-6)
+        h = np.maximum(h, np.where(hit, ss, 0.0).max(axis=0))
+    return h
+
+
+def _bilinear(img: F64, rr: F64, cc: F64) -> F64:
+    """``img`` (T, T, 3) at fractional texel centres (row ``rr``, column ``cc``), edges clamped."""
+    t = img.shape[0]
+    r = np.clip(rr, 0.0, t - 1.0)
+    c = np.clip(cc, 0.0, t - 1.0)
+    r0 = np.minimum(np.floor(r).astype(np.int64), t - 2) if t > 1 else np.zeros(r.shape, np.int64)
+    c0 = np.minimum(np.floor(c).astype(np.int64), t - 2) if t > 1 else np.zeros(c.shape, np.int64)
+    fr, fc = (r - r0)[..., None], (c - c0)[..., None]
+    r1, c1 = np.minimum(r0 + 1, t - 1), np.minimum(c0 + 1, t - 1)
+    return ((1 - fr) * ((1 - fc) * img[r0, c0] + fc * img[r0, c1])
+            + fr * ((1 - fc) * img[r1, c0] + fc * img[r1, c1]))
+
+
+def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDArray[np.floating],
+                          texel_m: float, v: npt.ArrayLike, tolerance_m: float = 1.0,
+                          seen_heights: list[npt.NDArray[np.floating]] | None = None) -> F64:
+    """Blend ``images`` (4, T, T, 3), the field of stored directions ``idx`` with bilinear weights ``w``, for
+    the view ``v`` (unit, towards the viewer) with the depth correction of the module's docstring: ``dirs``
+    (N, 3) the stored directions, ``top`` (T, T) building-top heights (m), ``texel_m`` the texel size.
+
+    A stored direction whose own ray march meets, at the texel where the viewed point should lie, a surface
+    more than ``tolerance_m`` higher or lower, does not see that point (it is hidden there, or the height
+    field is too coarse to tell): its weight goes to the directions that do; where none does, the plain
+    weights stay. ``seen_heights``: the ray marches of the stored directions (``march_heights(top, texel_m,
+    dirs[j])`` for each of ``idx``), when the caller keeps them between views."""
+    vv = np.asarray(v, np.float64)
+    vv = vv / np.linalg.norm(vv)
+    h = march_heights(top, texel_m, vv)
+    t = images.shape[1]
+    r, c = np.mgrid[0:t, 0:t].astype(np.float64)
+    a = vv[:2] / max(vv[2], 1e-6)
+    acc = np.zeros((t, t, 3))
+    wsum = np.zeros((t, t))
+    fallback = np.zeros((t, t, 3))
+    for k, (img, j, wj) in enumerate(zip(images, idx, w, strict=True)):
+        if wj <= 0.0:
+            continue
+        shift = a - dirs[j, :2] / max(dirs[j, 2], 1e-6)
+        rr, cc = r - h * shift[1] / texel_m, c + h * shift[0] / texel_m
+        sample = _bilinear(np.asarray(img, np.float64), rr, cc)
+        hj = march_heights(top, texel_m, dirs[j]) if seen_heights is None else seen_heights[k]
+        seen = hj[np.clip(np.rint(rr).astype(np.int64), 0, t - 1), np.clip(np.rint(cc).astype(np.int64), 0, t - 1)]
+        ok = (np.abs(seen - h) <= tolerance_m) * wj
+        acc += ok[..., None] * sample
+        wsum += ok
+        fallback += wj * sample
+    return np.where(wsum[..., None] > 1e-9, acc / np.maximum(wsum, 1e-9)[..., None], fallback / max(float(w.sum()), 1e-9))
+
+
+def evaluate_parallax(cluster: npt.NDArray[np.uint8], weights: F64, mean: F64, basis: F64, idx: I64, w: F64,
+                      dirs: F64, top: npt.NDArray[np.floating], texel_m: float,
+                      v: npt.ArrayLike) -> npt.NDArray[np.uint8]:
+    """Like :func:`evaluate` for a square cell (``cluster`` (T, T)) with the depth correction
+    (:func:`depth_corrected_blend`): the four directions' images are reconstructed whole, then resampled."""
+    cl = cluster.astype(np.int64)
+    images = np.stack([mean[cl, j] + np.einsum("...k,...kc->...c", weights, basis[cl, :, j]) for j in idx])
+    out = depth_corrected_blend(images, idx, w, dirs, top, texel_m, v)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)

@@ -25,9 +25,12 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["FrameTimeController", "PidGains", "PointBudgetController"]
+import numpy as np
+
+__all__ = ["CostModel", "FeedForwardBudgetController", "FrameTimeController", "PidGains", "PointBudgetController"]
 
 
 @dataclass(frozen=True)
@@ -241,3 +244,186 @@ class PointBudgetController:
         self.correction = 0.0
         self.point_budget = self.base_points
         self.per_point_ms = None
+
+
+class CostModel:
+    """Frame time as a machine speed times a sum of per-element costs, fitted online:
+    ``ms ≈ s · (c₀ + c_p·points + c_t·triangles + c_n·new)`` (``new``: points and triangles of tiles not
+    drawn the frame before, whose buffers the GL builds during the frame).
+
+    Two time scales, because the two parts change at different rates. The **costs** ``c`` (what a point,
+    a triangle, an upload, the frame's overhead cost) are fitted by recursive least squares with slow
+    forgetting (``forget`` per frame) on the frames' times: relative
+    errors (each frame weighs ``1/ms²``) with a Huber weight (a frame off by more than ``huber`` weighs
+    ``huber/|error|``), and a ridge toward ``prior`` so that a cost no frame has exercised (no triangles yet)
+    stays at its prior instead of being undefined. The **speed** ``s`` (the machine's load, the view's fill)
+    is the median over the last ``window`` frames of measured / fitted time (the fit does not depend on it,
+    so the two cannot chase each other): it follows a drift within a
+    few frames, and one 3× slow frame of a loaded machine moves neither part much (least squares alone was
+    thrown by such frames, docs/PERFORMANCE_LOG.md). Coefficients are clamped at 0.
+
+    Examples
+    --------
+    >>> m = CostModel()
+    >>> for p in (100_000, 300_000, 200_000, 400_000, 250_000, 350_000):
+    ...     m.add(2.0 + 1e-4 * p, points=p)
+    >>> abs(m.predict(points=1_000_000) - 102.0) < 2.0     # 2 ms + 0.1 µs a point
+    True
+    """
+
+    def __init__(self, *, forget: float = 0.9, huber: float = 0.3, window: int = 3,
+                 prior: Sequence[float] = (1.0, 0.0, 0.0, 0.0),
+                 prior_weight: Sequence[float] = (0.3, 1e-6, 1e-6, 0.3)) -> None:
+        self.forget, self.huber = float(forget), float(huber)
+        self.prior = np.asarray(prior, np.float64)
+        self.prior_weight = np.asarray(prior_weight, np.float64)
+        self.S = np.zeros((4, 4))
+        self.b = np.zeros(4)
+        self.frames = 0
+        self.coef = self.prior.copy()
+        self.speed = 1.0
+        self._recent: deque[tuple[np.ndarray, float]] = deque(maxlen=int(window))
+
+    @staticmethod
+    def features(points: float, triangles: float = 0.0, new: float = 0.0) -> np.ndarray:
+        return np.array([1.0, points * 1e-5, triangles * 1e-5, new * 1e-5])  # per 100 k elements
+
+    def predict(self, points: float, triangles: float = 0.0, new: float = 0.0) -> float:
+        return self.speed * float(self.features(points, triangles, new) @ self.coef)
+
+    def add(self, ms: float, points: float, triangles: float = 0.0, new: float = 0.0) -> None:
+        phi = self.features(points, triangles, new)
+        ms = max(float(ms), 1e-3)
+        y = ms
+        guess = float(phi @ self.coef) if self.frames else y
+        scale = max(guess, 1e-3)
+        err = abs(y - guess) / scale
+        w = (1.0 if err <= self.huber else (self.huber / err) ** 2) / (scale * scale)
+        self.S = self.forget * self.S + w * np.outer(phi, phi)
+        self.b = self.forget * self.b + w * phi * y
+        self.frames += 1
+        ridge = np.diag(self.prior_weight / (scale * scale))  # in frames' worth of weight
+        self.coef = np.maximum(np.linalg.solve(self.S + ridge, self.b + ridge @ self.prior), 0.0)
+        self._recent.append((phi, ms))
+        ratios = sorted(m / max(float(f @ self.coef), 1e-6) for f, m in self._recent)
+        mid = len(ratios) // 2
+        self.speed = ratios[mid] if len(ratios) % 2 else 0.5 * (ratios[mid - 1] + ratios[mid])
+
+    def reset(self) -> None:
+        self.S[:] = 0.0
+        self.b[:] = 0.0
+        self.frames = 0
+        self.coef = self.prior.copy()
+        self.speed = 1.0
+        self._recent.clear()
+
+
+class FeedForwardBudgetController:
+    """Hold a target frame time on point layers by choosing each frame's point budget *before* it is drawn,
+    from that frame's candidate tiles and a fitted cost model (Kehl et al.'s controller with a cost model
+    in front of it), with a PI controller correcting only what the model gets wrong.
+
+    Per frame:
+
+    1. :meth:`plan` gets the next frame's **cost curve**: the budget's admissions in order
+       (:attr:`~citylod.lod.runtime.selection.Selection.admitted` of a selection at the user's τ and
+       budget), each as cumulative ``(points, triangles, new)``. It picks the longest prefix whose
+       predicted time (:class:`CostModel`) stays within ``target·exp(−correction)`` and returns the
+       budget that admits exactly that prefix. A view change is thereby met in the frame it happens: the
+       curve of the new view, not the last frame's error, sets the budget.
+    2. :meth:`update` gets the frame's measured time and what it drew: the model is refitted, and while the
+       budget bound, the PI integrates the clipped log error of the frame against the target with gain
+       ``ki`` (what the model misses persistently: a non-linear cost, the prefix's granularity). Against the
+       target, not the prediction: the model already learns its own error, and integrating that too wound
+       the correction up while the frames were on target (measured on the plant of tests/lod/test_budget.py).
+
+    **Smooth refinement**: the budget grows by at most ``max_growth`` a frame (new detail arrives over a
+    few frames; new point tiles also fade in on screen); it shrinks at once. A budget the view did not need
+    (everything in view fitted) is not raised past what the view drew: a model fitted on sparse, cheap
+    views would otherwise send the next dense view far over the target.
+
+    **Views too light for the target**: when everything in view at the user's τ is predicted to cost less
+    than the target, the frame draws it all (:attr:`reachable` is False); τ is not lowered, since the data
+    may hold nothing finer (on the budget bench's flight these views draw their leaves already) and a finer
+    τ made dense views cheaper per point than their budget could use (docs/PERFORMANCE_LOG.md).
+
+    Pure: no clock, no I/O, no VTK.
+
+    Examples
+    --------
+    >>> c = FeedForwardBudgetController(40.0, base_points=1_000_000)
+    >>> curve = [(k * 50_000, 0, 0) for k in range(1, 21)]          # 50 k points per admission
+    >>> for _ in range(6):                                           # 0.1 µs a point + 5 ms
+    ...     b = c.plan(curve)
+    ...     c.update(5.0 + 1e-4 * min(b, 1_000_000), min(b, 1_000_000), budget_limited=b < 1_000_000)
+    >>> 300_000 <= c.point_budget <= 350_000
+    True
+    """
+
+    def __init__(self, target_ms: float, *, base_points: int, base_tau_px: float = 1.0, ki: float = 0.1,
+                 clip: float = 0.4, max_growth: float = 1.15, min_points: int | None = None,
+                 model: CostModel | None = None) -> None:
+        if target_ms <= 0 or base_points <= 0:
+            raise ValueError("target_ms and base_points must be > 0")
+        self.target_ms = float(target_ms)
+        self.base_points = int(base_points)
+        self.base_tau_px = float(base_tau_px)
+        self.tau_scale = 1.0
+        self.ki, self.clip, self.max_growth = float(ki), float(clip), float(max_growth)
+        self.min_points = int(min_points if min_points is not None else max(1, base_points // 1000))
+        self.model = model or CostModel()
+        self.correction = 0.0
+        self.point_budget = self.base_points
+        self.predicted_ms: float | None = None
+        self.reachable = True
+
+    @property
+    def tau_px(self) -> float:
+        return self.base_tau_px
+
+    def plan(self, curve: Sequence[tuple[int, int, int]]) -> int:
+        """The point budget for the next frame from its cost curve (cumulative ``(points, triangles, new)``
+        per admission, in order; the first entry is drawn whatever the budget)."""
+        if not curve:
+            self.predicted_ms = None
+            return self.point_budget
+        if not self.model.frames:  # no measurement yet: the user's budget (the first frame warms up)
+            self.predicted_ms = None
+            self.reachable = True
+            return self.point_budget
+        goal = self.target_ms * math.exp(-self.correction)
+        cap = min(float(self.base_points), self.point_budget * self.max_growth)
+        k = 0
+        for i, (pts, tri, new) in enumerate(curve):
+            if pts > cap or self.model.predict(pts, tri, new) > goal:
+                break
+            k = i
+        else:
+            k = len(curve) - 1
+        total = curve[-1][0]
+        self.reachable = self.model.predict(*curve[-1]) >= goal or total > cap
+        pts = curve[k][0]
+        if k == len(curve) - 1:  # all of the view fits: keep the budget, raised to the view if need be
+            self.point_budget = max(self.min_points, int(min(cap, max(self.point_budget, pts))))
+        else:  # the budget binds: the largest budget that still refuses the next admission
+            self.point_budget = max(self.min_points, int(min(cap, max(pts, curve[k + 1][0] - 1))))
+        self.predicted_ms = self.model.predict(*curve[k])
+        return self.point_budget
+
+    def update(self, frame_ms: float, drawn_points: int, drawn_triangles: int = 0, new_elements: int = 0,
+               budget_limited: bool = True) -> None:
+        """Feed the frame just drawn: its time, what it drew (points, triangles, elements new to the GL) and
+        whether the budget stopped refinement."""
+        self.model.add(frame_ms, drawn_points, drawn_triangles, new_elements)
+        if budget_limited:
+            e = math.log(max(frame_ms, 1e-3) / self.target_ms)
+            self.correction += self.ki * max(-self.clip, min(self.clip, e))
+            self.correction = max(-1.0, min(1.0, self.correction))
+
+    def reset(self) -> None:
+        """Forget the model and the corrections (a new scene, or budget mode switched on again)."""
+        self.model.reset()
+        self.correction = 0.0
+        self.point_budget = self.base_points
+        self.predicted_ms = None
+        self.reachable = True

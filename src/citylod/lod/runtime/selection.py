@@ -198,6 +198,12 @@ class Selection:
         The tiles named by ``request``, same order (what a loader needs to load them).
     frame
         The frame number passed to :func:`select`, for the cache and loader bookkeeping.
+    admitted
+        The budget's admissions in order: ``(points, triangles, keys)`` per step, the totals of the drawn
+        set after it and the content tiles it added (the root first). A smaller point budget ``B`` admits
+        exactly the steps whose ``points`` stay within ``B``, up to the first that does not (refinement
+        stops at the first refusal, and the order does not depend on the budget), so this is the frame's
+        cost curve for a controller choosing the next budget (:mod:`citylod.lod.runtime.budget`).
     """
 
     render: list[TileNode]
@@ -205,6 +211,7 @@ class Selection:
     stats: SelectionStats
     request_nodes: list[TileNode] = field(default_factory=list, repr=False)
     frame: int = 0
+    admitted: list[tuple[int, int, tuple[str, ...]]] = field(default_factory=list, repr=False)
 
 
 @dataclass(frozen=True)
@@ -372,9 +379,11 @@ def select(
     # end up in render, and the others are requested.
     desired: dict[int, tuple[TileNode, int]] = {}
     budget_limited = False
+    admitted: list[tuple[int, int, tuple[str, ...]]] = []
     if not culled:
         desired[id(tree)] = (tree, 0)
         total = fr.cost(tree)  # the root is drawn whatever it costs
+        admitted.append((total.points, total.triangles, (tree.key,) if fr.has_content(tree) else ()))
         # Potree updatePointClouds: a max-heap on projected size (here: sse), popped in order, so the
         # budget is spent on what is largest on screen first. The counter keeps ties stable and
         # avoids comparing nodes.
@@ -401,6 +410,7 @@ def select(
                     budget_limited = True
                     continue
                 total = total + delta
+                admitted.append((total.points, total.triangles, tuple(c.key for c in visible if fr.has_content(c))))
                 for c in visible:
                     want(c)
                 # Empty children draw nothing but are looked through; below a missing child nothing is
@@ -428,6 +438,7 @@ def select(
                         want(t_node)
                     continue
                 total = total + delta
+                admitted.append((total.points, total.triangles, tuple(t_node.key for t_node in fill)))
                 committed.update(id(t_node) for t_node in through)
                 pushed = visible
             if not additive:
@@ -471,4 +482,5 @@ def select(
         stats=stats,
         request_nodes=[w[1] for w in requests],
         frame=frame,
+        admitted=admitted,
     )
