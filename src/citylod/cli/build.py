@@ -23,7 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--metric", choices=("hausdorff", "vertical"), default="vertical",
                    help="what geometricError bounds: the vertical distance to the raster (default; counts a "
                         "façade at its full height) or the symmetric 3D Hausdorff distance (coarse levels within 1.5x "
-                        "their targets on cities, builds about 20x longer)")
+                        "their targets on cities, builds take about 7x the CPU)")
     pt = bsub.add_parser("points", help="LAS/LAZ files to a 3D Tiles octree")
     pt.add_argument("files", type=Path, nargs="+")
     pt.add_argument("-o", "--output", type=Path, required=True)
