@@ -2,7 +2,8 @@
 
 :func:`prepare_tile` is the ``load_fn`` of :class:`citylod.lod.runtime.loader.TileLoader` for rendering: it reads
 and decodes the tile content (:meth:`citylod.io.tiles3d.Tile.load_content`), splits surface from skirt
-triangles, turns glTF texture coordinates into VTK's (origin bottom-left) and decodes the texture image
+triangles, puts them in an order the GPU's vertex cache reuses (:mod:`citylod.render.mesh_order`), turns glTF
+texture coordinates into VTK's (origin bottom-left) and decodes the texture image
 into a numpy array. The render thread then only wraps these arrays (no copy) in VTK objects. The texture
 decoder is a VTK image reader fed from memory; it is a transient, unshared object that never touches
 OpenGL, which VTK supports off the main thread.
@@ -18,7 +19,7 @@ import numpy.typing as npt
 
 from citylod.core.errors import InputError
 from citylod.io.tiles3d import PointData
-from citylod.render import _vtk
+from citylod.render import _vtk, mesh_order
 
 
 @dataclass
@@ -120,12 +121,18 @@ def prepare_content(content: Any, key: str, level: int, source: str = "") -> Pre
             tcoords[:, 0] = uv[:, 0]
             tcoords[:, 1] = 1.0 - uv[:, 1]
             texture = decode_image(mesh.texture, source)
+        positions = np.ascontiguousarray(mesh.positions, dtype=np.float32)
+        colors = None if mesh.colors is None else np.ascontiguousarray(mesh.colors, np.uint8)
+        surface, skirt_faces = _flat(faces[~skirt]), _flat(faces[skirt])
+        if mesh_order.enabled() and len(faces):
+            # Same triangles, drawn in an order the vertex cache reuses (render/mesh_order.py).
+            perm, (surface, skirt_faces) = mesh_order.cache_order(positions, surface, skirt_faces)
+            positions = np.ascontiguousarray(positions[perm])
+            tcoords = None if tcoords is None else np.ascontiguousarray(tcoords[perm])
+            colors = None if colors is None else np.ascontiguousarray(colors[perm])
         out.meshes.append(PreparedMesh(
-            positions=np.ascontiguousarray(mesh.positions, dtype=np.float32),
-            surface=_flat(faces[~skirt]), skirt=_flat(faces[skirt]),
-            tcoords=tcoords, texture=texture,
-            colors=None if mesh.colors is None else np.ascontiguousarray(mesh.colors, np.uint8),
-            name=mesh.name,
+            positions=positions, surface=surface, skirt=skirt_faces,
+            tcoords=tcoords, texture=texture, colors=colors, name=mesh.name,
         ))
     return out
 
