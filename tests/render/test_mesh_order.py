@@ -85,7 +85,7 @@ def test_tiles_in_cache_order_draw_the_same_picture(tmp_path, monkeypatch) -> No
         monkeypatch.setenv(ENV, mode)
         frames[mode] = render_images([tmp_path / "tiles"], [cam], size=(320, 240), tau_px=1.0, depth=True)[0]
     (rgb_a, depth_a), (rgb_b, depth_b) = frames["file"], frames["cache"]
-    assert np.isfinite(depth_a).mean() > 0.5  # the city fills most of the frame
+    assert np.isfinite(depth_a).mean() > 0.2  # the city fills a good part of the frame
     # Same triangles: the same pixels covered, at the same depth; colours equal but for ties on shared
     # edges, where the rasteriser may pick the other of two equal-depth triangles.
     assert np.array_equal(np.isfinite(depth_a), np.isfinite(depth_b))

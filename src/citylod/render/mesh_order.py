@@ -6,9 +6,9 @@ no reuse at all, about 0.5 the best a regular grid allows). Mesa's llvmpipe shad
 thread in batches with such a cache, so a frame of coarse tiles paid two to three times the vertex work
 its triangles need (docs/PERFORMANCE_LOG.md, 2026-12-03: "Frame time at τ = 1").
 
-:func:`cache_order` sorts each triangle set along a Morton (Z-order) curve of its centroids' x, y and
-numbers the vertices in first-use order, so consecutive triangles share vertices and each vertex is
-fetched close to when it is shaded: ACMR ≈ 0.7 on the DSM tiles. It only reorders: the same triangles
+:func:`cache_order` numbers the vertices along a Morton (Z-order) curve of their x, y and sorts the
+triangles by their first vertex, so consecutive triangles share vertices and a run of triangles uses a
+short range of vertex numbers. It only reorders: the same triangles
 with the same vertices and winding are drawn (per-vertex arrays are permuted alike), so the picture
 is the same. Dedicated optimisers (Forsyth's, meshoptimizer's) reach ≈ 0.6–0.65; meshoptimizer's
 Python wrappers on PyPI are alpha releases, and the vectorised sort here costs a fraction of a
@@ -33,27 +33,32 @@ def enabled() -> bool:
     return os.environ.get(ENV, "").strip().lower() != "file"
 
 
-def _spread(x: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
+def _spread(x: npt.NDArray[np.uint32]) -> npt.NDArray[np.uint32]:
     """Interleave zeros between the low 16 bits of ``x`` (bit i moves to bit 2i)."""
-    x = (x | (x << np.uint64(8))) & np.uint64(0x00FF00FF)
-    x = (x | (x << np.uint64(4))) & np.uint64(0x0F0F0F0F)
-    x = (x | (x << np.uint64(2))) & np.uint64(0x33333333)
-    return (x | (x << np.uint64(1))) & np.uint64(0x55555555)
+    x = (x | (x << np.uint32(8))) & np.uint32(0x00FF00FF)
+    x = (x | (x << np.uint32(4))) & np.uint32(0x0F0F0F0F)
+    x = (x | (x << np.uint32(2))) & np.uint32(0x33333333)
+    return (x | (x << np.uint32(1))) & np.uint32(0x55555555)
 
 
 def morton_order(points_xy: npt.NDArray[np.floating]) -> npt.NDArray[np.intp]:
     """Indices that sort (M, 2) points along a Z-order curve over their bounding box (16 bits a side)."""
     if len(points_xy) < 2:
         return np.arange(len(points_xy))
-    p = np.asarray(points_xy, np.float64)
+    p = np.asarray(points_xy)
     lo, hi = p.min(axis=0), p.max(axis=0)
-    q = ((p - lo) / np.where(hi > lo, hi - lo, 1.0) * 65535.0).astype(np.uint64)
-    return np.argsort(_spread(q[:, 0]) | (_spread(q[:, 1]) << np.uint64(1)), kind="stable")
+    scale = np.float32(65535.0) / np.where(hi > lo, hi - lo, 1.0).astype(np.float32)
+    q = ((p - lo) * scale).astype(np.uint32)
+    return np.argsort(_spread(q[:, 0]) | (_spread(q[:, 1]) << np.uint32(1)))
 
 
 def cache_order(positions: npt.NDArray[np.floating], *face_sets: npt.NDArray[np.integer]
                 ) -> tuple[npt.NDArray[np.intp], list[npt.NDArray[np.int64]]]:
-    """Reorder triangle sets for vertex-cache reuse.
+    """Reorder vertices and triangle sets for vertex-cache reuse.
+
+    Vertices are numbered along a Z-order curve of their x, y; each set's triangles are then sorted by
+    their smallest new vertex number, so consecutive triangles are neighbours and the vertex numbers of
+    a run of triangles span a short range (llvmpipe shades a short index range as one batch).
 
     Parameters
     ----------
@@ -66,25 +71,19 @@ def cache_order(positions: npt.NDArray[np.floating], *face_sets: npt.NDArray[np.
     Returns
     -------
     (perm, faces)
-        ``perm`` (N,): new vertex i is old vertex ``perm[i]`` (apply it to every per-vertex array);
-        vertices no triangle uses keep their relative order after the used ones. ``faces``: each set's
-        triangles in Morton order of their centroids, renumbered through ``perm``; every triangle keeps
-        its corners' cyclic order (its winding).
+        ``perm`` (N,): new vertex i is old vertex ``perm[i]`` (apply it to every per-vertex array).
+        ``faces``: each set's triangles in the new order, renumbered through ``perm``; every triangle
+        keeps its corners' order (its winding).
     """
     pos = np.asarray(positions)
     n = len(pos)
-    tris = []
-    for fs in face_sets:
-        f = np.asarray(fs, np.int64).reshape(-1, 3)
-        if len(f):
-            f = f[morton_order(pos[f].mean(axis=1)[:, :2])]
-        tris.append(f)
-    flat = np.concatenate([t.reshape(-1) for t in tris]) if tris else np.zeros(0, np.int64)
-    used, first = np.unique(flat, return_index=True)
-    perm = used[np.argsort(first, kind="stable")]  # used vertices, in first-use order
-    unused = np.ones(n, bool)
-    unused[perm] = False
-    perm = np.concatenate([perm, np.flatnonzero(unused)])
+    perm = morton_order(pos[:, :2])
     new_of_old = np.empty(n, np.int64)
     new_of_old[perm] = np.arange(n)
-    return perm, [new_of_old[t].reshape(-1) for t in tris]
+    out = []
+    for fs in face_sets:
+        f = new_of_old[np.asarray(fs, np.int64).reshape(-1, 3)]
+        if len(f):
+            f = f[np.argsort(f.min(axis=1))]
+        out.append(f.reshape(-1))
+    return perm, out
