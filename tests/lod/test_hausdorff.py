@@ -270,3 +270,43 @@ def test_a_slope_beside_a_facade_certifies_at_its_measured_distance() -> None:
     measured = max(d1.max(), d2.max())
     assert measured <= h + 1e-6
     assert h <= 1.1 * measured, (h, measured)
+
+
+def test_a_subset_of_faces_bounds_its_own_pieces() -> None:
+    """``evaluate`` (stage 2 certifies only the faces its border fans touched): the bound of a subset of faces
+    is at least the distances measured independently from points on those faces to the raster and from raster
+    points under them to the whole TIN, no subset is needed for the empty one, and a subset away from the worst
+    piece certifies lower than the whole TIN (only its faces were bounded)."""
+    rng = np.random.default_rng(5)
+    n = 41
+    z = rng.normal(0, 0.2, (n, n)).cumsum(axis=1) * 0.3
+    z[12:25, 8:30] += 15.0
+    ok = np.ones_like(z, bool)
+
+    def read(r, c, nr, nc):
+        return z[r:r + nr, c:c + nc], ok[r:r + nr, c:c + nc]
+
+    from scipy.spatial import Delaunay
+
+    pts = np.unique(np.concatenate([rng.integers(0, n, (60, 2)), [[0, 0], [0, n - 1], [n - 1, 0], [n - 1, n - 1]]]),
+                    axis=0).astype(float)
+    faces = Delaunay(pts).simplices.astype(np.int64)
+    vz = z[pts[:, 0].astype(int), pts[:, 1].astype(int)]
+    step = 0.5
+    args = (read, (0, 0, n - 1, n - 1), pts[:, 0], pts[:, 1], vz, faces, (1, 1), n - 1, (step, 0.0, 0.0, -step))
+    whole = certify_hausdorff(*args, block=16)[0]
+    assert certify_hausdorff(*args, block=16, evaluate=np.zeros(len(faces), bool))[0] == 0.0
+    tv = np.column_stack([pts[:, 1] * step, -pts[:, 0] * step, vz])
+    sv, sf = _raster_surface(z, step, (-0.5 * step, 0.5 * step))
+    ps = sample_triangles(sv[sf], 2)
+    under = _covering(ps[:, :2], tv[faces][:, :, :2])
+    far = (pts[faces, 0] >= 30).all(axis=1)  # faces away from the block
+    assert far.any()
+    masks = [np.random.default_rng(k).random(len(faces)) < 0.3 for k in range(5)] + [far]
+    for k, mask in enumerate(masks):
+        bound = certify_hausdorff(*args, block=16, evaluate=mask)[0]
+        d1 = distances_to_mesh(sample_triangles(tv[faces[mask]], 5), sv, sf, bound + 1e-6)
+        mine = (under >= 0) & mask[np.maximum(under, 0)]
+        d2 = distances_to_mesh(ps[mine], tv, faces, bound + 1e-6)
+        assert max(d1.max(initial=0.0), d2.max(initial=0.0)) <= bound + 1e-6, k
+    assert bound < 0.5 * whole, (bound, whole)  # the far faces' own bound, not the whole TIN's

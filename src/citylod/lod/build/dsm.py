@@ -101,9 +101,11 @@ _WHOLE_FOOTPRINT_SAMPLES = 2049 * 2049
 _BLOCK = 1024
 # Hausdorff metric: rings of raster cells searched around a piece for a closer part of the surface; the TIN
 # kernel's 3D tolerances tried on a coarse tile, as fractions of its target, and the certificate (as a
-# multiple of the target) that stops the search (see build_tile).
+# multiple of the target) that stops the search (see build_tile). The search starts at the target: a
+# tile's certificate comes out 1.04–1.5× its tolerance on cities, so a tolerance above the target was never
+# kept within _HAUSDORFF_ACCEPT and only cost a TIN and a certificate (docs/PERFORMANCE_LOG.md).
 _HAUSDORFF_REACH = 12
-_HAUSDORFF_TOLERANCES = (1.5, 1.0, 0.5, 0.25)
+_HAUSDORFF_TOLERANCES = (1.0, 0.5, 0.25)
 _HAUSDORFF_ACCEPT = 1.5
 # Hausdorff metric: a coarse tile's grid has up to this many times the lines of its level's, every
 # full-resolution sample while the grid stays within 16·128 + 1 = 2049 samples a side (see _grid_stride).
@@ -361,15 +363,15 @@ def _place(info: RasterInfo, to_metric: pyproj.Transformer | None, rpos: np.ndar
 
 def _certify(fp: _Footprint, vr: np.ndarray, vc: np.ndarray, zq: np.ndarray, faces: np.ndarray, cells: int,
              stride: int, per_cell: bool = False, hausdorff: tuple[float, float, float, float] | None = None,
-             floor: float = 0.0) -> tuple[float, np.ndarray]:
+             floor: float = 0.0, evaluate: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """The TIN's certified error (quantised heights) against the full-resolution footprint, and per cell
     (zeros unless ``per_cell``): exact vertical L∞, or with ``hausdorff`` (the raster's affine, see
     `citylod.lod.kernels.hausdorff.certify_hausdorff`) a bound of the symmetric 3D Hausdorff distance, pieces
-    under ``floor`` kept at their vertical bound."""
+    under ``floor`` kept at their vertical bound (only the pieces of the ``evaluate`` faces, if given)."""
     if hausdorff is not None:
         err, cell_err, _ = certify_hausdorff(fp.read_block, fp.footprint, vr, vc, zq, faces.astype(np.int64),
                                              (cells, cells), stride, hausdorff, block=fp.block, per_cell=per_cell,
-                                             floor=floor, reach=_HAUSDORFF_REACH)
+                                             floor=floor, reach=_HAUSDORFF_REACH, evaluate=evaluate)
         return err, cell_err
     err, cell_err, _ = certify(fp.read_block, fp.footprint, vr, vc, zq, faces.astype(np.int64), (cells, cells),
                                stride, block=fp.block, per_cell=per_cell)
@@ -549,10 +551,11 @@ def build_tile(job: DsmJob) -> TileResult:
         # costs its slope's offset, not its height. That measure is a guide, not a bound: the certificate
         # decides. The coarsest tolerance whose certificate is within _HAUSDORFF_ACCEPT × the target is
         # kept (the issue allows 1.5× per level; a level's count of triangles falls with its tolerance); a
-        # finer one only when it lowers the certificate clearly.
+        # finer one only when it lowers the certificate clearly. Lattice seeds spare the kernel the rescans of
+        # large triangles at about the same triangles (docs/PERFORMANCE_LOG.md).
         kept = None
         for frac in _HAUSDORFF_TOLERANCES:
-            trial = attempt(frac * job.target, None, per_cell=False)
+            trial = attempt(frac * job.target, None, per_cell=False, lattice=True)
             if len(trial[2]) == 0:
                 break
             if kept is not None and trial[0] >= kept[0] * _REFINE_GAIN:
@@ -709,9 +712,20 @@ def finish_tile(job: DsmJob) -> TileResult:
             assert fp is not None
             err = max(err, _certify(fp, vr, vc, zq, faces[n_kept:], cells, stride)[0])
     elif haus is not None:
-        # Hausdorff pieces look for candidates among neighbouring faces, so a subset of faces certifies
-        # higher than in the whole TIN: a tile the fans changed is certified again as a whole.
-        if fp is not None or math.isnan(err):
+        if fp is not None and old_center is not None and not math.isnan(err) and np.array_equal(center, old_center):
+            # A piece's bound depends on the raster, its own face and the faces around that face's vertices
+            # (`citylod.lod.kernels.hausdorff`). Faces none of whose vertices belongs to a replaced face keep all
+            # three, and the old vertices quantise as they did, so their stage-1 bounds (at most ``err``) hold:
+            # only the fans and the kept faces touching a replaced face's vertices are bounded again, with
+            # every face of the new TIN as a candidate.
+            touched = np.zeros(len(vij), bool)
+            touched[replaced.reshape(-1)] = True
+            evaluate = touched[faces].any(axis=1)
+            evaluate[n_kept:] = True
+            e_new, _ = _certify(fp, vr, vc, zq, faces, cells, stride, hausdorff=haus, floor=0.5 * job.target,
+                                evaluate=evaluate)
+            err = max(err, e_new)
+        elif fp is not None or math.isnan(err):
             err, _ = _certify(fp or _Footprint(job.source, rpos, cpos), vr, vc, zq, faces, cells, stride,
                               hausdorff=haus, floor=0.5 * job.target)
     elif fp is not None and old_center is not None and not math.isnan(err) and np.array_equal(center, old_center):

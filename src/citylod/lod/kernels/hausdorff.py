@@ -92,6 +92,14 @@ def _clip(qy, qx, n, y1, x1, y2, x2, sgn, oy, ox):  # pragma: no cover - compile
     return m
 
 
+@njit(cache=True, nogil=True, inline="always", **NO_NRT)
+def _inner(y, x, y0, x0, y1, x1, y2, x2, sgn):  # pragma: no cover - compiled
+    """Whether point (y, x) is on the inner side of the triangle's three edges, by `_clip`'s own test."""
+    return (sgn * ((y1 - y0) * (x - x0) - (x1 - x0) * (y - y0)) >= -_EPS
+            and sgn * ((y2 - y1) * (x - x1) - (x2 - x1) * (y - y1)) >= -_EPS
+            and sgn * ((y0 - y2) * (x - x2) - (x0 - x2) * (y - y2)) >= -_EPS)
+
+
 @njit(cache=True, nogil=True, **NO_NRT)
 def _piece_bound(pxT, pyT, pzT, pzS, n, vmax, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin,
                  reach, t, faces, fx, fy, fz, ring_start, ring_faces):  # pragma: no cover - compiled
@@ -218,7 +226,7 @@ def _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0
 
 @njit(cache=True, nogil=True)
 def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_faces, cell_err, tr0, tc0, stride,
-                    best, track, floor, reach):  # pragma: no cover - compiled
+                    best, track, floor, reach, evaluate):  # pragma: no cover - compiled
     """Update ``best`` = [bound, row, col] (and ``cell_err`` when ``track``) with the pieces of one block.
 
     Parameters
@@ -240,6 +248,8 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
         Pieces whose bound is at most this are not searched further (their bound is recorded as it is).
     reach : int
         Rings of raster cells searched around a piece for S-side candidates.
+    evaluate : (M,) bool
+        The faces whose pieces are bounded; the others serve as TIN-side candidates only.
     """
     bh, bw = F.shape
     ax_, bx_, ay_, by_ = aff[0], aff[1], aff[2], aff[3]
@@ -268,6 +278,8 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
     ncl = cell_err.shape[0]
     ncc = cell_err.shape[1]
     for t in range(nf):
+        if not evaluate[t]:
+            continue
         a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
         ys0, ys1, ys2 = vr[a], vr[b], vr[c]
         xs0, xs1, xs2 = vc[a], vc[b], vc[c]
@@ -311,6 +323,12 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
                 z00, z01, z10, z11 = F[li, lj], F[li, lj + 1], F[li + 1, lj], F[li + 1, lj + 1]
                 ci = min(max(int(math.floor((i + 0.5 - tr0) / stride)), 0), ncl - 1)
                 cj = min(max(int(math.floor((j + 0.5 - tc0) / stride)), 0), ncc - 1)
+                # A cell wholly inside the face (its four corners pass `_clip`'s test for all three edges) is its
+                # own two pieces: the clips are skipped, with the same numbers as a result.
+                whole = (_inner(float(i), float(j), ys0, xs0, ys1, xs1, ys2, xs2, sgn)
+                         and _inner(float(i), float(j + 1), ys0, xs0, ys1, xs1, ys2, xs2, sgn)
+                         and _inner(float(i + 1), float(j), ys0, xs0, ys1, xs1, ys2, xs2, sgn)
+                         and _inner(float(i + 1), float(j + 1), ys0, xs0, ys1, xs1, ys2, xs2, sgn))
                 for lower in (True, False):
                     # the cell triangle: lower (i,j),(i+1,j),(i+1,j+1); upper (i,j),(i,j+1),(i+1,j+1)
                     qy[0], qx[0] = float(i), float(j)
@@ -320,11 +338,16 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
                         qy[1], qx[1] = float(i), float(j + 1)
                     qy[2], qx[2] = float(i + 1), float(j + 1)
                     n = 3
-                    n = _clip(qy, qx, n, ys0, xs0, ys1, xs1, sgn, wy, wx)
-                    if n >= 3:
-                        n = _clip(wy, wx, n, ys1, xs1, ys2, xs2, sgn, qy, qx)
-                    if n >= 3:
-                        n = _clip(qy, qx, n, ys2, xs2, ys0, xs0, sgn, wy, wx)
+                    if whole:
+                        # every corner is on the inner side of every edge: each clip returns its input
+                        for k in range(3):
+                            wy[k], wx[k] = qy[k], qx[k]
+                    else:
+                        n = _clip(qy, qx, n, ys0, xs0, ys1, xs1, sgn, wy, wx)
+                        if n >= 3:
+                            n = _clip(wy, wx, n, ys1, xs1, ys2, xs2, sgn, qy, qx)
+                        if n >= 3:
+                            n = _clip(qy, qx, n, ys2, xs2, ys0, xs0, sgn, wy, wx)
                     if n < 3:
                         continue
                     # the piece (wy, wx)[:n]: heights on T and on S, vertical bound
@@ -374,7 +397,8 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
                       vc: npt.NDArray[np.float64], vz: npt.NDArray[np.float64], faces: npt.NDArray[np.int64],
                       cells: tuple[int, int], stride: int, affine: tuple[float, float, float, float],
                       block: int = 1024, per_cell: bool = True, floor: float = 0.0,
-                      reach: int = 8) -> tuple[float, np.ndarray, tuple[float, float]]:
+                      reach: int = 8, evaluate: npt.NDArray[np.bool_] | None = None
+                      ) -> tuple[float, np.ndarray, tuple[float, float]]:
     """Certified upper bound of the symmetric Hausdorff distance between a TIN and the raster surface.
 
     Parameters
@@ -399,6 +423,10 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
         not matter.
     reach : int
         Rings of raster cells searched around a piece for a closer part of the raster surface.
+    evaluate : (M,) bool, optional
+        Bound only the pieces of these faces (default: all); every face stays a candidate for their S → T
+        search, so each evaluated piece is bounded against the same candidates as in the whole TIN's
+        certificate, and the other faces' bounds from an earlier certificate of the same faces still hold.
 
     Returns
     -------
@@ -424,6 +452,7 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
     f = np.ascontiguousarray(faces, dtype=np.int64)
     vr, vc, vz = (np.ascontiguousarray(a, dtype=np.float64) for a in (vr, vc, vz))
     start, around = vertex_faces(f, len(vr))
+    ev = np.ones(len(f), np.bool_) if evaluate is None else np.ascontiguousarray(evaluate, dtype=np.bool_)
     aff = np.asarray(affine, np.float64)
     # Each block's cells are evaluated with a margin of ``reach`` samples around them, read with the block,
     # so that the candidate search sees across block seams.
@@ -439,5 +468,5 @@ def certify_hausdorff(read_block, footprint: tuple[int, int, int, int], vr: npt.
                 continue
             kernel(hausdorff_block, np.ascontiguousarray(heights, np.float64), np.ascontiguousarray(valid, np.bool_),
                    hr, hc, own, aff, vr, vc, vz, f, start, around, cell_err, float(r0), float(c0), float(stride),
-                   best, bool(per_cell), float(floor), int(reach))
+                   best, bool(per_cell), float(floor), int(reach), ev)
     return float(best[0]), cell_err, (float(best[1]), float(best[2]))

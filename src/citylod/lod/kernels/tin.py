@@ -222,8 +222,9 @@ def build(
 
     ``plane``: (metres per column, per row). Given, a triangle's error is the distance of the samples to its
     plane (the vertical error times the plane's |n_z|), not the vertical one, so steep triangles along
-    façades stop attracting insertions; there is then no bound (the caller certifies), no seeds and no
-    decimation (both are built on the vertical bound). The DSM builder's Hausdorff metric uses it."""
+    façades stop attracting insertions; there is then no bound (the caller certifies), and no seeds but the
+    ``lattice`` (the rough-sample test is built on the vertical bound and would seed façades). The DSM
+    builder's Hausdorff metric uses it."""
     h = np.ascontiguousarray(heights, dtype=np.float64)
     if h.ndim != 2 or h.shape[0] < 1 or h.shape[1] < 1:
         raise ValueError(f"heights must be a non-empty 2D grid, got shape {h.shape}")
@@ -260,7 +261,7 @@ def build(
         raise ValueError(f"plane spacings must be > 0, got {plane}")
     vx, vy, tris, stuck, border_added = kernel(_k.build_tin, hz, np.ascontiguousarray(cv), fx, fy, e, True,
                                                bool(decimate), SEED_DEVIATION * e if seeded else math.inf,
-                                               int(lattice) if seeded else 0, sx, sy)
+                                               int(lattice) if seeded or plane is not None else 0, sx, sy)
     # keep the triangles inside R (centroid cell valid; see the module docstring for why that suffices),
     # and the vertices in some face, in index order, the faces renumbered
     vertices, faces = kernel(_k.live_mesh, vx, vy, tris, cv)
