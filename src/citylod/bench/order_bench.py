@@ -1,0 +1,77 @@
+"""Stored triangle order against vertex-cache order (:mod:`citylod.render.mesh_order`), in one process.
+
+``python -m citylod.bench.order_bench TILESET PATH.json [STEP]``: two off-screen renderers (960×540) load the
+same tileset, one with ``CITYLOD_MESH_ORDER=file`` (the order the tiles store), one in cache order. For every
+STEP-th camera of the path, camera by camera in turns (the order of the two renderers alternating), each
+draws the full-resolution frame and the τ = 1 px frame: median of 3 draws after a warm-up, timed as
+``citylod bench`` times them (:meth:`~citylod.render.offscreen.OffscreenRenderer.draw`). Prints per camera,
+then the bench's headline per renderer (median full / median τ = 1) and whether the two τ = 1 depth images
+differ. Timings are printed, never asserted.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+
+from citylod.core.camera import load_cameras
+from citylod.render.mesh_order import ENV
+from citylod.render.offscreen import OffscreenRenderer
+
+
+def _timed(r: OffscreenRenderer) -> float:
+    r.draw()  # warm-up: uploads
+    return 1000.0 * float(np.median([r.draw() for _ in range(3)]))
+
+
+def compare_orders(tileset: str, path: str, step: int = 1, size: tuple[int, int] = (960, 540)) -> dict[str, float]:
+    """Run the comparison; returns each renderer's median full and τ = 1 frame (ms) and speed-up."""
+    cams = load_cameras(path)[::max(1, step)]
+    renderers = {}
+    before = os.environ.get(ENV)
+    try:
+        for mode in ("file", "cache"):
+            os.environ[ENV] = mode  # read by the loader threads while the tiles load
+            r = OffscreenRenderer([tileset], size=size, tau_px=1.0, cache_bytes=4 << 30)
+            r.prepare(cams[0], full_resolution=True)
+            for c in cams:
+                r.prepare(c)
+            renderers[mode] = r
+    finally:
+        if before is None:
+            os.environ.pop(ENV, None)
+        else:
+            os.environ[ENV] = before
+    times: dict[tuple[str, str], list[float]] = {(m, k): [] for m in renderers for k in ("full", "tau1")}
+    differ = 0
+    try:
+        for ci, cam in enumerate(cams):
+            depth = {}
+            for kind in ("full", "tau1"):
+                for mode in (("file", "cache") if ci % 2 else ("cache", "file")):
+                    r = renderers[mode]
+                    r.prepare(cam, full_resolution=kind == "full")
+                    times[(mode, kind)].append(_timed(r))
+                    if kind == "tau1":
+                        depth[mode] = r.grab_depth()
+            a, b = depth["file"], depth["cache"]
+            both = np.isfinite(a) & np.isfinite(b)
+            differ += int((np.isfinite(a) != np.isfinite(b)).sum() + (np.abs(a[both] - b[both]) > 0).sum())
+            print(ci * max(1, step), {m: (round(times[(m, 'full')][-1], 1), round(times[(m, 'tau1')][-1], 1))
+                                      for m in renderers}, flush=True)
+    finally:
+        for r in renderers.values():
+            r.close()
+    out: dict[str, float] = {"tau1_pixels_differing": float(differ)}
+    for mode in renderers:
+        full, tau1 = float(np.median(times[(mode, "full")])), float(np.median(times[(mode, "tau1")]))
+        out.update({f"{mode}_full_ms": full, f"{mode}_tau1_ms": tau1, f"{mode}_speedup": full / tau1})
+        print(f"{mode} order: full median {full:.1f} ms, τ = 1 median {tau1:.1f} ms, speed-up {full / tau1:.2f}×")
+    print(f"τ = 1 depth pixels that differ between the two orders, all cameras: {differ}")
+    return out
+
+
+if __name__ == "__main__":
+    compare_orders(sys.argv[1], sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 1)
