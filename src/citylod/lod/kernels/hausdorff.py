@@ -19,8 +19,9 @@ triangles of T. The candidate list always holds the triangle directly above or b
 triangle for P_T, P's own TIN triangle for P_S), whose vertex distances are at most the vertical ones, so
 the bound is never worse than the exact vertical L∞ bound of the same pieces. Other candidates: raster
 cell triangles in rings of cells around P's cell (nearest first, stopped once a ring is farther than the
-current bound), and the TIN triangles sharing a vertex with P's own. The pieces cover both surfaces over
-the part of the footprint where both are defined, so the maximum over pieces bounds both directed
+current bound), the TIN triangles sharing a vertex with P's own, and, where those leave the bound above
+the threshold, the triangles sharing a vertex with them (any triangle of T is a valid C). The pieces cover
+both surfaces over the part of the footprint where both are defined, so the maximum over pieces bounds both directed
 Hausdorff distances, i.e. the symmetric one, over that part. A piece whose bound stays above the threshold
 (below) is cut into convex parts (its fan triangles, halved at the longest edge while their bound exceeds it,
 `_subdivided`) and bounded part by part: the argument holds for each convex part, and the parts cover the
