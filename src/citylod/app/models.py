@@ -462,6 +462,18 @@ def format_status(stats: Any, frame_ms: float, pending: int, loading: bool = Tru
     return text
 
 
+def format_budget_status(document: Document) -> str:
+    """The status bar's budget-mode part (empty when it is off): the target, the last frame as budget
+    mode measured it (draw until the GL finished) and the point budget it set, summed over the layers."""
+    fb = document.frame_budget
+    if fb is None:
+        return ""
+    ms = f"{fb.frame_ms[-1]:.0f} ms" if fb.frame_ms else "–"
+    points = sum(int(e.layer.budget.max_points) for e in document.entries
+                 if e.layer is not None and e.layer.budget is not None and e.layer.budget.max_points)
+    return f"hold {document.lod.target_ms:g} ms: frame {ms}, budget {points:,} pts"
+
+
 #: ASPRS LAS 1.4 class names (the legend); codes without a name are shown as "class N".
 ASPRS_CLASSES = {0: "never classified", 1: "unclassified", 2: "ground", 3: "low vegetation",
                  4: "medium vegetation", 5: "high vegetation", 6: "building", 7: "low point (noise)",
@@ -527,6 +539,9 @@ class LodSettings:
     #: ... and at most this many points per layer while moving: a software or small GPU spends its frame
     #: filling point sprites, so a moving frame needs a bound that does not grow with the budget.
     motion_point_budget: int = 100_000
+    #: Budget mode: hold this frame time (ms) by steering τ and the point budgets every frame
+    #: (:class:`~citylod.render.frame_budget.FrameBudget`); 0 = off, the fixed budgets above apply.
+    target_ms: float = 0.0
 
 
 class Document:
@@ -562,6 +577,8 @@ class Document:
         self.clip_box: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None
         self.class_filter: frozenset[int] | None = None
         self._class_counts: dict[str, dict[int, int]] = {}
+        #: The budget mode's controller while :attr:`LodSettings.target_ms` is set and a layer is open.
+        self.frame_budget: Any = None
 
     # -- events -----------------------------------------------------------------------------------
     def on_change(self, listener: Listener) -> Callable[[], None]:
@@ -589,6 +606,8 @@ class Document:
             layer = self.scene.add(p)
             layer.tau_px = self.effective_tau()
             self._apply_budget(layer)
+            if self.lod.target_ms > 0:
+                self._restart_frame_budget()  # the new layer is steered too
             entry = LayerEntry(layer.name if p.is_dir() else p.parent.name, "tileset", p, layer)
             if p.is_dir():
                 entry.name = p.name
@@ -887,12 +906,17 @@ class Document:
     def set_tau(self, tau_px: float) -> None:
         """Screen-space error threshold of every layer, pixels."""
         self.lod.tau_px = float(min(max(tau_px, TAU_MIN_PX), TAU_MAX_PX))
-        self._apply_lod()
+        if self.frame_budget is not None:
+            self._restart_frame_budget()
+        else:
+            self._apply_lod()
         self._emit("lod")
 
     def effective_tau(self) -> float:
-        """τ the layers use now: :attr:`LodSettings.tau_px`, times the motion factor while moving."""
-        return self.lod.tau_px * (self.lod.motion_factor if self.moving else 1.0)
+        """τ the layers use now: :attr:`LodSettings.tau_px`, times the motion factor while moving (not in
+        budget mode, where the controller coarsens a moving view itself)."""
+        coarse = self.moving and not self.lod.target_ms > 0
+        return self.lod.tau_px * (self.lod.motion_factor if coarse else 1.0)
 
     def _apply_lod(self) -> None:
         tau = self.effective_tau()
@@ -908,14 +932,15 @@ class Document:
         if bool(on) == self.moving:
             return False
         self.moving = bool(on)
-        self._apply_lod()
+        if self.frame_budget is None:  # budget mode steers τ and the budgets itself
+            self._apply_lod()
         return True
 
     def _apply_budget(self, layer: Any) -> None:
         from citylod.lod.runtime.selection import Budget
 
         points = self.lod.point_budget
-        if self.moving:
+        if self.moving and not self.lod.target_ms > 0:
             cap = self.lod.motion_point_budget
             points = min(int(points / self.lod.motion_factor), cap) if points > 0 else cap
         layer.budget = Budget(max_points=int(points)) if points > 0 else None
@@ -923,10 +948,34 @@ class Document:
     def set_point_budget(self, points: int) -> None:
         """Most points drawn per frame per layer (0 = unlimited)."""
         self.lod.point_budget = max(int(points), 0)
-        for e in self.entries:
-            if e.layer is not None:
-                self._apply_budget(e.layer)
+        if self.frame_budget is not None:
+            self._restart_frame_budget()  # the new budget is budget mode's most detail
+        else:
+            for e in self.entries:
+                if e.layer is not None:
+                    self._apply_budget(e.layer)
         self._emit("lod")
+
+    def set_target_ms(self, target_ms: float) -> None:
+        """Budget mode: hold ``target_ms`` per frame (0 = off, back to the fixed τ and point budget).
+
+        A :class:`~citylod.render.frame_budget.FrameBudget` on the scene times every render of the view
+        and sets the next frame's point budget (and τ) from it; the fixed τ and point budget are the most
+        detail it draws. Turning it off gives the layers their fixed budgets back.
+        """
+        self.lod.target_ms = max(float(target_ms), 0.0)
+        self._restart_frame_budget()
+        self._emit("lod")
+
+    def _restart_frame_budget(self) -> None:
+        if self.frame_budget is not None:
+            self.frame_budget.close()
+            self.frame_budget = None
+        self._apply_lod()  # the fixed budgets: what budget mode starts from, or what it leaves
+        if self.lod.target_ms > 0 and any(e.layer is not None for e in self.entries):
+            from citylod.render.frame_budget import FrameBudget
+
+            self.frame_budget = FrameBudget(self.scene, self.lod.target_ms)
 
     def set_memory_budget(self, megabytes: int) -> None:
         """Byte budget of the tile cache; tiles that no longer fit are released."""
@@ -1065,6 +1114,9 @@ class Document:
         self.state.clear()
 
     def close(self) -> None:
+        if self.frame_budget is not None:
+            self.frame_budget.close()
+            self.frame_budget = None
         if self.semantic is not None:
             self.semantic.close()
             self.semantic = None

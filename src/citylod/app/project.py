@@ -90,7 +90,7 @@ def project_dict(document: Document, camera: Camera | None, bookmarks: Bookmarks
                   "isolated": None if st.isolated is None else sorted(st.isolated),
                   "selection": sorted(st.selection)},
         "lod": {"tau_px": document.lod.tau_px, "point_budget": document.lod.point_budget,
-                "color_by_level": document.lod.color_by_level},
+                "color_by_level": document.lod.color_by_level, "target_ms": document.lod.target_ms},
         "display": {"edl": document.edl, "ellipsoidal": document.ellipsoidal,
                     "clip_box": None if clip is None else [clip[0].tolist(), clip[1].tolist()],
                     "class_filter": None if document.class_filter is None else sorted(document.class_filter)},
@@ -157,6 +157,9 @@ def read_project(path: str | os.PathLike[str]) -> Project:
         if not isinstance(val, dict):
             raise _fail(p, f"\"{key}\" is not an object")
         setattr(out, key, val)
+    target = out.lod.get("target_ms", 0.0)
+    if isinstance(target, bool) or not isinstance(target, int | float) or not 0 <= target < float("inf"):
+        raise _fail(p, f"\"target_ms\" is not a frame time in ms: {target!r}")
     box = out.display.get("clip_box")
     if box is not None and np.asarray(box, dtype=float).shape != (2, 3):
         raise _fail(p, "\"clip_box\" is not two 3D corners")
@@ -182,6 +185,8 @@ def apply_project(document: Document, project: Project) -> None:
         document.set_point_budget(int(lod["point_budget"]))
     if lod.get("color_by_level"):
         document.set_color_by_level(True)
+    if lod.get("target_ms"):  # budget mode; projects saved before it have no key (fixed budgets)
+        document.set_target_ms(float(lod["target_ms"]))
     disp = project.display
     document.ellipsoidal = bool(disp.get("ellipsoidal", False))
     if disp.get("edl"):

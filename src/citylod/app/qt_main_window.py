@@ -37,6 +37,7 @@ from citylod.app.models import (
     Document,
     build_plan,
     check_crs,
+    format_budget_status,
     format_cursor,
     format_status,
     missing_crs,
@@ -278,8 +279,10 @@ class MainWindow(QMainWindow):
     def _update_status(self) -> None:
         if not self.document.entries:
             return
-        self.status.setText(format_status(self.document.scene.last_stats, getattr(self, "_last_frame_ms", 0.0),
-                                          self.view.pending()))
+        text = format_status(self.document.scene.last_stats, getattr(self, "_last_frame_ms", 0.0),
+                             self.view.pending())
+        budget = format_budget_status(self.document)
+        self.status.setText(f"{budget} · {text}" if budget else text)
 
     def _on_cursor(self, point: Any) -> None:
         if self.document.entries:

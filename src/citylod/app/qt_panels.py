@@ -24,6 +24,7 @@ from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
     QComboBox,
+    QDoubleSpinBox,
     QFormLayout,
     QHBoxLayout,
     QHeaderView,
@@ -405,6 +406,21 @@ class LodPanel(QWidget):
         self.points.setSpecialValueText("unlimited")
         self.points.setValue(lod.point_budget)
         self.points.valueChanged.connect(document.set_point_budget)
+        # Budget mode next to the fixed budget: off (0), or a frame time to hold by steering τ and the
+        # point budget every frame; the fixed τ and point budget are then the most detail it draws.
+        self.hold = QDoubleSpinBox()
+        self.hold.setRange(0.0, 1000.0)
+        self.hold.setDecimals(1)
+        self.hold.setSingleStep(5.0)
+        self.hold.setSuffix(" ms")
+        self.hold.setSpecialValueText("off")
+        self.hold.setKeyboardTracking(False)  # typed digits apply on Return, not one by one
+        self.hold.setToolTip("Hold this frame time by lowering the point budget and raising τ while the view "
+                             "is heavy (Kehl's budget mode); off: the fixed budgets")
+        self.hold.setValue(lod.target_ms)
+        self.hold.valueChanged.connect(document.set_target_ms)
+        self.hold_fps = QLabel(self._fps(lod.target_ms))
+        self.hold.valueChanged.connect(lambda ms: self.hold_fps.setText(self._fps(ms)))
         self.memory = QSpinBox()
         self.memory.setRange(16, 1 << 20)
         self.memory.setSingleStep(128)
@@ -421,9 +437,25 @@ class LodPanel(QWidget):
         form = QFormLayout(self)
         form.addRow("τ (screen error)", tau_row)
         form.addRow("point budget", self.points)
+        hold_row = QHBoxLayout()
+        hold_row.addWidget(self.hold, 1)
+        hold_row.addWidget(self.hold_fps)
+        form.addRow("hold frame time", hold_row)
         form.addRow("memory budget", self.memory)
+        document.on_change(self._on_document)
         form.addRow(self.freeze)
         form.addRow(self.by_level)
+
+    def _on_document(self, kind: str) -> None:
+        if kind == "lod" and self.hold.value() != self.document.lod.target_ms:  # e.g. a project was opened
+            self.hold.blockSignals(True)
+            self.hold.setValue(self.document.lod.target_ms)
+            self.hold.blockSignals(False)
+            self.hold_fps.setText(self._fps(self.document.lod.target_ms))
+
+    @staticmethod
+    def _fps(ms: float) -> str:
+        return f"{1000.0 / ms:.0f} fps" if ms > 0 else "fixed budgets"
 
     def _on_tau(self, pos: int) -> None:
         tau = tau_from_slider(pos)

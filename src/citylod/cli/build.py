@@ -41,6 +41,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                          "(default 0.25; 0 for roofs without overhang)")
     pt.add_argument("--roof-fill", action="store_true",
                     help="with --complete: also roof points where the roof returned nothing (dark, glass)")
+    pt.add_argument("--refine-roofs", action="store_true",
+                    help="smooth the range noise of the building-class (6) roofs per building, ridges kept "
+                         "(bilateral, Gao ch. 5); the moved points replace their originals in the tileset, "
+                         "flagged synthetic = 2; unclassified input is left as it is")
     pt.add_argument("--workers", type=int)
     pt.add_argument("--scheduler")
     m = bsub.add_parser("model", help="DSM raster to a simplified city mesh (3D Tiles) and buildings (CityJSON)")
@@ -119,7 +123,7 @@ def run(args: argparse.Namespace, progress: bool) -> int:
                                          eave_m=args.eaves, roof_fill=args.roof_fill))
         report = build_points(
             args.files, args.output, crs=args.crs, hybrid=not args.no_hybrid, workers=args.workers,
-            scheduler=args.scheduler, progress=progress, complete=complete,
+            scheduler=args.scheduler, progress=progress, complete=complete, refine_roofs=args.refine_roofs,
         )
     elif args.kind == "model":
         from citylod.lod.build.model import build_model

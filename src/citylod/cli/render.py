@@ -32,6 +32,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="draw points as oriented disks sized by the local spacing (hole-free up close)")
     r.add_argument("--texture-budget", type=_megabytes, metavar="MB",
                    help="cap on the tiles' texture memory; coarser atlases are drawn where it binds")
+    r.add_argument("--point-budget", type=_count, metavar="N",
+                   help="fixed budget: most points drawn per point layer and frame (0 = unlimited)")
+    r.add_argument("--target-ms", type=_milliseconds, metavar="MS",
+                   help="budget mode: hold this frame time over a camera path by steering the point budget "
+                        "and τ each frame (the fixed ones are the most detail); logs OUTPUT_budget.csv")
 
 
 def _megabytes(text: str) -> float:
@@ -42,6 +47,26 @@ def _megabytes(text: str) -> float:
     if not mb > 0:
         raise argparse.ArgumentTypeError(f"must be more than 0 MB, got {text!r}")
     return mb
+
+
+def _count(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number of points: {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 (unlimited) or more, got {text!r}")
+    return n
+
+
+def _milliseconds(text: str) -> float:
+    try:
+        ms = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of milliseconds: {text!r}") from None
+    if not 0 < ms < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be more than 0 ms, got {text!r}")
+    return ms
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:

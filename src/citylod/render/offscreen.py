@@ -295,6 +295,9 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
             from citylod.render.edits import PolygonEdits
 
             PolygonEdits(r.scene, load_polygons(args.edits))
+        from citylod.render.budget_log import BudgetRun
+
+        budget = BudgetRun.from_args(r.scene, args)  # --point-budget, --target-ms
         last = None
         for i, cam in enumerate(tqdm(cameras, desc="render", unit="frame", disable=not progress or n < 2)):
             if water is not None and series and i > 0:
@@ -304,10 +307,14 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
                 # A picture with tiles missing looks plausible and is wrong: refuse it rather than warn.
                 key, msg = next(iter(r.scene.loader.failed.items()))
                 raise InputError(f"tile {key} could not be drawn: {msg}")
+            budget.frame(i, frame.stats)
             save_png(frame_path(out, i, n), frame.rgb)
             if args.depth is not None and frame.depth is not None:
                 _save_npy(frame_path(Path(args.depth), i, n), frame.depth)
             last = frame.stats
+        summary = budget.finish(out)
+    if summary is not None:
+        print(summary)
     if last is not None:
         where = out if n == 1 else out.with_name(f"{out.stem}_NNNN{out.suffix}")
         print(f"{where}: {n} frame(s), last: {last.tiles} tiles, {last.triangles} triangles, "

@@ -76,6 +76,7 @@ from citylod.lod.build.complete import (
 )
 from citylod.lod.build.executor import Completions, make_executor, progress_bar, run_tasks
 from citylod.lod.build.planes import find_planes, quad_mesh_arrays, splat_colors
+from citylod.lod.build.refine import REFINED, RefineOptions, refine_records
 from citylod.lod.kernels.octree import (
     CLUSTER_BITS,
     MAX_LEVEL,
@@ -144,6 +145,7 @@ class PointBuildReport:
     root_error: float
     decode_floor_s: float | None = None
     complete: str | None = None
+    refined: int | None = None  # roof points moved by --refine-roofs (None: not asked)
 
     def summary(self) -> str:
         lines = [
@@ -160,6 +162,8 @@ class PointBuildReport:
                          f"(build = {self.seconds / self.decode_floor_s:.1f}× decode)")
         if self.complete:
             lines.append(self.complete)
+        if self.refined is not None:
+            lines.append(f"refined    {self.refined:,} roof points (flagged synthetic = 2)")
         return "\n".join(lines)
 
 
@@ -177,6 +181,7 @@ class _Params:
     max_leaf_points: int
     intensity_scale: float = 255.0
     memory: bool = False  # intermediates live in this process (threads), not in files (processes)
+    refine: RefineOptions | None = None  # roof refinement (citylod.lod.build.refine), per chunk
 
     def node_size(self, level: int) -> float:
         return self.cube_size / (1 << level)
@@ -206,6 +211,7 @@ class _Stats:
     quad_points: int = 0
     max_level: int = 0
     bytes: int = 0
+    refined: int = 0
 
     def add(self, other: _Stats) -> None:
         self.nodes += other.nodes
@@ -214,6 +220,7 @@ class _Stats:
         self.quad_points += other.quad_points
         self.max_level = max(self.max_level, other.max_level)
         self.bytes += other.bytes
+        self.refined += other.refined
 
 
 @dataclass
@@ -573,6 +580,14 @@ def _build_chunk(p: _Params, cid: int, level: int, idx: tuple[int, int, int]) ->
     xyz = _xyz(recs)
     q = quantize(xyz, np.asarray(p.cube_lo), p.cube_size)
     stats = _Stats()
+    if p.refine is not None:
+        # The chunk's roofs are refined before they are binned; ``q`` stays that of the input position, so a
+        # moved point keeps its node and cell (errors are measured on ``xyz``, the refined positions). The
+        # refined positions are kept for pass 5, which measures the upper nodes' errors on them.
+        stats.refined = refine_records(recs, xyz, p.refine)
+        moved = np.flatnonzero(recs["synthetic"] == REFINED)
+        atomic_write(Path(p.tmp) / "refined" / f"{cid}.npz",
+                     lambda t: np.savez(t, idx=moved, xyz=xyz[moved]), suffix=".npz")
     root = _subtree(p, recs, q, xyz, level, idx, stats)
     res = _ChunkResult(cid, root, stats)
     atomic_write_bytes(done, pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
@@ -584,6 +599,9 @@ def _chunk_errors(p: _Params, cid: int, ancestors: list[tuple[int, str]]) -> dic
     recs = _load_chunk(p, cid)
     xyz = _xyz(recs)
     q = quantize(xyz, np.asarray(p.cube_lo), p.cube_size)
+    if p.refine is not None:  # what the chunk's leaves draw: the refined roofs (_build_chunk)
+        r = np.load(Path(p.tmp) / "refined" / f"{cid}.npz")
+        xyz[r["idx"]] = r["xyz"]
     out = {}
     for level, key in ancestors:
         t = np.load(Path(p.tmp) / "tables" / (key.replace("/", "_") + ".npz"))
@@ -722,7 +740,8 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
                  hybrid: bool = True, workers: int | None = None, scheduler: Any = None,
                  progress: bool = True, phi: float = 8.0, max_leaf_points: int = 20_000,
                  max_chunk_points: int = 500_000, segment_points: int = 500_000,
-                 measure_floor: bool = False, complete: CompleteOptions | None = None) -> PointBuildReport:
+                 measure_floor: bool = False, complete: CompleteOptions | None = None,
+                 refine_roofs: RefineOptions | bool = False) -> PointBuildReport:
     """Build a 3D Tiles point octree from LAS/LAZ files.
 
     Parameters
@@ -755,6 +774,11 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
     complete
         Add ground under canopy and walls first (:mod:`citylod.lod.build.complete`); added points are
         flagged ``synthetic``.
+    refine_roofs
+        True or :class:`~citylod.lod.build.refine.RefineOptions`: smooth the roofs' range noise, ridges kept
+        (Gao ch. 5, :mod:`citylod.lod.build.refine`), per building, before the points are binned, in
+        memory and out of core alike (per chunk). The input files are not touched; in the tileset the
+        refined points replace their originals and carry ``synthetic`` = 2.
 
     Returns
     -------
@@ -782,6 +806,7 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         t_start = time.perf_counter()
     out = Path(out_dir)
     inputs, aug = paths, None
+    refine = (RefineOptions() if refine_roofs is True else refine_roofs) or None
     # Small clouds are built in this process, on threads (the kernels release the GIL), with the
     # intermediates in memory: worker processes and parked files cost more than they save there.
     # Such a build is redone whole when interrupted (seconds); large builds resume from their files.
@@ -796,7 +821,8 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         shutil.rmtree(partial, ignore_errors=True)  # an interrupted in-memory build left nothing to resume
     _prepare_partial(partial, _fingerprint(inputs, crs=meta.crs.to_wkt(), hybrid=hybrid, phi=phi,
                                            max_leaf=max_leaf_points, max_chunk=max_chunk_points,
-                                           segment=segment_points, complete=complete))
+                                           segment=segment_points, complete=complete,
+                                           **({} if refine is None else {"refine": refine})))
     if complete is not None and not memory:
         # The added points join the input as one more LAS file in the build's scratch folder (removed
         # with it); the same options write the same points, so a resumed build reads the same file.
@@ -869,13 +895,16 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         params = _Params(out=str(partial), tmp=str(tmp),
                          cube_lo=(float(cube_lo[0]), float(cube_lo[1]), float(cube_lo[2])),
                          cube_size=cube_size, has_rgb=meta.has_rgb, hybrid=hybrid, phi=phi,
-                         max_leaf_points=max_leaf_points, intensity_scale=max(p99, 1.0), memory=memory)
+                         max_leaf_points=max_leaf_points, intensity_scale=max(p99, 1.0), memory=memory,
+                         refine=refine)
         stats = _Stats()
         if memory:
             # One chunk, the whole cloud: its nodes are tasks on this process's threads (passes 2 and 5
             # exist to bound memory, which a cloud this small does not need).
             recs, xyz, q = cloud
             del cloud, into
+            if refine is not None:  # before binning; q stays that of the input positions (_build_chunk)
+                stats.refined = refine_records(recs, xyz, refine)
             root = _subtree(params, recs, q, xyz, 0, (0, 0, 0), stats, pool=ex, progress=progress)
             del recs, xyz, q
             n_chunks = 1
@@ -888,9 +917,13 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
     write_tileset(partial, top, meta.crs, extras={"citylod": {
         "kind": "points", "points": meta.point_count, "hybrid": hybrid, "phi": phi, "quads": stats.quads,
         "has_rgb": meta.has_rgb, "max_leaf_points": max_leaf_points, "cluster_grid": 1 << CLUSTER_BITS,
-        **({} if aug is None else {"complete": aug.counts})}})
+        **({} if aug is None else {"complete": aug.counts}),
+        **({} if refine is None else {"refined_roof_points": stats.refined})}})
     _finish(partial, out)
     seconds = time.perf_counter() - t_start
+    if refine is not None and stats.refined == 0:
+        warnings.warn(f"{paths[0]}: no building-class (6) points to refine (unclassified input?): roofs left as "
+                      "scanned", stacklevel=2)
     note = missing_vertical_datum(meta.crs)
     if note:
         # The user can know better (--crs EPSG:7415): said once, after the build, where the progress bars do
@@ -901,7 +934,7 @@ def build_points(files: Sequence[str | PathLike[str]], out_dir: str | PathLike[s
         chunks=n_chunks, quads=stats.quads, quad_points=stats.quad_points, seconds=seconds,
         points_per_s=meta.point_count / seconds if seconds > 0 else 0.0, bytes=stats.bytes, hybrid=hybrid,
         root_error=float(root.spec.geometric_error), decode_floor_s=floor,
-        complete=None if aug is None else aug.summary())
+        complete=None if aug is None else aug.summary(), refined=None if refine is None else stats.refined)
 
 
 def _save_npy_z(path: Path, cells: I64, elem: F64) -> None:
