@@ -140,7 +140,7 @@ def test_project_saves_and_reopens_the_same_view(qtbot, window, xin, sample, tmp
     target = tmp_path / "work" / "delft.citylod"
     target.parent.mkdir()
     _menu_then_type(xin, window, ["alt+f", "s"], str(target))
-    qtbot.waitUntil(target.is_file, timeout=10000)
+    qtbot.waitUntil(target.is_file, timeout=35000)  # past press_again and give_up
     data = json.loads(target.read_text())
     assert data["format"] == "citylod-project" and len(data["layers"]) == 2
     assert window.windowTitle().endswith("delft")
@@ -151,7 +151,7 @@ def test_project_saves_and_reopens_the_same_view(qtbot, window, xin, sample, tmp
     other = _new_window(qtbot, tmp_path)
     try:
         _menu_then_type(xin, other, ["alt+f", "j"], str(target))
-        qtbot.waitUntil(lambda: len(other.document.entries) == 2, timeout=10000)
+        qtbot.waitUntil(lambda: len(other.document.entries) == 2, timeout=35000)
         odoc = other.document
         assert [e.path.resolve() for e in odoc.entries] == [e.path.resolve() for e in doc.entries]
         assert [(e.visible, e.opacity, e.color_by) for e in odoc.entries] == \

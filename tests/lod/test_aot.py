@@ -165,3 +165,13 @@ def test_old_kernel_folders_are_pruned(tmp_path) -> None:
     aot._prune(tmp_path, keep=8)
     left = sorted(p.name for p in tmp_path.iterdir())
     assert left == sorted([f"{i:020x}" for i in range(3, 11)] + ["not-ours", f"{1:020x}.tmplive"])
+
+
+def test_a_process_that_looked_before_the_build_loads_it_after(compiled, monkeypatch) -> None:
+    """A process that called load() before the module existed (an earlier build here, another worker's
+    build) picks it up once build() reports it, instead of keeping the JIT kernels for good."""
+    monkeypatch.setattr(aot, "_table", {})
+    monkeypatch.setattr(aot, "_loaded", True)  # looked earlier and found nothing
+    assert not aot.load()
+    assert aot.build(exercise_kernels, log=lambda m: None) == compiled
+    assert aot.load()

@@ -203,6 +203,15 @@ def _argspec(t: Any) -> list[Any]:
     raise TypeError(f"unsupported argument type {t}")
 
 
+def _look_again() -> None:
+    """The module now exists: if this process looked before it did (and found nothing, so no compiled
+    kernel is in use), let the next :func:`load` look again."""
+    global _loaded
+    with _lock:
+        if _loaded and not _table:
+            _loaded = False
+
+
 def build(exercise: Callable[[], object], *, force: bool = False,
           log: Callable[[str], object] = print) -> Path | None:
     """Compile the kernels ahead of time into :func:`kernel_dir` (nothing to do when it exists); returns
@@ -216,6 +225,7 @@ def build(exercise: Callable[[], object], *, force: bool = False,
     """
     folder = kernel_dir()
     if (folder / _MANIFEST).is_file() and not force:
+        _look_again()
         log(f"compiled-ahead kernels are up to date: {folder}")
         return folder
     try:
@@ -270,6 +280,7 @@ def build(exercise: Callable[[], object], *, force: bool = False,
         log(f"compiling ahead of time failed ({type(exc).__name__}: {exc}); the JIT kernels will run")
         return None
     _prune(folder.parent, keep=_KEEP)
+    _look_again()
     log(f"compiled-ahead kernels written to {folder}")
     return folder
 
