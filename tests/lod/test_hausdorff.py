@@ -310,3 +310,39 @@ def test_a_subset_of_faces_bounds_its_own_pieces() -> None:
         d2 = distances_to_mesh(ps[mine], tv, faces, bound + 1e-6)
         assert max(d1.max(initial=0.0), d2.max(initial=0.0)) <= bound + 1e-6, k
     assert bound < 0.5 * whole, (bound, whole)  # the far faces' own bound, not the whole TIN's
+
+
+def test_heights_off_the_raster_samples_certify_at_least_measured() -> None:
+    """Coarse vertices may carry heights that are no raster sample (issue #20: a height between a roof and the
+    ground next to it bounds the error better than either): the certificate of a TIN whose every vertex is
+    moved off its sample, some by more than the façades' height, is still at least the distance measured
+    independently in both directions, and tight on it (within 1.1×)."""
+    rng = np.random.default_rng(11)
+    n = 41
+    z = rng.normal(0, 0.2, (n, n)).cumsum(axis=1) * 0.3
+    z[12:25, 8:30] += 15.0  # a block
+    z[30, 4:36] += 6.0  # a one-sample wall
+    ok = np.ones_like(z, bool)
+
+    def read(r, c, nr, nc):
+        return z[r:r + nr, c:c + nc], ok[r:r + nr, c:c + nc]
+
+    from scipy.spatial import Delaunay
+
+    pts = np.unique(np.concatenate([rng.integers(0, n, (80, 2)), [[0, 0], [0, n - 1], [n - 1, 0], [n - 1, n - 1]]]),
+                    axis=0).astype(float)
+    faces = Delaunay(pts).simplices.astype(np.int64)
+    sample = z[pts[:, 0].astype(int), pts[:, 1].astype(int)]
+    step = 0.5
+    tv_at = np.column_stack([pts[:, 1] * step, -pts[:, 0] * step])
+    sv, sf = _raster_surface(z, step, (-0.5 * step, 0.5 * step))
+    for shift in (rng.uniform(-1.0, 1.0, len(pts)), rng.uniform(-20.0, 20.0, len(pts))):
+        vz = sample + shift
+        h, _, _ = certify_hausdorff(read, (0, 0, n - 1, n - 1), pts[:, 0], pts[:, 1], vz, faces, (1, 1), n - 1,
+                                    (step, 0.0, 0.0, -step), block=16)
+        tv = np.column_stack([tv_at, vz])
+        d1 = distances_to_mesh(sample_triangles(tv[faces], 12), sv, sf, h + 1e-6)
+        d2 = distances_to_mesh(sample_triangles(sv[sf], 4), tv, faces, h + 1e-6)
+        measured = max(d1.max(), d2.max())
+        assert measured <= h + 1e-6, (measured, h)
+        assert h <= 1.1 * measured, (h, measured)
