@@ -559,7 +559,7 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
         outer = edge & ~near_fp
         step = np.zeros_like(mask)
         step[yd, xd] = mask[yd, xd] & mask[ys, xs] & (roof[yd, xd] - roof[ys, xs] > opts.step_m)
-        if fp_edges is not None:
+        if fp_edges is not None and isinstance(footprints, FootprintOutline):
             _drop_overhanging_steps(step, dy, dx, grid, footprints)
         for sel in (outer, step):
             cy, cx = np.nonzero(sel)
@@ -604,7 +604,8 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
             # returns scatter along the wall too, and the parts, turned, leave slits between them that an
             # opaque quad shows and jittered points drawn a few pixels wide mostly do not.
             pad = QUAD_PAD_M if opts.walls == "quads" else 0.0
-            cols_[:4] = _regularise(*cols_[:6], opts.regularise_m, pad)
+            x0, y0, x1, y1, nx, ny = cols_[:6]
+            cols_[:4] = _regularise(x0, y0, x1, y1, nx, ny, opts.regularise_m, pad)
         if opts.eave_m:  # inwards, along the wall's normal
             for k, nk in ((0, 4), (1, 5), (2, 4), (3, 5)):
                 cols_[k] = cols_[k] - opts.eave_m * cols_[nk]
