@@ -40,7 +40,10 @@ def _menu_then_type(xin: X, win, keys: list[str], *texts: str | None) -> None:  
 
     def answer() -> None:
         dlg = QApplication.activeModalWidget()
-        if dlg is None or (seen and dlg is seen[-1]):
+        # A dialog is modal as soon as its exec() starts, before X has mapped it: a click sent then lands on
+        # the window below it (a cold or loaded machine), so wait until it is on screen.
+        handle = dlg.windowHandle() if dlg is not None else None
+        if dlg is None or (seen and dlg is seen[-1]) or handle is None or not handle.isExposed():
             if len(done) < len(texts):
                 QTimer.singleShot(200, answer)
             return
@@ -74,7 +77,7 @@ def _menu_then_type(xin: X, win, keys: list[str], *texts: str | None) -> None:  
                 subprocess.run(["xdotool", "key", "Return"], check=True, timeout=60)
 
         QTimer.singleShot(4000, enter_again)
-        QTimer.singleShot(10000, closed)
+        QTimer.singleShot(20000, closed)
         if len(done) < len(texts):
             QTimer.singleShot(200, answer)
 
