@@ -14,6 +14,7 @@ import laspy
 import numpy as np
 import pytest
 
+from citylod.bench.refine_bench import leaf_points
 from citylod.io.tiles3d import open_tileset
 from citylod.lod.build.complete import CompleteOptions
 from citylod.lod.build.points import build_points
@@ -51,19 +52,9 @@ def _scene(path: Path, seed: int = 3) -> None:
 
 
 def _leaves(out: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    ts = open_tileset(out)
-    got, syn, cls = [], [], []
-    stack = [ts.root]
-    while stack:
-        t = stack.pop()
-        stack.extend(t.children)
-        if t.children or t.content_uri is None or "walls" in t.content_uri:
-            continue
-        p = t.load_content().points
-        got.append(p.positions.astype(np.float64) + t.matrix[:3, 3] - [X0, Y0, 0.0])
-        syn.append(p.extra.get("synthetic", np.zeros(len(p.positions), np.uint8)))
-        cls.append(p.classification)
-    return np.concatenate(got), np.concatenate(syn), np.concatenate(cls)
+    """Positions (relative to the made cloud's origin), ``synthetic`` values and classes the leaves draw."""
+    xyz, cls, syn = leaf_points(out)
+    return xyz - [X0, Y0, 0.0], syn, cls
 
 
 def _check(out: Path, path: Path) -> None:

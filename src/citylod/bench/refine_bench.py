@@ -30,12 +30,8 @@ def leaf_points(tileset: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Positions, classes and ``synthetic`` values of every point the leaves of a point tileset draw."""
     from citylod.io.tiles3d import open_tileset
 
-    ts = open_tileset(tileset)
     got, cls, syn = [], [], []
-    stack = [ts.root]
-    while stack:
-        t = stack.pop()
-        stack.extend(t.children)
+    for t in open_tileset(tileset).walk():
         if t.children or t.content_uri is None or "walls" in t.content_uri:
             continue
         p = t.load_content().points
