@@ -31,7 +31,15 @@ cannot follow both, parts can.
 
 Cost. A piece whose vertical bound is already at most the running maximum (or ``floor``) cannot raise the
 maximum and is recorded as it is; the candidate search runs only where it can, and stops as soon as the
-piece is within that threshold. Coordinates are tile-local (offsets from the footprint's first sample), so
+piece is within that threshold. Whole blocks of raster cells are dismissed the same way before any piece is
+clipped (`_block_bound`: a block's least-squares plane L and the range of S − L over its valid samples bound
+S, the face's plane minus L is linear, so |T − S| over the face's part of the block is bounded from the
+block's corners, and every piece's vertical bound is at most that; the block is recorded at it). In the
+ring search a candidate cell whose bounding box is at least the current bound from some vertex of the piece
+is skipped: the distance to the box is at most the distance to either triangle of the cell, so the skipped
+cell could not have lowered the bound. A part of a split piece starts from its parent's bound (the part is
+a subset of the parent, in both directions), and parts under the largest part bound found so far are not
+split further (they cannot raise the piece's maximum). Coordinates are tile-local (offsets from the footprint's first sample), so
 5e6 m coordinates lose no precision. Written by hand because no library bounds the Hausdorff distance of
 two meshes (libraries sample it); numba-compiled (decision 4).
 """

@@ -363,14 +363,6 @@ def _point_error_3d(h: np.ndarray, cellvalid: np.ndarray, x: float, y: float, zr
                     ya = i * sy
                     yb = ya + sy
                     za, zb, zc, zd = h[i, j], h[i, j + 1], h[i + 1, j], h[i + 1, j + 1]
-                    # the distance to the cell's bounding box is at most the distance to either of its
-                    # triangles: a cell that cannot lower d2 is skipped (the same d2 as without the test)
-                    gz = max(min(min(za, zb), min(zc, zd)) - zt, zt - max(max(za, zb), max(zc, zd)), 0.0)
-                    gx = max(xa - X, X - xb, 0.0)
-                    gy = max(ya - Y, Y - yb, 0.0)
-                    if gz * gz + gx * gx + gy * gy >= d2:
-                        j += 1 if (edge or r == 0) else 2 * r
-                        continue
                     d = point_triangle_sq(X, Y, zt, xa, ya, za, xa, yb, zc, xb, yb, zd)  # (i,j),(i+1,j),(i+1,j+1)
                     if d < d2:
                         d2 = d
