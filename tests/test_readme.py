@@ -30,5 +30,5 @@ def test_readme_python_examples_run(tmp_path, monkeypatch) -> None:
     mesh = ns["mesh"]
     assert poly.n_cells == int((~mesh.skirt).sum()) and poly.n_points == len(mesh.vertices)  # type: ignore[attr-defined]
     layer.close()  # type: ignore[attr-defined]
-    # The plotter stays open, as in a user's script: the renderers of later tests in this process draw next to
-    # its GLX context (tests/render/test_gl_contexts.py has the scenarios).
+    # The plotter stays open, as in a user's script: the renderers of later tests in this process draw
+    # next to its GLX context (tests/render/test_gl_contexts.py has the scenarios).

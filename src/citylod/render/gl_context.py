@@ -8,9 +8,9 @@ window-system APIs: ``eglMakeCurrent`` fails with ``EGL_BAD_ACCESS`` while a GLX
 handler) while an EGL context is current. A PyVista plotter (on screen or ``off_screen=True`` under X)
 leaves its GLX context current after each render, and VTK's ``vtkEGLRenderWindow`` only warns when its
 ``eglMakeCurrent`` fails (a warning citylod silences, :mod:`citylod.render._vtk`) and goes on drawing; its
-``IsCurrent()`` always answers true. So, with a plotter open, every citylod off-screen renderer silently drew into the
-*plotter's* context: its framebuffers, textures and VTK's per-window GL state cache all landed on one
-context shared by windows that each believed it owned it, and after an EDL renderer was opened and
+``IsCurrent()`` always answers true. So, with a plotter open, every citylod off-screen renderer silently
+drew into the *plotter's* context: its framebuffers, textures and VTK's per-window GL state cache all
+landed on one context shared by windows that each believed it owned it, and after an EDL renderer was opened and
 closed next to the plotter the next renderer drew only the background. The other way round, a plotter
 rendering while citylod's EGL context was still current killed the process with ``BadAccess``.
 
