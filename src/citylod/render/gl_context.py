@@ -10,8 +10,8 @@ leaves its GLX context current after each render, and VTK's ``vtkEGLRenderWindow
 ``eglMakeCurrent`` fails (a warning citylod silences, :mod:`citylod.render._vtk`) and goes on drawing; its
 ``IsCurrent()`` always answers true. So, with a plotter open, every citylod off-screen renderer silently
 drew into the *plotter's* context: its framebuffers, textures and VTK's per-window GL state cache all
-landed on one context shared by windows that each believed it owned it, and after an EDL renderer was opened and
-closed next to the plotter the next renderer drew only the background. The other way round, a plotter
+landed on one context shared by windows that each believed it owned it, and after an EDL renderer was
+opened and closed next to the plotter the next renderer drew only the background. The other way round, a plotter
 rendering while citylod's EGL context was still current killed the process with ``BadAccess``.
 
 :class:`ContextGuard` therefore brackets everything citylod does with an EGL window: it releases a GLX
