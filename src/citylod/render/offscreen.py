@@ -89,6 +89,10 @@ class OffscreenRenderer:
         Loader threads.
     texture_budget_bytes
         Cap on the tiles' GL texture memory (Buchholz's priority); None: only ``cache_bytes`` limits it.
+
+    The methods below make the window's context current and give the thread's previous one back (a
+    PyVista window's, say); wrap direct VTK calls on ``window`` or ``renderer`` in ``with r.gl:`` too
+    (:mod:`citylod.render.gl_context`).
     """
 
     def __init__(self, sources: Sequence[str | os.PathLike[str]], *, size: tuple[int, int] = (1280, 720),
