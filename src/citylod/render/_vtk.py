@@ -139,10 +139,10 @@ def _quiet_vtk_warnings() -> None:
 
 
 def _usable(window: vtkRenderWindow) -> bool:
-    from citylod.render.gl_context import ContextGuard
+    from citylod.render.gl_context import guard
 
     window.SetSize(2, 2)
-    with ContextGuard(window):  # not into a PyVista window's GLX context, and none left current after
+    with guard(window):  # not into a PyVista window's GLX context, and none left current after
         try:
             window.Render()
         except Exception:  # pragma: no cover - depends on the machine's GL stack

@@ -17,16 +17,18 @@ rendering while citylod's EGL context was still current killed the process with 
 :class:`ContextGuard` therefore brackets everything citylod does with an EGL window: it releases a GLX
 context current in the thread, makes the window's context current, and at the end releases it and makes
 current again whatever was current before (the user's GLX context, or another EGL context), so the thread
-is left as it was found. Guards nest: only the outermost one switches.
+is left as it was found. :func:`guard` gives each window one guard, so guards taken in different places
+(a renderer's frame, an overlay's pick) nest: only the outermost one switches.
 """
 
 from __future__ import annotations
 
 import ctypes
 import os
+import weakref
 from typing import Any
 
-__all__ = ["ContextGuard"]
+__all__ = ["ContextGuard", "guard"]
 
 _EGL_DRAW, _EGL_READ = 0x3059, 0x305A
 _LIBS: dict[str, Any] = {}
@@ -76,10 +78,10 @@ def _glx() -> Any:
 class ContextGuard:
     """``with guard:`` makes ``window``'s EGL context current for the block and restores the thread's
     previous context after it (see the module docstring). A no-op for windows that are not EGL windows:
-    VTK's X window switches GLX contexts itself."""
+    VTK's X window switches GLX contexts itself. Take it through :func:`guard`."""
 
     def __init__(self, window: Any) -> None:
-        self.window = window
+        self._ref = weakref.ref(window)  # not kept alive by its own entry in _GUARDS
         self.active = bool(window.IsA("vtkEGLRenderWindow"))
         self._depth = 0
         self._glx: tuple[int, int, int, int] | None = None
@@ -99,7 +101,7 @@ class ContextGuard:
         if egl is not None and egl.eglGetCurrentContext():
             self._egl = (egl.eglGetCurrentDisplay(), egl.eglGetCurrentSurface(_EGL_DRAW),
                          egl.eglGetCurrentSurface(_EGL_READ), egl.eglGetCurrentContext())
-        self.window.MakeCurrent()  # a window not yet initialised makes its context current in Render()
+        self.window().MakeCurrent()  # a window not yet initialised makes its context current in Render()
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -111,9 +113,23 @@ class ContextGuard:
         if self._egl is not None and self._egl[3] != ours:
             egl.eglMakeCurrent(*self._egl)  # another EGL context was current: give it back
         else:
-            self.window.ReleaseCurrent()  # nothing was, or it was ours, left current by VTK
+            self.window().ReleaseCurrent()  # nothing was, or it was ours, left current by VTK
         if self._glx is not None and not (egl is not None and egl.eglGetCurrentContext()):
             # Only with no EGL context current: otherwise glvnd would answer with an X error.
             glx = _glx()
             glx.glXMakeContextCurrent(*self._glx)
         self._glx = self._egl = None
+
+    def window(self) -> Any:
+        return self._ref()
+
+
+_GUARDS: weakref.WeakKeyDictionary[Any, ContextGuard] = weakref.WeakKeyDictionary()
+
+
+def guard(window: Any) -> ContextGuard:
+    """The one :class:`ContextGuard` of ``window`` (a VTK render window), made on first use."""
+    g = _GUARDS.get(window)
+    if g is None:
+        g = _GUARDS[window] = ContextGuard(window)
+    return g

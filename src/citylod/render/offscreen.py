@@ -29,7 +29,7 @@ from citylod.core.errors import CitylodError, InputError
 from citylod.core.fileio import atomic_write, atomic_write_bytes
 from citylod.render import _vtk
 from citylod.render.depth import zbuffer_to_distance
-from citylod.render.gl_context import ContextGuard
+from citylod.render.gl_context import guard
 from citylod.render.tileset_actor import FrameStats, Scene
 
 __all__ = ["OffscreenRenderer", "RenderedFrame", "render_command", "render_images", "save_png"]
@@ -109,7 +109,7 @@ class OffscreenRenderer:
         self.window = _vtk.offscreen_window(*self.size)
         # Every GL use below goes through this guard, so a PyVista window's GLX context current in the same
         # thread neither receives our drawing nor is left displaced (citylod.render.gl_context).
-        self.gl = ContextGuard(self.window)
+        self.gl = guard(self.window)
         self.renderer = _vtk.vtkOpenGLRenderer()
         self.window.AddRenderer(self.renderer)
         self.scene = Scene(self.renderer, cache_bytes=cache_bytes, tau_px=tau_px, color_by=color_by,

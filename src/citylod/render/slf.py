@@ -46,7 +46,7 @@ from citylod.lod.kernels.slf import (
     patch_of,
 )
 from citylod.render import _vtk
-from citylod.render.gl_context import ContextGuard
+from citylod.render.gl_context import guard
 from citylod.render.offscreen import OffscreenRenderer
 from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
 
@@ -196,7 +196,7 @@ class SlfView:
         lo, hi = self.ts.root.box.bounds()
         self.origin = np.round(0.5 * (lo + hi))
         self.window = _vtk.offscreen_window(*self.size)
-        self.gl = ContextGuard(self.window)  # apart from a PyVista window's GLX context (render.gl_context)
+        self.gl = guard(self.window)  # apart from a PyVista window's GLX context (render.gl_context)
         self.renderer = _vtk.vtkOpenGLRenderer()
         self.renderer.SetBackground(*BACKGROUND)
         self.window.AddRenderer(self.renderer)
