@@ -64,22 +64,18 @@ _PLANE_BLOCK = 8
 
 
 @njit(cache=True, nogil=True, **NO_NRT)
-def _pt_tri(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):  # pragma: no cover - compiled
-    """Exact distance from a point to a triangle (an over-estimate for a degenerate one, never under)."""
-    return math.sqrt(point_triangle_sq(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz))
-
-
-@njit(cache=True, nogil=True, **NO_NRT)
 def _piece_max(px, py, pz, n, ax, ay, az, bx, by, bz, cx, cy, cz, stop):  # pragma: no cover - compiled
-    """max over the piece's n vertices of their distance to a triangle; stops early once ≥ ``stop``."""
-    m = 0.0
+    """max over the piece's n vertices of their distance to a triangle; stops early, with a value of at least
+    ``stop``, once that is reached (squared distances are compared: one square root a call)."""
+    s2 = stop * stop
+    m2 = 0.0
     for k in range(n):
-        d = _pt_tri(px[k], py[k], pz[k], ax, ay, az, bx, by, bz, cx, cy, cz)
-        if d > m:
-            m = d
-            if m >= stop:
-                return m
-    return m
+        d2 = point_triangle_sq(px[k], py[k], pz[k], ax, ay, az, bx, by, bz, cx, cy, cz)
+        if d2 > m2:
+            m2 = d2
+            if m2 >= s2:
+                return max(math.sqrt(m2), stop)
+    return math.sqrt(m2)
 
 
 @njit(cache=True, nogil=True, **NO_NRT)
