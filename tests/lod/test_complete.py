@@ -677,3 +677,23 @@ def test_footprint_wall_tops_follow_a_gabled_roof(tmp_path: Path) -> None:
     gable = (np.abs(np.abs(uv[:, 0]) - inner[0]) < 0.01) & (np.abs(uv[:, 1]) < inner[1] - 0.5) & (np.abs(uv[:, 1]) > 0.5)
     above = w[gable, 2] - _gable_z(uv[gable])
     assert gable.sum() > 500 and above.max() <= 0.12 and np.percentile(above, 99) >= -0.3
+
+
+def test_roof_interpolation_is_exact_on_a_plane_and_leaves_out_cells_off_the_roof() -> None:
+    """:func:`_roof_bilinear` at random points of a tilted plane roof equals the plane (the cell means sit
+    at the cell centres); a point with one roof cell among its four takes that cell's height; one with
+    none is NaN."""
+    from citylod.lod.build.complete import CellGrid, _roof_bilinear
+
+    grid = CellGrid(np.array([100.0, 200.0]), 0.5, np.zeros((14, 20, 30)), np.zeros(256), np.zeros(256))
+    xs, ys = grid.centers()
+    cx, cy = np.meshgrid(xs, ys)
+    roof = 3.0 + 0.4 * (cx - 100.0) - 0.7 * (cy - 200.0)
+    rng = np.random.default_rng(0)
+    xy = np.column_stack([rng.uniform(xs[0], xs[-1], 500), rng.uniform(ys[0], ys[-1], 500)])
+    assert np.allclose(_roof_bilinear(roof, grid, xy), 3.0 + 0.4 * (xy[:, 0] - 100.0) - 0.7 * (xy[:, 1] - 200.0))
+    off = np.full_like(roof, np.nan)
+    off[10, 10] = 7.0
+    near = np.array([[xs[10] + 0.2, ys[10] + 0.1], [xs[10] - 0.2, ys[10] - 0.2]])  # cell (10, 10) among the four
+    assert np.allclose(_roof_bilinear(off, grid, near), 7.0)
+    assert np.isnan(_roof_bilinear(off, grid, np.array([[xs[20], ys[5]]]))[0])
