@@ -255,7 +255,7 @@ def tile_tree_leaf_triangles(dsm: str, out_dir: str, max_error: float) -> int:
     from citylod.io.tiles3d.tileset import open_tileset
     from citylod.lod.build.dsm import build_dsm
 
-    build_dsm(dsm, out_dir, max_error=max_error, workers=0, progress=False)
+    build_dsm(dsm, out_dir, max_error=max_error, workers=0, progress=False, metric="vertical")  # same leaves, faster
     ts = open_tileset(out_dir)
     total = 0
     stack = [ts.root]
