@@ -5,8 +5,9 @@ Untextured tiles are drawn with the sun's light baked into one colour per triang
 read in the fragment shader through ``gl_PrimitiveID``, and that costs twice on Mesa's llvmpipe: every
 fragment fetches its colour from a buffer texture, and the draw module, which has no primitive IDs of
 its own, runs its primitive assembler on every triangle to attach one (it de-indexes the triangles and
-grows its output arrays triangle by triangle). Measured on the 4097² city at τ = 1 px, those two took
-about 40 % of a frame (docs/PERFORMANCE_LOG.md, 2026-12-03: "Frame time at τ = 1: cell colours").
+grows its output arrays triangle by triangle). On the 4097² city, frames drawn without any scalar
+colours took 0.66× (full resolution) and 0.75–0.86× (τ = 1 px) the time of the cell-coloured ones
+(docs/PERFORMANCE_LOG.md, 2026-12-03: "Frame time: cell colours").
 
 OpenGL's ``flat`` interpolation gives every fragment of a triangle the value of one corner, its
 *provoking vertex* (the last one, OpenGL's default convention). :func:`provoking_layout` rearranges a
