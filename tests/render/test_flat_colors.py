@@ -83,3 +83,33 @@ def test_flat_vertex_colours_draw_the_cell_colours_picture(tmp_path, monkeypatch
     differ = (np.abs(rgb_a.astype(int) - rgb_b.astype(int)).max(axis=2) > 2).mean()
     assert differ < 2e-3, differ
     assert len(np.unique(rgb_b[both].reshape(-1, 3), axis=0)) > 20  # shaded, not one flat colour
+
+
+@pytest.mark.render
+def test_recolour_edit_tints_whole_flat_coloured_triangles(tmp_path, monkeypatch) -> None:
+    """A recolour polygon over an untextured DSM paints the triangles whose majority of corners lies
+    inside it, through their own last corners, as it painted their cell colours."""
+    import shapely
+
+    from citylod.analysis.polygons import EditPolygon, PolygonLayer
+    from citylod.bench.synthetic import make_terrain_tileset
+    from citylod.render.edits import PolygonEdits
+
+    corner, ext = np.array([500000.0, 5400000.0, 0.0]), 256.0
+    tiles = make_terrain_tileset(tmp_path / "dsm", levels=2, n=33, extent=ext, corner=corner, texture_px=None)
+    centre = corner + np.array([ext / 2, ext / 2, 0.0])
+    cam = Camera(tuple(centre + np.array([0.0, -1.0, 400.0])), tuple(centre), fovy_deg=40)
+    poly = shapely.box(corner[0] + 40, corner[1] + 60, corner[0] + 200, corner[1] + 180)
+    frames = {}
+    for colours in ("cells", "flat"):
+        monkeypatch.setenv(ENV, colours)
+        with OffscreenRenderer([tiles], size=(256, 256), tau_px=1.0) as r:
+            plain = r.render(cam)
+            PolygonEdits(r.scene, PolygonLayer((EditPolygon(poly, "recolor", (0, 0, 255)),), r.scene.crs))
+            frames[colours] = (plain.rgb, r.render(cam).rgb)
+    plain, edited = frames["flat"]
+    blue = (edited[..., 2] > 200) & (edited[..., 0] < 10) & (edited[..., 1] < 10)
+    assert 0.2 < blue.mean() < 0.5  # the polygon's share of the view, painted
+    assert not ((plain[..., 2] > 200) & (plain[..., 0] < 10)).any()
+    # The same triangles painted as through cell colours (ties on shared edges aside).
+    assert (np.abs(edited.astype(int) - frames["cells"][1].astype(int)).max(axis=2) > 2).mean() < 2e-3
