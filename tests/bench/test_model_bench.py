@@ -25,3 +25,23 @@ def test_footprint_scores_per_building_and_per_block() -> None:
     # blocks: the row (d1 and d2 touch within 0.5 m: one derived block 0.2..10) and the shed
     assert res["blocks"] == 2
     assert abs(res["median_block_iou"] - 0.5 * (9.8 / 10 + 0.0)) < 1e-3
+
+
+def test_border_cues_find_a_border_only_in_the_cue_that_marks_it() -> None:
+    """A row of three 6 × 10 m houses under one flat roof with height noise, each with its own roof
+    intensity: the intensity steps at the two borders exceed every cut inside a house (AUC 1), the height
+    steps do not (AUC near 0.5)."""
+    import numpy as np
+
+    from citylod.bench.model_bench import border_cues
+
+    rng = np.random.default_rng(3)
+    houses = [box(6.0 * k, 0.0, 6.0 * (k + 1), 10.0) for k in range(3)]
+    x, y = rng.uniform(0, 18, 20000), rng.uniform(0, 10, 20000)
+    z = 8.0 + rng.normal(0, 0.05, x.size)
+    inten = np.choose(np.minimum((x // 6).astype(int), 2), [60.0, 140.0, 90.0]) + rng.normal(0, 5, x.size)
+    res = border_cues(houses, np.column_stack([x, y, z, inten]))
+    assert res["borders"] == 2 and res["cuts"] >= 4
+    assert res["intensity"]["auc"] == 1.0
+    assert min(res["intensity"]["border_p50_p75_p90"]) > 40 > max(res["intensity"]["cut_p50_p75_p90"])
+    assert 0.1 < res["height"]["auc"] < 0.9

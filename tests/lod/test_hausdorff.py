@@ -346,3 +346,54 @@ def test_heights_off_the_raster_samples_certify_at_least_measured() -> None:
         measured = max(d1.max(), d2.max())
         assert measured <= h + 1e-6, (measured, h)
         assert h <= 1.1 * measured, (h, measured)
+
+
+def test_blocks_bounded_at_once_still_bound_every_piece() -> None:
+    """The block test of ``hausdorff_block`` (`_block_planes`, `_block_bound`): a face's cells in a block whose
+    bound is under the threshold are recorded at that bound without their pieces. With a floor above every
+    vertical error, every block goes through the test and none is clipped, so the result is the blocks'
+    bounds alone. The raster is a steep plane with a mound and a pit (the largest errors above and below the
+    TIN), a no-data hole whose samples hold -500 m, and blocks cut by its edges (45 samples, not a multiple
+    of the block); the TIN's heights lie near the plane, off the samples. The blocks' result must be at least
+    the exact vertical L∞ of the same TIN (which every piece's bound is) and at least the distances measured
+    independently, and not vacuous; with no floor the pieces are bounded one by one, and that result is a
+    bound too."""
+    rng = np.random.default_rng(17)
+    n = 45
+    yy, xx = np.mgrid[0:n, 0:n].astype(float)
+    z = 100.0 + 0.8 * xx - 0.5 * yy + 0.05 * rng.standard_normal((n, n))
+    z += 3.0 * np.exp(-((yy - 11.0) ** 2 + (xx - 30.0) ** 2) / 4.0)  # a mound: the raster above the TIN
+    z -= 2.5 * np.exp(-((yy - 33.0) ** 2 + (xx - 14.0) ** 2) / 3.0)  # a pit: below it
+    ok = np.ones_like(z, bool)
+    ok[20:24, 5:9] = False
+    z[20:24, 5:9] = -500.0  # no-data samples: they must not enter any block's range
+
+    def read(r, c, nr, nc):
+        return z[r:r + nr, c:c + nc], ok[r:r + nr, c:c + nc]
+
+    from scipy.spatial import Delaunay
+
+    pts = np.unique(np.concatenate([rng.integers(0, n, (70, 2)), [[0, 0], [0, n - 1], [n - 1, 0], [n - 1, n - 1]]]),
+                    axis=0).astype(float)
+    faces = Delaunay(pts).simplices.astype(np.int64)
+    vz = 100.0 + 0.8 * pts[:, 1] - 0.5 * pts[:, 0] + rng.uniform(-0.2, 0.2, len(pts))
+    step = 0.5
+    args = (read, (0, 0, n - 1, n - 1), pts[:, 0], pts[:, 1], vz, faces, (1, 1), n - 1, (step, 0.0, 0.0, -step))
+    v, _, _ = certify(*args[:8])
+    blocks = certify_hausdorff(*args, floor=1e6, per_cell=False)[0]  # per-cell maps bound piece by piece
+    pieces = certify_hausdorff(*args, per_cell=False)[0]
+    assert blocks >= v - 1e-9, (blocks, v)
+    assert blocks <= 2.0 * v, (blocks, v)  # a bound of the block's range, not a vacuous one
+    assert certify_hausdorff(*args, floor=1e6)[0] <= v + 1e-9  # with the map: each piece at its vertical bound
+    sv, sf = _raster_surface(np.where(ok, z, NODATA), step, (-0.5 * step, 0.5 * step))
+    tv = np.column_stack([pts[:, 1] * step, -pts[:, 0] * step, vz])
+    ps = sample_triangles(sv[sf], 3)
+    d2 = distances_to_mesh(ps[_covering(ps[:, :2], tv[faces][:, :, :2]) >= 0], tv, faces, v + 1e-6)
+    pt = sample_triangles(tv[faces], 6)
+    col = np.floor(pt[:, 0] / step).astype(int)
+    row = np.floor(-pt[:, 1] / step).astype(int)
+    cell_ok = ok[:-1, :-1] & ok[:-1, 1:] & ok[1:, :-1] & ok[1:, 1:]
+    over = cell_ok[np.clip(row, 0, n - 2), np.clip(col, 0, n - 2)]
+    d1 = distances_to_mesh(pt[over], sv, sf, v + 1e-6)
+    measured = max(d1.max(), d2.max())
+    assert measured <= pieces + 1e-6 and pieces <= blocks + 1e-9, (measured, pieces, blocks)

@@ -367,6 +367,94 @@ def reference_heights_from_points(truth: list[tuple[str, object, float | None]],
     return out
 
 
+def border_cues(footprints: list[Any], pts: F64, *, width: float = 1.25, cuts: int = 2,
+                seed: int = 1) -> dict[str, Any]:
+    """Whether the borders between touching footprints show in the points: per shared border (≥ 3 m), the
+    step in median height and median ``pts[:, 3]`` (intensity) between the points within ``width`` m on either
+    side, against the same steps across cuts parallel to that border 1.5–4 m inside each of the two
+    footprints (``cuts`` per footprint). ``pts``: (n, 4) x, y, z, intensity of the roof returns.
+
+    Returns the steps' medians and percentiles for borders and cuts, and for each cue the AUC (the probability
+    that a border's step exceeds a cut's: 0.5 means the cue says nothing about where a border is).
+    """
+    import shapely
+    from shapely import affinity
+
+    rng = np.random.default_rng(seed)
+    tree = shapely.STRtree(shapely.points(pts[:, 0], pts[:, 1]))
+
+    def steps(line: Any, a: Any, b: Any) -> tuple[float, float] | None:
+        idx = tree.query(line.buffer(width))
+        if not len(idx):
+            return None
+        q = pts[idx]
+        sa = shapely.contains_xy(a, q[:, 0], q[:, 1])
+        sb = shapely.contains_xy(b, q[:, 0], q[:, 1])
+        if sa.sum() < 8 or sb.sum() < 8:
+            return None
+        return (abs(float(np.median(q[sa, 2]) - np.median(q[sb, 2]))),
+                abs(float(np.median(q[sa, 3]) - np.median(q[sb, 3]))))
+
+    border: list[tuple[float, float]] = []
+    cut: list[tuple[float, float]] = []
+    ftree = shapely.STRtree(footprints)
+    for i, gi in enumerate(footprints):
+        for j in ftree.query(gi):
+            if j <= i:
+                continue
+            shared = shapely.line_merge(gi.boundary.intersection(footprints[j].boundary))
+            lines = [g for g in getattr(shared, "geoms", [shared]) if g.geom_type == "LineString" and g.length >= 3]
+            if not lines:
+                continue
+            seg = max(lines, key=lambda g: g.length)
+            st = steps(seg, gi, footprints[j])
+            if st is None:
+                continue
+            border.append(st)
+            (x0, y0), (x1, y1) = seg.coords[0], seg.coords[-1]
+            n = np.array([y0 - y1, x1 - x0]) / max(seg.length, 1e-9)
+            for g in (gi, footprints[j]):
+                for _ in range(cuts):
+                    off = n * rng.uniform(1.5, 4.0) * rng.choice([-1.0, 1.0])
+                    line = affinity.scale(affinity.translate(seg, off[0], off[1]), 3.0, 3.0)
+                    c = line.intersection(g)
+                    if c.is_empty or c.geom_type != "LineString" or c.length < 3:
+                        continue
+                    halves = sorted(getattr(g.difference(line.buffer(0.01)), "geoms", []), key=lambda h: -h.area)
+                    if len(halves) >= 2:
+                        st = steps(c, halves[0], halves[1])
+                        if st is not None:
+                            cut.append(st)
+    out: dict[str, Any] = {"borders": len(border), "cuts": len(cut)}
+    if not border or not cut:
+        return out
+    b, r = np.asarray(border), np.asarray(cut)
+    for k, name in ((0, "height"), (1, "intensity")):
+        out[name] = {"border_p50_p75_p90": [float(np.percentile(b[:, k], q)) for q in (50, 75, 90)],
+                     "cut_p50_p75_p90": [float(np.percentile(r[:, k], q)) for q in (50, 75, 90)],
+                     "auc": float(np.mean(b[:, k][:, None] > r[:, k][None, :])
+                                  + 0.5 * np.mean(b[:, k][:, None] == r[:, k][None, :]))}
+    return out
+
+
+def delft_border_cues(data_dir: str) -> dict[str, Any]:
+    """:func:`border_cues` on Delft: the reference footprints of ``testarea.city.json`` and the last returns
+    of the building points (ASPRS class 6) of the AHN3 tiles."""
+    from pathlib import Path
+
+    from citylod.io.city.read import read_city_model
+    from citylod.io.las import iter_points
+
+    d = Path(data_dir)
+    rows = []
+    for f in sorted(d.glob("ahn3_*.laz")):
+        for p in iter_points(f, raw=True):
+            keep = (np.asarray(p.classification) == 6) & (np.asarray(p.return_number) == np.asarray(p.number_of_returns))
+            rows.append(np.column_stack([np.asarray(a, np.float64)[keep] for a in (p.x, p.y, p.z, p.intensity)]))
+    truth = _footprints(read_city_model(d / "testarea.city.json", lod=1))
+    return border_cues([g for _, g, _ in truth], np.concatenate(rows))
+
+
 def plot_delft(tif: str, truth: list[tuple[str, Any, float | None]], derived: list[tuple[str, Any, float | None]],
                per: list[dict[str, Any]], path: str, ceiling: dict[str, float] | None = None) -> None:
     """Left: the DSM around the reference buildings in grey, their footprints in cyan with each one's IoU
@@ -551,6 +639,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--work", help="folder for temporary files (default: the system's; --delft keeps its raster "
                     "and model there)")
     ap.add_argument("--delft", help="folder with the AHN3 tiles and testarea.city.json: run the Delft check")
+    ap.add_argument("--border-cues", action="store_true",
+                    help="with --delft: instead, whether the borders between touching reference buildings show in "
+                         "the roof points' height or intensity (border_cues)")
     ap.add_argument("--memory-cell", type=int,
                     help="instead: build the model of the sample DSM with cells of this many samples in this process "
                          "and print its peak resident memory")
@@ -573,6 +664,9 @@ def main(argv: list[str] | None = None) -> None:
                               progress=False)
         print(rep.summary())
         print(f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+        return
+    if a.delft and a.border_cues:
+        print(delft_border_cues(a.delft))
         return
     if a.delft:
         with tempfile.TemporaryDirectory() as tmp:

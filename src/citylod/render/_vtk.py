@@ -139,12 +139,15 @@ def _quiet_vtk_warnings() -> None:
 
 
 def _usable(window: vtkRenderWindow) -> bool:
+    from citylod.render.gl_context import guard
+
     window.SetSize(2, 2)
-    try:
-        window.Render()
-    except Exception:  # pragma: no cover - depends on the machine's GL stack
-        return False
-    return bool(window.SupportsOpenGL())
+    with guard(window):  # not into a PyVista window's GLX context, and none left current after
+        try:
+            window.Render()
+        except Exception:  # pragma: no cover - depends on the machine's GL stack
+            return False
+        return bool(window.SupportsOpenGL())
 
 
 def offscreen_window(width: int, height: int) -> vtkRenderWindow:

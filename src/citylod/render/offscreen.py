@@ -29,6 +29,7 @@ from citylod.core.errors import CitylodError, InputError
 from citylod.core.fileio import atomic_write, atomic_write_bytes
 from citylod.render import _vtk
 from citylod.render.depth import zbuffer_to_distance
+from citylod.render.gl_context import guard
 from citylod.render.tileset_actor import FrameStats, Scene
 
 __all__ = ["OffscreenRenderer", "RenderedFrame", "render_command", "render_images", "save_png"]
@@ -88,6 +89,10 @@ class OffscreenRenderer:
         Loader threads.
     texture_budget_bytes
         Cap on the tiles' GL texture memory (Buchholz's priority); None: only ``cache_bytes`` limits it.
+
+    The methods below make the window's context current and give the thread's previous one back (a
+    PyVista window's, say); wrap direct VTK calls on ``window`` or ``renderer`` in ``with r.gl:`` too
+    (:mod:`citylod.render.gl_context`).
     """
 
     def __init__(self, sources: Sequence[str | os.PathLike[str]], *, size: tuple[int, int] = (1280, 720),
@@ -102,6 +107,9 @@ class OffscreenRenderer:
             raise CitylodError("nothing to render: give at least one tileset")
         self.size = (int(size[0]), int(size[1]))
         self.window = _vtk.offscreen_window(*self.size)
+        # Every GL use below goes through this guard, so a PyVista window's GLX context current in the same
+        # thread neither receives our drawing nor is left displaced (citylod.render.gl_context).
+        self.gl = guard(self.window)
         self.renderer = _vtk.vtkOpenGLRenderer()
         self.window.AddRenderer(self.renderer)
         self.scene = Scene(self.renderer, cache_bytes=cache_bytes, tau_px=tau_px, color_by=color_by,
@@ -119,24 +127,27 @@ class OffscreenRenderer:
     # -- frames -----------------------------------------------------------------------------------
     def prepare(self, camera: Camera, *, full_resolution: bool = False) -> FrameStats:
         """Place the camera and make the frame's tiles resident and shown (no drawing)."""
-        self.scene.set_camera(camera)
-        view = self.scene.view(camera, self.size)
-        stats = self.scene.show_full_resolution(view) if full_resolution else self.scene.resolve(view)
-        self.renderer.ResetCameraClippingRange()
+        with self.gl:  # evicted tiles free their GL textures here
+            self.scene.set_camera(camera)
+            view = self.scene.view(camera, self.size)
+            stats = self.scene.show_full_resolution(view) if full_resolution else self.scene.resolve(view)
+            self.renderer.ResetCameraClippingRange()
         return stats
 
     def draw(self) -> float:
         """Render the prepared frame and wait for the GL to finish; returns the seconds it took."""
         t0 = time.perf_counter()
-        self.window.Render()
-        self.window.WaitForCompletion()
+        with self.gl:
+            self.window.Render()
+            self.window.WaitForCompletion()
         return time.perf_counter() - t0
 
     def grab_rgb(self) -> npt.NDArray[np.uint8]:
         """Colour of the last frame, (H, W, 3) uint8, row 0 at the top."""
         w, h = self.size
         arr = _vtk.vtkUnsignedCharArray()
-        self.window.GetPixelData(0, 0, w - 1, h - 1, 0, arr, 0)
+        with self.gl:
+            self.window.GetPixelData(0, 0, w - 1, h - 1, 0, arr, 0)
         rgb = _vtk.vtk_to_numpy(arr).reshape(h, w, 3)
         return np.ascontiguousarray(rgb[::-1])
 
@@ -144,7 +155,8 @@ class OffscreenRenderer:
         """Distance from the eye per pixel of the last frame, (H, W) float32, ``inf`` for background."""
         w, h = self.size
         arr = _vtk.vtkFloatArray()
-        self.window.GetZbufferData(0, 0, w - 1, h - 1, arr)
+        with self.gl:
+            self.window.GetZbufferData(0, 0, w - 1, h - 1, arr)
         zb = _vtk.vtk_to_numpy(arr).reshape(h, w)[::-1]
         cam = self.renderer.GetActiveCamera()
         near, far = cam.GetClippingRange()
@@ -152,13 +164,15 @@ class OffscreenRenderer:
 
     def render(self, camera: Camera, *, depth: bool = False, full_resolution: bool = False) -> RenderedFrame:
         """Resolve, draw and read back one frame."""
-        stats = self.prepare(camera, full_resolution=full_resolution)
-        self.draw()
-        return RenderedFrame(self.grab_rgb(), self.grab_depth() if depth else None, stats)
+        with self.gl:  # one context switch for the frame: the guards inside nest
+            stats = self.prepare(camera, full_resolution=full_resolution)
+            self.draw()
+            return RenderedFrame(self.grab_rgb(), self.grab_depth() if depth else None, stats)
 
     def close(self) -> None:
-        self.scene.close()
-        self.window.Finalize()
+        with self.gl:
+            self.scene.close()
+            self.window.Finalize()
 
     def __enter__(self) -> OffscreenRenderer:
         return self

@@ -44,6 +44,7 @@ import shapely
 
 from citylod.core.errors import CitylodError
 from citylod.render import _vtk
+from citylod.render.gl_context import guard
 from citylod.semantics.state import FeatureState, StateChange, parse_color
 from citylod.semantics.store import CityStore
 
@@ -422,7 +423,8 @@ class SemanticOverlay:
             looked through), the object whose proxy contains it and its attributes.
         """
         window = renderer.GetRenderWindow()
-        z = float(window.GetZbufferDataAtPoint(int(x_px), int(y_px)))
+        with guard(window):  # an off-screen window's depth, not a PyVista window's (render.gl_context)
+            z = float(window.GetZbufferDataAtPoint(int(x_px), int(y_px)))
         if not z < 1.0:
             return PickResult(None, None, {})
         renderer.SetDisplayPoint(float(x_px), float(y_px), z)
@@ -449,9 +451,9 @@ class SemanticOverlay:
         self._actors.clear()
         self._shaded.clear()
         for tex in (self._map_tex, self._lut_tex):
-            if tex is not None:
-                tex.Deactivate()
-                if self._window is not None:
+            if tex is not None and self._window is not None:
+                with guard(self._window):  # freed in our context, not a PyVista window's
+                    tex.Deactivate()
                     tex.ReleaseGraphicsResources(self._window)
         self._map_tex = self._lut_tex = None
 

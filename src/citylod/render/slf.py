@@ -46,6 +46,7 @@ from citylod.lod.kernels.slf import (
     patch_of,
 )
 from citylod.render import _vtk
+from citylod.render.gl_context import guard
 from citylod.render.offscreen import OffscreenRenderer
 from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
 
@@ -195,6 +196,7 @@ class SlfView:
         lo, hi = self.ts.root.box.bounds()
         self.origin = np.round(0.5 * (lo + hi))
         self.window = _vtk.offscreen_window(*self.size)
+        self.gl = guard(self.window)  # apart from a PyVista window's GLX context (render.gl_context)
         self.renderer = _vtk.vtkOpenGLRenderer()
         self.renderer.SetBackground(*BACKGROUND)
         self.window.AddRenderer(self.renderer)
@@ -476,14 +478,16 @@ class SlfView:
 
     def draw(self) -> float:
         t0 = time.perf_counter()
-        self.window.Render()
-        self.window.WaitForCompletion()
+        with self.gl:
+            self.window.Render()
+            self.window.WaitForCompletion()
         return time.perf_counter() - t0
 
     def grab_rgb(self) -> U8:
         w, h = self.size
         arr = _vtk.vtkUnsignedCharArray()
-        self.window.GetPixelData(0, 0, w - 1, h - 1, 0, arr, 0)
+        with self.gl:
+            self.window.GetPixelData(0, 0, w - 1, h - 1, 0, arr, 0)
         return np.ascontiguousarray(_vtk.vtk_to_numpy(arr).reshape(h, w, 3)[::-1])
 
     def field_mask(self) -> npt.NDArray[np.bool_]:
@@ -516,7 +520,8 @@ class SlfView:
         return mask
 
     def close(self) -> None:
-        self.window.Finalize()
+        with self.gl:
+            self.window.Finalize()
 
     def __enter__(self) -> SlfView:
         return self

@@ -504,7 +504,9 @@ def _roof(grid: CellGrid, mask: npt.NDArray[np.bool_]) -> F64:
 @dataclass
 class _Edges:
     """Wall edges of the cell grid: a straight horizontal segment (x0, y0)-(x1, y1), its outward normal,
-    its bottom and top heights, whether it is a step between two roofs. ``(E,)`` arrays."""
+    its bottom and top heights, whether it is a step between two roofs. ``(E,)`` arrays. ``top`` is the
+    top at (x0, y0); ``top1``, where given, the top at (x1, y1) (footprint walls, whose top follows the
+    roof along the wall), else the top is level."""
 
     x0: F64
     y0: F64
@@ -515,6 +517,11 @@ class _Edges:
     bottom: F64
     top: F64
     step: npt.NDArray[np.bool_]
+    top1: F64 | None = None
+
+    def tops(self) -> tuple[F64, F64]:
+        """The top at (x0, y0) and at (x1, y1): ``top`` both, unless ``top1`` gives the second."""
+        return self.top, (self.top if self.top1 is None else self.top1)
 
 
 def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: CompleteOptions,
@@ -595,7 +602,7 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
             if sel is outer:
                 outer_parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, 0.0))
             else:
-                parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, 1.0))
+                parts.append((*seg, nrm_x / norm, nrm_y / norm, bottom, top, 1.0, top))
     if outer_parts:
         cols_ = [np.concatenate([np.broadcast_to(np.asarray(pt[k], np.float64), (len(pt[7]),)) for pt in outer_parts])
                  for k in range(8)]
@@ -609,18 +616,18 @@ def wall_edges(grid: CellGrid, dtm: F64, mask: npt.NDArray[np.bool_], opts: Comp
         if opts.eave_m:  # inwards, along the wall's normal
             for k, nk in ((0, 4), (1, 5), (2, 4), (3, 5)):
                 cols_[k] = cols_[k] - opts.eave_m * cols_[nk]
-        parts.append((*cols_, 0.0))
+        parts.append((*cols_, 0.0, cols_[7]))
     if fp_edges is not None and len(fp_edges.x0):
         fe = fp_edges
-        parts.append((fe.x0, fe.y0, fe.x1, fe.y1, fe.nx, fe.ny, fe.bottom, fe.top, 0.0))
+        parts.append((fe.x0, fe.y0, fe.x1, fe.y1, fe.nx, fe.ny, fe.bottom, fe.top, 0.0, fe.tops()[1]))
     if not parts:
         z = np.zeros(0)
         return _Edges(z, z, z, z, z, z, z, z, np.zeros(0, bool))
     cols = [np.concatenate([np.broadcast_to(np.asarray(pt[k], np.float64), (len(pt[7]),)) for pt in parts])
-            for k in range(9)]
-    keep = cols[7] - cols[6] >= opts.min_wall_m
+            for k in range(10)]
+    keep = (cols[7] + cols[9]) / 2.0 - cols[6] >= opts.min_wall_m
     x0, y0, x1, y1, nx, ny, bottom, top = (a[keep] for a in cols[:8])
-    return _Edges(x0, y0, x1, y1, nx, ny, bottom, top, cols[8][keep] > 0)
+    return _Edges(x0, y0, x1, y1, nx, ny, bottom, top, cols[8][keep] > 0, cols[9][keep])
 
 
 def _drop_overhanging_steps(step: npt.NDArray[np.bool_], dy: int, dx: int, grid: CellGrid,
@@ -756,7 +763,8 @@ def footprint_edges(footprints: Sequence[Any] | FootprintOutline, grid: CellGrid
     :class:`FootprintOutline` for this grid's cells and ``reach_m``; walls shared by two
     footprints, as in a terrace, are inside the union and get none), cut into pieces of at most one cell
     so the top follows the roof: each piece rises from the terrain half a cell outside to the scanned roof
-    a quarter of a cell inside (the roof above the wall's line, under the eaves). Pieces with no scanned
+    a quarter of a cell inside (the roof above the wall's line, under the eaves), its top sloping from the
+    roof at one end to the roof at the other (:func:`_roof_bilinear`). Pieces with no scanned
     roof there get no wall: the footprint is not backed by the scan. Also returns the cells within
     ``reach_m`` of a footprint, whose roof-edge walls these replace, among the cells of the mask ``where``
     (default: all cells; :func:`wall_edges` asks only about the building cells at the mask's boundary, the
@@ -799,14 +807,46 @@ def footprint_edges(footprints: Sequence[Any] | FootprintOutline, grid: CellGrid
             break
         gi, gj, gin = cell_of(mid[gap] - (0.25 + k) * c * n[gap])
         top[gap] = np.where(gin, roof[gi, gj], np.nan)
+    # The top follows the roof along the wall: at either end of the piece, the cell means interpolated
+    # bilinearly a quarter cell inside, as above (cells off the roof left out), so the pieces' tops join
+    # into one line. One value per piece, the mean of one cell, left a sawtooth along gable walls (the roof
+    # rising along the wall) and notches where that cell was a low one: on Delft, tops 0.55 m below the
+    # local plane of the roof's returns at p10 against 0.29 m now (docs/PERFORMANCE_LOG.md).
+    t0 = _roof_bilinear(roof, grid, p0 - 0.25 * c * n)
+    t1 = _roof_bilinear(roof, grid, p1 - 0.25 * c * n)
+    ends = rin & np.isfinite(t0) & np.isfinite(t1)
+    top1 = np.where(ends, t1, top)
+    top = np.where(ends, t0, top)
     bottom = dtm[oi, oj]
-    keep = oin & np.isfinite(top) & (top - bottom >= opts.min_wall_m)
+    keep = oin & np.isfinite(top) & ((top + top1) / 2.0 - bottom >= opts.min_wall_m)
     iy, ix = np.nonzero(np.ones(grid.shape, bool) if where is None else where)
     near = np.zeros(grid.shape, bool)
     near[iy, ix] = shapely.contains_xy(footprints.grown, grid.lo[0] + (ix + 0.5) * c, grid.lo[1] + (iy + 0.5) * c)
     edges = _Edges(p0[keep, 0], p0[keep, 1], p1[keep, 0], p1[keep, 1], n[keep, 0], n[keep, 1], bottom[keep],
-                   top[keep], np.zeros(int(keep.sum()), bool))
+                   top[keep], np.zeros(int(keep.sum()), bool), top1[keep])
     return edges, near
+
+
+def _roof_bilinear(roof: F64, grid: CellGrid, xy: F64) -> F64:
+    """``roof`` (per cell, NaN off the roof) interpolated bilinearly between the cell centres at ``xy`` (P, 2),
+    the weights of the cells off the roof left out (renormalised); NaN where all four are off. Exact on a
+    plane roof; at the roof's edge it is the mean of the cells on the roof. (``scipy.ndimage.map_coordinates``
+    interpolates too, but cannot leave out the NaN cells.)"""
+    c = grid.cell
+    fx = (xy[:, 0] - grid.lo[0]) / c - 0.5
+    fy = (xy[:, 1] - grid.lo[1]) / c - 0.5
+    x0 = np.floor(fx).astype(np.int64)
+    y0 = np.floor(fy).astype(np.int64)
+    ax, ay = fx - x0, fy - y0
+    num = np.zeros(len(xy))
+    den = np.zeros(len(xy))
+    ny_, nx_ = roof.shape
+    for dy, dx, w in ((0, 0, (1 - ax) * (1 - ay)), (0, 1, ax * (1 - ay)), (1, 0, (1 - ax) * ay), (1, 1, ax * ay)):
+        v = roof[np.clip(y0 + dy, 0, ny_ - 1), np.clip(x0 + dx, 0, nx_ - 1)]
+        ok = np.isfinite(v)
+        num += np.where(ok, w * v, 0.0)
+        den += np.where(ok, w, 0.0)
+    return np.where(den > 1e-9, num / np.maximum(den, 1e-12), np.nan)
 
 
 def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator
@@ -819,7 +859,8 @@ def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator
     # the density of an axis-aligned one rather than √2 times it.
     facing = np.abs(edges.nx * (edges.y1 - edges.y0) - edges.ny * (edges.x1 - edges.x0)) / np.maximum(length, 1e-12)
     n_h = np.maximum(1, np.ceil(facing * length / spacing - 1e-9)).astype(np.int64)
-    n_v = np.maximum(1, np.ceil((edges.top - edges.bottom) / spacing - 1e-9)).astype(np.int64)
+    t0, t1 = edges.tops()
+    n_v = np.maximum(1, np.ceil((np.maximum(t0, t1) - edges.bottom) / spacing - 1e-9)).astype(np.int64)
     per = n_h * n_v
     total = int(per.sum())
     e = np.repeat(np.arange(len(per)), per)
@@ -828,7 +869,8 @@ def _wall_points(edges: _Edges, spacing: float, rng: np.random.Generator
     b = (k // n_h[e] + rng.random(total) * 0.8 + 0.1) / n_v[e]  # down from the top
     x = edges.x0[e] + a * (edges.x1[e] - edges.x0[e])
     y = edges.y0[e] + a * (edges.y1[e] - edges.y0[e])
-    z = edges.top[e] - b * (edges.top[e] - edges.bottom[e])
+    top = t0[e] + a * (t1[e] - t0[e])  # the top along the edge (footprint walls follow the roof)
+    z = top - b * (top - edges.bottom[e])
     nrm = np.column_stack([edges.nx[e], edges.ny[e], np.zeros(total)]).astype(np.float32)
     kind = np.where(edges.step[e], KIND_STEP, KIND_WALL).astype(np.uint8)
     return np.column_stack([x, y, z]), nrm, kind
@@ -849,8 +891,9 @@ def _wall_quads(edges: _Edges, sink_m: float = 0.0) -> tuple[F64, F32]:
     bottom = edges.bottom - np.where(edges.step, 0.0, sink_m)
     q[:, 0, :2], q[:, 0, 2] = a, bottom
     q[:, 1, :2], q[:, 1, 2] = b, bottom
-    q[:, 2, :2], q[:, 2, 2] = b, edges.top
-    q[:, 3, :2], q[:, 3, 2] = a, edges.top
+    t0, t1 = edges.tops()
+    q[:, 2, :2], q[:, 2, 2] = b, np.where(flip, t0, t1)
+    q[:, 3, :2], q[:, 3, 2] = a, np.where(flip, t1, t0)
     nrm = np.column_stack([edges.nx, edges.ny, np.zeros(len(a))]).astype(np.float32)
     return q, nrm
 

@@ -31,7 +31,15 @@ cannot follow both, parts can.
 
 Cost. A piece whose vertical bound is already at most the running maximum (or ``floor``) cannot raise the
 maximum and is recorded as it is; the candidate search runs only where it can, and stops as soon as the
-piece is within that threshold. Coordinates are tile-local (offsets from the footprint's first sample), so
+piece is within that threshold. Whole blocks of raster cells are dismissed the same way before any piece is
+clipped (`_block_bound`: a block's least-squares plane L and the range of S − L over its valid samples bound
+S, the face's plane minus L is linear, so |T − S| over the face's part of the block is bounded from the
+block's corners, and every piece's vertical bound is at most that; the block is recorded at it). In the
+ring search a candidate cell whose bounding box is at least the current bound from some vertex of the piece
+is skipped: the distance to the box is at most the distance to either triangle of the cell, so the skipped
+cell could not have lowered the bound. A part of a split piece starts from its parent's bound (the part is
+a subset of the parent, in both directions), and parts under the largest part bound found so far are not
+split further (they cannot raise the piece's maximum). Coordinates are tile-local (offsets from the footprint's first sample), so
 5e6 m coordinates lose no precision. Written by hand because no library bounds the Hausdorff distance of
 two meshes (libraries sample it); numba-compiled (decision 4).
 """
@@ -51,25 +59,23 @@ from citylod.lod.kernels.tin_kernels import NO_NRT
 _EPS = 1e-9
 # A piece whose bound exceeds the threshold is split into parts this many halvings deep at most (_subdivided).
 _SPLIT_DEPTH = 10
-
-
-@njit(cache=True, nogil=True, **NO_NRT)
-def _pt_tri(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):  # pragma: no cover - compiled
-    """Exact distance from a point to a triangle (an over-estimate for a degenerate one, never under)."""
-    return math.sqrt(point_triangle_sq(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz))
+# Raster cells a side of the blocks that `_block_planes` bounds at once (the block test of hausdorff_block).
+_PLANE_BLOCK = 8
 
 
 @njit(cache=True, nogil=True, **NO_NRT)
 def _piece_max(px, py, pz, n, ax, ay, az, bx, by, bz, cx, cy, cz, stop):  # pragma: no cover - compiled
-    """max over the piece's n vertices of their distance to a triangle; stops early once ≥ ``stop``."""
-    m = 0.0
+    """max over the piece's n vertices of their distance to a triangle; stops early, with a value of at least
+    ``stop``, once that is reached (squared distances are compared: one square root a call)."""
+    s2 = stop * stop
+    m2 = 0.0
     for k in range(n):
-        d = _pt_tri(px[k], py[k], pz[k], ax, ay, az, bx, by, bz, cx, cy, cz)
-        if d > m:
-            m = d
-            if m >= stop:
-                return m
-    return m
+        d2 = point_triangle_sq(px[k], py[k], pz[k], ax, ay, az, bx, by, bz, cx, cy, cz)
+        if d2 > m2:
+            m2 = d2
+            if m2 >= s2:
+                return max(math.sqrt(m2), stop)
+    return math.sqrt(m2)
 
 
 @njit(cache=True, nogil=True, **NO_NRT)
@@ -105,7 +111,8 @@ def _inner(y, x, y0, x0, y1, x1, y2, x2, sgn):  # pragma: no cover - compiled
 def _piece_bound(pxT, pyT, pzT, pzS, n, vmax, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin,
                  reach, t, faces, fx, fy, fz, ring_start, ring_faces):  # pragma: no cover - compiled
     """The bound of one convex piece (its vertices in metric offsets; ``pzT``/``pzS`` its heights on T and S;
-    ``vmax`` its vertical bound, ``thr`` where the search may stop): T → S against the raster cell
+    ``vmax`` a bound already known for it in both directions: its vertical one, or its parent's in
+    `_subdivided`; ``thr`` where the search may stop): T → S against the raster cell
     triangles in rings around cell (i, j), S → T against TIN triangle ``t`` and those around its vertices
     (module docstring)."""
     # T → S: own cell triangle, the cell's other one, then rings of cells
@@ -138,6 +145,22 @@ def _piece_bound(pxT, pyT, pzT, pzS, n, vmax, thr, F, V, li, lj, bh, bw, i, j, t
                 x01, y01 = x00 + ax_, y00 + ay_
                 x10, y10 = x00 + bx_, y00 + by_
                 x11, y11 = x10 + ax_, y10 + ay_
+                # A vertex's distance to the cell's bounding box is at most its distance to either cell
+                # triangle, so a cell whose box is at least bA from some vertex cannot lower bA: skipped.
+                xlo = min(min(x00, x01), min(x10, x11))
+                xhi = max(max(x00, x01), max(x10, x11))
+                ylo = min(min(y00, y01), min(y10, y11))
+                yhi = max(max(y00, y01), max(y10, y11))
+                far = False
+                for k in range(n):
+                    gz = max(zlo - pzT[k], pzT[k] - zhi, 0.0)
+                    gx = max(xlo - pxT[k], pxT[k] - xhi, 0.0)
+                    gy = max(ylo - pyT[k], pyT[k] - yhi, 0.0)
+                    if gz * gz + gx * gx + gy * gy >= bA * bA:
+                        far = True
+                        break
+                if far:
+                    continue
                 m = _piece_max(pxT, pyT, pzT, n, x00, y00, h00, x10, y10, h10, x11, y11, h11, bA)
                 if m < bA:
                     bA = m
@@ -191,14 +214,16 @@ def _piece_bound(pxT, pyT, pzT, pzS, n, vmax, thr, F, V, li, lj, bh, bw, i, j, t
 
 
 @njit(cache=True, nogil=True)
-def _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin, reach,
-                t, faces, fx, fy, fz, ring_start, ring_faces, stack):  # pragma: no cover - compiled
+def _subdivided(pxT, pyT, pzT, pzS, n, known, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin,
+                reach, t, faces, fx, fy, fz, ring_start, ring_faces, stack):  # pragma: no cover - compiled
     """The bound of a piece as the maximum of `_piece_bound` over convex parts of it: its fan triangles, each
     halved at its longest edge while its bound exceeds ``thr`` (``_SPLIT_DEPTH`` times at most). Each part is a
     convex subset of the piece, on which T and S are the same planes, so each part's bound holds for it and
     their maximum for the piece. Where parts of a piece lie nearest to different triangles (a TIN slope
     beside a raster façade that continues into a roof), the single-candidate bound of the whole piece is
-    loose and the parts' is not. ``stack``: (2·_SPLIT_DEPTH + n, 13) scratch."""
+    loose and the parts' is not. A part lies in its parent, so the parent's bound (``known`` for the
+    piece's fan triangles) bounds the part in both directions too and starts its search, which then stops
+    at nearer rings. ``stack``: (2·_SPLIT_DEPTH + n, 14) scratch."""
     top = 0
     for k in range(1, n - 1):
         for m, v in enumerate((0, k, k + 1)):
@@ -207,6 +232,7 @@ def _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0
             stack[top, 4 * m + 2] = pzT[v]
             stack[top, 4 * m + 3] = pzS[v]
         stack[top, 12] = 0.0
+        stack[top, 13] = known
         top += 1
     qx = np.empty(3)
     qy = np.empty(3)
@@ -223,9 +249,13 @@ def _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0
             qs[m] = stack[top, 4 * m + 3]
             vm = max(vm, abs(qt[m] - qs[m]))
         depth = stack[top, 12]
-        b = _piece_bound(qx, qy, qt, qs, 3, vm, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin,
+        vm = min(vm, stack[top, 13])
+        # A part at or under the largest bound recorded so far cannot raise the piece's maximum: the
+        # threshold rises with it (each recorded number bounds its part, the parts cover the piece).
+        lim = max(thr, worst)
+        b = _piece_bound(qx, qy, qt, qs, 3, vm, lim, F, V, li, lj, bh, bw, i, j, tr0, tc0, ax_, bx_, ay_, by_, hmin,
                          reach, t, faces, fx, fy, fz, ring_start, ring_faces)
-        if b <= thr or depth >= _SPLIT_DEPTH:
+        if b <= lim or depth >= _SPLIT_DEPTH:
             worst = max(worst, b)
             continue
         # halve at the longest edge (m, m+1): two triangles (mid, m+1, m+2) and (mid, m+2, m)
@@ -246,8 +276,108 @@ def _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j, tr0, tc0
             stack[top, 4], stack[top, 5], stack[top, 6], stack[top, 7] = qx[a], qy[a], qt[a], qs[a]
             stack[top, 8], stack[top, 9], stack[top, 10], stack[top, 11] = qx[c], qy[c], qt[c], qs[c]
             stack[top, 12] = depth + 1.0
+            stack[top, 13] = b
             top += 1
     return worst
+
+
+@njit(cache=True, nogil=True)
+def _block_planes(F, V, nb):  # pragma: no cover - compiled
+    """Per block of ``nb`` × ``nb`` cells (block (p, q): local rows p·nb..p·nb+nb, columns q·nb..q·nb+nb,
+    samples included, clipped to the array): a plane L = c0 + cu·u + cw·w (u, w: rows and columns from
+    the block's first sample; the least-squares fit of its valid samples, a constant or 0 where those
+    do not span a plane) and the range [rmin, rmax] of F − L over its valid samples; an empty range
+    (rmin = +inf) where it has none. Returns (P, Q, 5): c0, cu, cw, rmin, rmax."""
+    bh, bw = F.shape
+    np_ = max((bh - 2) // nb + 1, 1)
+    nq = max((bw - 2) // nb + 1, 1)
+    out = np.empty((np_, nq, 5))
+    for p in range(np_):
+        ia = p * nb
+        ib = min(ia + nb, bh - 1)
+        for q in range(nq):
+            ja = q * nb
+            jb = min(ja + nb, bw - 1)
+            n = 0.0
+            su = sw = sz = suu = suw = sww = suz = swz = 0.0
+            for ii in range(ia, ib + 1):
+                for jj in range(ja, jb + 1):
+                    if V[ii, jj]:
+                        u = float(ii - ia)
+                        w = float(jj - ja)
+                        z = F[ii, jj]
+                        n += 1.0
+                        su += u
+                        sw += w
+                        sz += z
+                        suu += u * u
+                        suw += u * w
+                        sww += w * w
+                        suz += u * z
+                        swz += w * z
+            c0 = cu = cw = 0.0
+            if n > 0.0:
+                c0 = sz / n
+                # centred normal equations of the fit z ≈ c0 + cu·u + cw·w
+                muu = suu - su * su / n
+                muw = suw - su * sw / n
+                mww = sww - sw * sw / n
+                muz = suz - su * sz / n
+                mwz = swz - sw * sz / n
+                det = muu * mww - muw * muw
+                if n >= 3.0 and det > 1e-9 * max(muu * mww, 1e-300):
+                    cu = (muz * mww - mwz * muw) / det
+                    cw = (mwz * muu - muz * muw) / det
+                    c0 = (sz - cu * su - cw * sw) / n
+            rmin = math.inf
+            rmax = -math.inf
+            for ii in range(ia, ib + 1):
+                for jj in range(ja, jb + 1):
+                    if V[ii, jj]:
+                        r = F[ii, jj] - (c0 + cu * float(ii - ia) + cw * float(jj - ja))
+                        rmin = min(rmin, r)
+                        rmax = max(rmax, r)
+            out[p, q, 0] = c0
+            out[p, q, 1] = cu
+            out[p, q, 2] = cw
+            out[p, q, 3] = rmin
+            out[p, q, 4] = rmax
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always", **NO_NRT)
+def _block_bound(planes, p, q, nb, r0, c0, pa, pb, pc, ys0, xs0, ys1, xs1, ys2, xs2):  # pragma: no cover - compiled
+    """A bound of |T − S| over the part of TIN face (plane z = pa·row + pb·col + pc, vertices (ys, xs)) above
+    block (p, q) of `_block_planes` (its first sample global (r0 + p·nb, c0 + q·nb)): T − S = (T − L) −
+    (S − L), T − L is linear, so over that part it lies between its extremes at the block's four corners
+    and, also, at the face's three vertices; S − L lies in [rmin, rmax] (S is linear on each cell triangle
+    and every cell triangle's corners are valid samples of the block). −inf where the block has no valid
+    sample."""
+    rmin = planes[p, q, 3]
+    rmax = planes[p, q, 4]
+    if rmin > rmax:
+        return -math.inf
+    ya = float(r0 + p * nb)
+    xa = float(c0 + q * nb)
+    k0 = planes[p, q, 0]
+    ku = planes[p, q, 1]
+    kw = planes[p, q, 2]
+    # T − L as a linear function of (row, col): (pa − ku)·row + (pb − kw)·col + const
+    ga = pa - ku
+    gb = pb - kw
+    g0 = pc - k0 + ku * ya + kw * xa
+    lo_r = g0 + ga * ya + gb * xa
+    hi_r = lo_r
+    for yy, xx in ((ya + nb, xa), (ya, xa + nb), (ya + nb, xa + nb)):
+        d = g0 + ga * yy + gb * xx
+        lo_r = min(lo_r, d)
+        hi_r = max(hi_r, d)
+    d0 = g0 + ga * ys0 + gb * xs0
+    d1 = g0 + ga * ys1 + gb * xs1
+    d2 = g0 + ga * ys2 + gb * xs2
+    lo = max(lo_r, min(d0, min(d1, d2)))
+    hi = min(hi_r, max(d0, max(d1, d2)))
+    return max(hi - rmin, rmax - lo)
 
 
 @njit(cache=True, nogil=True)
@@ -300,9 +430,18 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
     pyT = np.empty(12)
     pzT = np.empty(12)
     pzS = np.empty(12)
-    stack = np.empty((2 * _SPLIT_DEPTH + 12, 13))
+    stack = np.empty((2 * _SPLIT_DEPTH + 12, 14))
     ncl = cell_err.shape[0]
     ncc = cell_err.shape[1]
+    # The block test (not with ``track``, whose thresholds are per level cell): a face's cells in a block of
+    # _PLANE_BLOCK² cells whose `_block_bound` is at most the threshold cannot raise the maximum (each piece's
+    # vertical bound is at most it, and a piece at or under the threshold is recorded at its vertical bound),
+    # so they are recorded at that bound at once, without clipping a piece. Tested once per face and block.
+    nb = _PLANE_BLOCK
+    planes = _block_planes(F, V, nb) if not track else np.zeros((1, 1, 5))
+    tested = np.full(planes.shape[1], -1, np.int64)  # (face, block row) the cached answer is for, per block column
+    skip = np.zeros(planes.shape[1], np.bool_)
+    nbr = planes.shape[0]
     for t in range(nf):
         if not evaluate[t]:
             continue
@@ -342,8 +481,24 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
             j_lo = max(int(math.floor(lo + _EPS)), c0, own[2])
             j_hi = min(int(math.ceil(hi - _EPS)) - 1, c0 + bw - 2, own[3])
             li = i - r0
-            for j in range(j_lo, j_hi + 1):
+            p = li // nb
+            j = j_lo - 1
+            while j < j_hi:
+                j += 1
                 lj = j - c0
+                if not track:
+                    q = lj // nb
+                    if tested[q] != t * nbr + p:
+                        tested[q] = t * nbr + p
+                        bb = _block_bound(planes, p, q, nb, r0, c0, pa, pb, pc, ys0, xs0, ys1, xs1, ys2, xs2)
+                        skip[q] = bb + 1e-9 <= max(floor, best[0])
+                        if skip[q] and bb + 1e-9 > best[0]:
+                            best[0] = bb + 1e-9
+                            best[1] = r0 + p * nb + 0.5 * nb
+                            best[2] = c0 + q * nb + 0.5 * nb
+                    if skip[q]:
+                        j = min(c0 + (q + 1) * nb - 1, j_hi)  # the rest of this row's cells in the block
+                        continue
                 if not (V[li, lj] and V[li, lj + 1] and V[li + 1, lj] and V[li + 1, lj + 1]):
                     continue
                 z00, z01, z10, z11 = F[li, lj], F[li, lj + 1], F[li + 1, lj], F[li + 1, lj + 1]
@@ -399,7 +554,7 @@ def hausdorff_block(F, V, r0, c0, own, aff, vr, vc, vz, faces, ring_start, ring_
                                              ax_, bx_, ay_, by_, hmin, reach, t, faces, fx, fy, fz, ring_start,
                                              ring_faces)
                         if bound > thr:
-                            bound = min(bound, _subdivided(pxT, pyT, pzT, pzS, n, thr, F, V, li, lj, bh, bw, i, j,
+                            bound = min(bound, _subdivided(pxT, pyT, pzT, pzS, n, bound, thr, F, V, li, lj, bh, bw, i, j,
                                                            tr0, tc0, ax_, bx_, ay_, by_, hmin, reach, t, faces, fx,
                                                            fy, fz, ring_start, ring_faces, stack))
                     if track and bound > cell_err[ci, cj]:
