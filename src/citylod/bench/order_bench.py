@@ -1,7 +1,9 @@
 """Stored triangle order against vertex-cache order (:mod:`citylod.render.mesh_order`), in one process.
 
-``python -m citylod.bench.order_bench TILESET PATH.json [STEP]``: two off-screen renderers (960×540) load the
-same tileset, one with ``CITYLOD_MESH_ORDER=file`` (the order the tiles store), one in cache order. For every
+``python -m citylod.bench.order_bench TILESET PATH.json [STEP] [NAME=VALUE]``: two off-screen renderers
+(960×540) load the same tileset, one with ``CITYLOD_MESH_ORDER=file`` (the order the tiles store), one in
+cache order; with ``NAME=VALUE`` the first loads with that setting instead (for example
+``CITYLOD_FACE_COLORS=cells``, the cell-scalar colours of :mod:`citylod.render.flat_colors`). For every
 STEP-th camera of the path, camera by camera in turns (the order of the two renderers alternating), each
 draws the full-resolution frame and the τ = 1 px frame: median of 3 draws after a warm-up, timed as
 ``citylod bench`` times them (:meth:`~citylod.render.offscreen.OffscreenRenderer.draw`). Prints per camera,
@@ -26,14 +28,23 @@ def _timed(r: OffscreenRenderer) -> float:
     return 1000.0 * float(np.median([r.draw() for _ in range(3)]))
 
 
-def compare_orders(tileset: str, path: str, step: int = 1, size: tuple[int, int] = (960, 540)) -> dict[str, float]:
-    """Run the comparison; returns each renderer's median full and τ = 1 frame (ms) and speed-up."""
+def compare_orders(tileset: str, path: str, step: int = 1, size: tuple[int, int] = (960, 540),
+                   setting: tuple[str, str] = (ENV, "file")) -> dict[str, float]:
+    """Run the comparison; returns each renderer's median full and τ = 1 frame (ms) and speed-up.
+
+    The renderer called "file" loads with the environment ``setting`` (name, value), the one called
+    "cache" without it (the defaults)."""
     cams = load_cameras(path)[::max(1, step)]
     renderers = {}
-    before = os.environ.get(ENV)
+    name, value = setting
+    before = os.environ.get(name)
     try:
         for mode in ("file", "cache"):
-            os.environ[ENV] = mode  # read by the loader threads while the tiles load
+            # Read by the loader threads while the tiles load.
+            if mode == "file":
+                os.environ[name] = value
+            else:
+                os.environ.pop(name, None)
             r = OffscreenRenderer([tileset], size=size, tau_px=1.0, cache_bytes=4 << 30)
             r.prepare(cams[0], full_resolution=True)
             for c in cams:
@@ -41,9 +52,9 @@ def compare_orders(tileset: str, path: str, step: int = 1, size: tuple[int, int]
             renderers[mode] = r
     finally:
         if before is None:
-            os.environ.pop(ENV, None)
+            os.environ.pop(name, None)
         else:
-            os.environ[ENV] = before
+            os.environ[name] = before
     times: dict[tuple[str, str], list[float]] = {(m, k): [] for m in renderers for k in ("full", "tau1")}
     differ = 0
     try:
@@ -68,10 +79,13 @@ def compare_orders(tileset: str, path: str, step: int = 1, size: tuple[int, int]
     for mode in renderers:
         full, tau1 = float(np.median(times[(mode, "full")])), float(np.median(times[(mode, "tau1")]))
         out.update({f"{mode}_full_ms": full, f"{mode}_tau1_ms": tau1, f"{mode}_speedup": full / tau1})
-        print(f"{mode} order: full median {full:.1f} ms, τ = 1 median {tau1:.1f} ms, speed-up {full / tau1:.2f}×")
+        label = f"{name}={value}" if mode == "file" else "defaults"
+        print(f"{mode} ({label}): full median {full:.1f} ms, τ = 1 median {tau1:.1f} ms, speed-up {full / tau1:.2f}×")
     print(f"τ = 1 depth pixels that differ between the two orders, all cameras: {differ}")
     return out
 
 
 if __name__ == "__main__":
-    compare_orders(sys.argv[1], sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 1)
+    env = tuple(sys.argv[4].split("=", 1)) if len(sys.argv) > 4 else (ENV, "file")
+    compare_orders(sys.argv[1], sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 1,
+                   setting=(env[0], env[1]))

@@ -227,6 +227,16 @@ class PolygonEdits:
                     centre = world[conn].mean(axis=1)
                     self._colour(t_idx, centre, _vtk.vtk_to_numpy(cell_scalars))
                     cell_scalars.Modified()
+                elif getattr(props, "flat", False) and props.mapper.GetScalarVisibility():
+                    # One colour per triangle on its own last corner (render/flat_colors.py): recolour
+                    # triangles as the cell colours above are, through those corners.
+                    centre = world[conn].mean(axis=1)
+                    base = _vtk.vtk_to_numpy(point_scalars)
+                    rgb = base[conn[:, 2]]
+                    self._colour(t_idx, centre, rgb)
+                    base[conn[:, 2]] = rgb
+                    point_scalars.Modified()
+                    scalars = point_scalars
                 else:
                     base = (_vtk.vtk_to_numpy(point_scalars) if point_scalars is not None
                             and props.mapper.GetScalarVisibility() else None)

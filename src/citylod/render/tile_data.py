@@ -19,7 +19,7 @@ import numpy.typing as npt
 
 from citylod.core.errors import InputError
 from citylod.io.tiles3d import PointData
-from citylod.render import _vtk, mesh_order
+from citylod.render import _vtk, flat_colors, mesh_order
 
 
 @dataclass
@@ -29,6 +29,8 @@ class PreparedMesh:
     ``positions`` (N, 3) float32 relative to the tile origin; ``surface`` and ``skirt`` the flat
     connectivity (3·M,) int64 of each triangle set; ``tcoords`` (N, 2) float32 with VTK's bottom-left
     origin; ``texture`` (H, W, C) uint8, rows bottom-up as VTK stores images; ``colors`` (N, 4) uint8.
+    ``provoking``: every triangle's last corner is a vertex of its own
+    (:func:`citylod.render.flat_colors.provoking_layout`), so a per-vertex colour can be its triangle's.
     """
 
     positions: npt.NDArray[np.float32]
@@ -38,6 +40,7 @@ class PreparedMesh:
     texture: npt.NDArray[np.uint8] | None = None
     colors: npt.NDArray[np.uint8] | None = None
     name: str = "surface"
+    provoking: bool = False
 
     @property
     def triangles(self) -> int:
@@ -124,6 +127,12 @@ def prepare_content(content: Any, key: str, level: int, source: str = "") -> Pre
         positions = np.ascontiguousarray(mesh.positions, dtype=np.float32)
         colors = None if mesh.colors is None else np.ascontiguousarray(mesh.colors, np.uint8)
         surface, skirt_faces = _flat(faces[~skirt]), _flat(faces[skirt])
+        provoking = texture is None and colors is None and flat_colors.enabled() and len(faces) > 0
+        if provoking:
+            # Untextured meshes are drawn with one baked colour per triangle: give each triangle a last
+            # corner of its own to carry it (render/flat_colors.py), before ordering for the cache.
+            src, (surface, skirt_faces) = flat_colors.provoking_layout(len(positions), surface, skirt_faces)
+            positions = np.ascontiguousarray(positions[src])
         if mesh_order.enabled() and len(faces):
             # Same triangles, drawn in an order the vertex cache reuses (render/mesh_order.py).
             perm, (surface, skirt_faces) = mesh_order.cache_order(positions, surface, skirt_faces)
@@ -132,7 +141,7 @@ def prepare_content(content: Any, key: str, level: int, source: str = "") -> Pre
             colors = None if colors is None else np.ascontiguousarray(colors[perm])
         out.meshes.append(PreparedMesh(
             positions=positions, surface=surface, skirt=skirt_faces,
-            tcoords=tcoords, texture=texture, colors=colors, name=mesh.name,
+            tcoords=tcoords, texture=texture, colors=colors, name=mesh.name, provoking=provoking,
         ))
     return out
 

@@ -48,7 +48,7 @@ from citylod.io.tiles3d import Tile, Tileset, open_tileset
 from citylod.lod.runtime.cache import TauController, TileCache
 from citylod.lod.runtime.loader import TileLoader, resolve_layers
 from citylod.lod.runtime.selection import Budget, Selection, select
-from citylod.render import _vtk
+from citylod.render import _vtk, flat_colors
 from citylod.render.colors import COLOR_MODES, classification_rgb, intensity_rgb, level_color, ramp_rgb
 from citylod.render.reproject import Reprojection, reprojection_for
 from citylod.render.texture_residency import TextureResidency
@@ -234,6 +234,12 @@ class _MeshProps:
         self.texture.EdgeClampOn()
         self.data: Any = None
         self.mesh: PreparedMesh | None = None
+        self.flat = False  # the colour varying is flat (render/flat_colors.py)
+
+    def set_flat(self, on: bool) -> None:
+        if on != self.flat:
+            flat_colors.set_flat(self.actor.GetShaderProperty(), on)
+            self.flat = on
 
 class _PointProps:
     def __init__(self, counter: Callable[[], None]) -> None:
@@ -429,15 +435,25 @@ class TilesetLayer:
         props.mapper.SetScalarModeToDefault()
         props.actor.SetTexture(None)
         lit = True
+        flat = False
         if mode == "level" or (mode in ("auto", "rgb") and mesh.texture is None and mesh.colors is None):
             # One colour per tile: the sun's diffuse light is baked into per-triangle colours, drawn
             # unlit. Same image as VTK's per-fragment lighting of faceted meshes (a directional light, no
             # specular), at about half the fill cost on llvmpipe.
             base = level_color(level) if mode == "level" else _SURFACE_RGB
-            rgb = baked_face_colors(mesh.positions, np.concatenate([mesh.surface, mesh.skirt]), tile.matrix,
-                                    base)
-            props.data.GetCellData().SetScalars(_rgb_array(rgb, "shaded"))
-            props.mapper.SetScalarModeToUseCellData()
+            conn = np.concatenate([mesh.surface, mesh.skirt])
+            rgb = baked_face_colors(mesh.positions, conn, tile.matrix, base)
+            if mesh.provoking:
+                # Each triangle's colour on its own last corner, drawn flat (render/flat_colors.py):
+                # no per-fragment lookup by primitive ID.
+                vertex_rgb = np.zeros((len(mesh.positions), 3), np.uint8)
+                vertex_rgb[conn.reshape(-1, 3)[:, 2]] = rgb
+                props.data.GetPointData().SetScalars(_rgb_array(vertex_rgb, "shaded"))
+                props.mapper.SetScalarModeToUsePointData()
+                flat = True
+            else:
+                props.data.GetCellData().SetScalars(_rgb_array(rgb, "shaded"))
+                props.mapper.SetScalarModeToUseCellData()
             props.mapper.ScalarVisibilityOn()
             prop.SetColor(1.0, 1.0, 1.0)
             lit = False
@@ -462,6 +478,7 @@ class TilesetLayer:
             prop.SetSpecular(0.0)
         else:
             prop.LightingOff()
+        props.set_flat(flat)
 
     @staticmethod
     def _absolute_z(positions: npt.NDArray[np.float32], tile: Tile | _Node) -> npt.NDArray[np.float64]:
