@@ -12,26 +12,8 @@ from citylod.lod.build.dsm import build_dsm
 from citylod.render.flat_colors import ENV, provoking_layout
 from citylod.render.offscreen import OffscreenRenderer
 from citylod.sample.files import make_sample
-
-
-def _grid(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A heightfield grid (about twice as many triangles as vertices), triangles in random order."""
-    g = np.arange(n, dtype=np.float32)
-    xx, yy = np.meshgrid(g, g)
-    pos = np.stack([xx.ravel(), yy.ravel(), np.cos(xx.ravel() * 0.7) * 2], 1).astype(np.float32)
-    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1))
-    a = (j * n + i).ravel()
-    faces = np.concatenate([np.stack([a, a + 1, a + n + 1], 1), np.stack([a, a + n + 1, a + n], 1)])
-    return pos, faces[np.random.default_rng(seed).permutation(len(faces))]
-
-
-def _oriented(pos: np.ndarray, faces: np.ndarray) -> list[tuple[float, ...]]:
-    """Each triangle as its corner coordinates rotated to start at its smallest corner (winding kept)."""
-    out = []
-    for tri in pos[faces.reshape(-1, 3)].tolist():
-        k = min(range(3), key=lambda i: tri[i])
-        out.append(tuple(v for c in tri[k:] + tri[:k] for v in c))
-    return out
+from tests.render.test_mesh_order import _grid_in_random_order as _grid
+from tests.render.test_mesh_order import _oriented
 
 
 def test_every_triangle_owns_its_last_corner_and_keeps_its_winding() -> None:

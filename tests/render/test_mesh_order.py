@@ -43,13 +43,19 @@ def _grid_in_random_order(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray
     return pos, faces[rng.permutation(len(faces))]
 
 
-def _triangles(pos: np.ndarray, faces: np.ndarray) -> set[tuple[float, ...]]:
-    """Each triangle as its corner coordinates, rotated to start at its smallest corner (winding kept)."""
-    out = set()
+def _oriented(pos: np.ndarray, faces: np.ndarray) -> list[tuple[float, ...]]:
+    """Each triangle as its corner coordinates, rotated to start at its smallest corner (winding kept), in
+    the faces' order."""
+    out = []
     for tri in pos[faces.reshape(-1, 3)].tolist():
         k = min(range(3), key=lambda i: tri[i])
-        out.add(tuple(v for c in tri[k:] + tri[:k] for v in c))
+        out.append(tuple(v for c in tri[k:] + tri[:k] for v in c))
     return out
+
+
+def _triangles(pos: np.ndarray, faces: np.ndarray) -> set[tuple[float, ...]]:
+    """The triangles of :func:`_oriented`, in any order."""
+    return set(_oriented(pos, faces))
 
 
 def test_same_triangles_and_winding_in_cache_order() -> None:
