@@ -649,6 +649,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="instead: build a 20480² raster (1.6 GiB as float32) in a child capped at MIB MiB of "
                          "address space and print its peak resident memory")
     a = ap.parse_args(argv)
+    if a.border_cues and not a.delft:
+        ap.error("--border-cues needs --delft DIR (the AHN3 tiles and testarea.city.json)")
     if a.memory_limit:
         with tempfile.TemporaryDirectory(dir=a.work) as tmp:
             print(memory_run(tmp, limit_mib=a.memory_limit))
