@@ -344,3 +344,85 @@ def test_resolve_reports_corrupt_tile_and_renders_the_rest() -> None:
     keys = {n.key for n in sel.render}
     assert bad not in keys and sel.request == []
     assert len(keys) == 15
+
+
+def _meshed(levels: int = LEVELS) -> Node:
+    """The quadtree with triangles: each level holds twice the triangles of the level above (as a DSM tree
+    does: a child has half its parent's), every error halving per level."""
+    root = quadtree(levels)
+    for n in walk(root):
+        n.point_count = 0
+        n.triangle_count = 40_000 // 2**n.level
+    return root
+
+
+def _corner_down() -> View:
+    """2 km above the (0, 0) corner, looking down (80×60 px, so coarse tiles are fine enough from there)."""
+    return View(Camera((0.0, 0.0, 2000.0), (0.0, 1.0, 0.0), (0.0, 1.0, 0.0), 30.0), 80, 60)
+
+
+def _covers_visible_leaves(root: Node, drawn: Sequence[Any], view: View) -> bool:
+    """Every leaf the frustum does not cull lies under exactly one drawn tile (no hole, no overlap)."""
+    keys = {n.key for n in drawn}
+    for leaf in (n for n in walk(root) if not n.children and not view.cull_box(n.box)):
+        level, ix, iy = (int(v) for v in leaf.key.split("/"))
+        above = 0
+        while level >= 0:
+            above += f"{level}/{ix}/{iy}" in keys
+            level, ix, iy = level - 1, ix // 2, iy // 2
+        if above != 1:
+            return False
+    return True
+
+
+def test_refining_to_cull_draws_fewer_triangles_and_no_coarser_tile() -> None:
+    # Above the (0, 0) corner looking down: the coarse tiles at the corner are mostly outside the view, and
+    # their visible children hold fewer triangles than they do.
+    root = _meshed()
+    view = _corner_down()
+    resident = all_keys(root)
+    plain = select(root, view, tau_px=1.0, resident=resident, refine_to_cull=False)
+    culled = select(root, view, tau_px=1.0, resident=resident)
+    assert culled.stats.triangles < plain.stats.triangles
+    # Independent of the rule's own bookkeeping: the drawn triangles are counted from the tiles.
+    assert sum(n.triangle_count for n in culled.render) == culled.stats.triangles
+    # Finer only: every tile drawn now lies at or below a tile drawn before, so no error rises.
+    before = {n.key: n.level for n in plain.render}
+    for n in cast(list[Node], culled.render):
+        level, ix, iy = (int(v) for v in n.key.split("/"))
+        while f"{level}/{ix}/{iy}" not in before:
+            assert level > 0, n.key
+            level, ix, iy = level - 1, ix // 2, iy // 2
+    assert culled.stats.max_sse_px <= plain.stats.max_sse_px
+    assert no_ancestor_pairs(culled.render)
+    assert _covers_visible_leaves(root, culled.render, view)
+    assert _covers_visible_leaves(root, plain.render, view)
+    assert not any(view.cull_box(n.box) for n in culled.render)
+
+
+def test_refining_to_cull_keeps_a_tile_wholly_in_view() -> None:
+    # From far above the centre everything is in view: the rule never refines, whatever the counts.
+    root = _meshed()
+    view = View(Camera((500.0, 500.0, 20_000.0), (500.0, 500.0, 0.0), (0.0, 1.0, 0.0), 45.0), 80, 60)
+    resident = all_keys(root)
+    a = select(root, view, tau_px=1.0, resident=resident, refine_to_cull=False)
+    b = select(root, view, tau_px=1.0, resident=resident)
+    assert [n.key for n in a.render] == [n.key for n in b.render] == ["0/0/0"]
+
+
+def test_refining_to_cull_waits_for_the_children() -> None:
+    # REPLACE without holes holds for this rule too: the parent stays drawn until its visible children load.
+    root = _meshed()
+    view = _corner_down()
+    plain = select(root, view, tau_px=1.0, resident=all_keys(root), refine_to_cull=False)
+    only = {n.key for n in plain.render}
+    ancestors = set()
+    for k in only:
+        level, ix, iy = (int(v) for v in k.split("/"))
+        while level > 0:
+            level, ix, iy = level - 1, ix // 2, iy // 2
+            ancestors.add(f"{level}/{ix}/{iy}")
+    sel = select(root, view, tau_px=1.0, resident=only | ancestors)
+    assert {n.key for n in sel.render} == only
+    assert sel.request  # the finer tiles the rule wants
+    assert _covers_visible_leaves(root, sel.render, view)

@@ -147,3 +147,76 @@ def test_measured_error_respects_tau(sample_tiles) -> None:
     assert stats.valid > 0.1 * d_lod.size
     assert stats.near_p99_px > 0  # coarse tiles really differ from the leaves
     assert stats.near_p99_px <= tau  # the geometric errors bound what the screen shows
+
+
+def _drawn_skirts(r) -> list[tuple[object, np.ndarray]]:
+    """Every skirt triangle the shown tile actors hold, as (tile, centroid in the data's CRS)."""
+    from citylod.render._vtk import vtk_to_numpy
+    from citylod.render.tileset_actor import SKIRT_ARRAY
+
+    layer = r.scene.layers[0]
+    out = []
+    for key in layer.shown_keys:
+        node = layer.node(key)
+        for props in layer._slots[key].meshes:
+            data = props.data
+            flags = vtk_to_numpy(data.GetCellData().GetArray(SKIRT_ARRAY)).astype(bool)
+            conn = vtk_to_numpy(data.GetPolys().GetConnectivityArray()).reshape(-1, 3)[flags]
+            pos = props.mesh.positions.astype(np.float64)
+            c = pos[conn].mean(axis=1) @ node.matrix[:3, :3].T + node.matrix[:3, 3]
+            out.extend((node, p) for p in c)
+    return out
+
+
+def _across(node, p, shown):
+    """The shown tiles whose footprint holds the point just outside ``node``'s box beyond ``p`` (a point on
+    one of its side faces): the tiles across that side."""
+    lo, hi = node.box.bounds()
+    centre = (lo + hi) / 2
+    half = (hi - lo) / 2
+    u = (p[:2] - centre[:2]) / half[:2]
+    axis = int(np.argmax(np.abs(u)))
+    q = p[:2].copy()
+    q[axis] += np.sign(u[axis]) * 0.01 * half[axis]
+    hits = []
+    for other in shown:
+        olo, ohi = other.box.bounds()
+        if other is not node and np.all(q >= olo[:2]) and np.all(q <= ohi[:2]):
+            hits.append(other)
+    return hits
+
+
+def test_skirts_drawn_where_levels_meet_only(sample_tiles) -> None:
+    """Skirts are drawn on the sides of a tile that border another level or nothing drawn, and not between
+    two drawn tiles of one level (their borders are the same: stage 2 of the build), which the frame shows
+    unchanged: not one pixel the full-resolution surface covers turns to background."""
+    from citylod.render.offscreen import OffscreenRenderer
+
+    tiles, _, tau = sample_tiles
+    cam = _oblique(tiles)
+    assert len(_levels(tiles, cam, tau)) >= 2
+    depth, kept = {}, {}
+    for fitted in (True, False):
+        with OffscreenRenderer([tiles], size=(480, 320), tau_px=tau) as r:
+            r.scene.layers[0].skirts_where_needed = fitted
+            depth[fitted] = r.render(cam, depth=True).depth
+            layer = r.scene.layers[0]
+            shown = [layer.node(k) for k in layer.shown_keys]
+            kept[fitted] = _drawn_skirts(r)
+            if fitted:
+                # Independent of render/skirts.py: each drawn skirt, stepped 1 % of the tile outwards, lands in
+                # no drawn tile or in one of another level (or of another size).
+                for node, p in kept[True]:
+                    for other in _across(node, p, shown):
+                        assert other.level != node.level, (node.key, other.key)
+                full = r.render(cam, depth=True, full_resolution=True)
+                # A full-resolution frame is all one level: no skirt drawn at all.
+                assert _drawn_skirts(r) == []
+                d_full = full.depth
+    # Without fitting, some skirts lie between tiles of one level; they are gone, and the others stay.
+    same = [(n, p) for n, p in kept[False] if any(o.level == n.level for o in _across(n, p, shown))]
+    other = [(n, p) for n, p in kept[False] if not any(o.level == n.level for o in _across(n, p, shown))]
+    assert same and other
+    assert len(kept[True]) == len(other)
+    holes = np.isfinite(depth[False]) & ~np.isfinite(depth[True]) & np.isfinite(d_full)
+    assert int(holes.sum()) == 0

@@ -169,6 +169,13 @@ class View:
         radius = np.abs(n @ box.half_axes).sum(axis=1)
         return bool(np.any(dist < -radius))
 
+    def inside_box(self, box: Box) -> bool:
+        """True if ``box`` lies entirely inside the frustum (conservative: False when unsure)."""
+        n = self.planes[:, :3]
+        dist = n @ box.center + self.planes[:, 3]
+        radius = np.abs(n @ box.half_axes).sum(axis=1)
+        return bool(np.all(dist >= radius))
+
     def cull_sphere(self, sphere: Sphere) -> bool:
         """True if ``sphere`` lies entirely outside the frustum."""
         dist = self.planes[:, :3] @ sphere.center + self.planes[:, 3]

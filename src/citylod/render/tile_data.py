@@ -31,6 +31,8 @@ class PreparedMesh:
     origin; ``texture`` (H, W, C) uint8, rows bottom-up as VTK stores images; ``colors`` (N, 4) uint8.
     ``provoking``: every triangle's last corner is a vertex of its own
     (:func:`citylod.render.flat_colors.provoking_layout`), so a per-vertex colour can be its triangle's.
+    ``skirt_groups``: when set, the skirt triangles are ordered by the side of the tile they hang on, and
+    these six triangle offsets delimit the groups (no side, then sides 0–3: :mod:`citylod.render.skirts`).
     """
 
     positions: npt.NDArray[np.float32]
@@ -41,6 +43,7 @@ class PreparedMesh:
     colors: npt.NDArray[np.uint8] | None = None
     name: str = "surface"
     provoking: bool = False
+    skirt_groups: tuple[int, ...] | None = None
 
     @property
     def triangles(self) -> int:

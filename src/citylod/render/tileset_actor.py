@@ -48,7 +48,7 @@ from citylod.io.tiles3d import Tile, Tileset, open_tileset
 from citylod.lod.runtime.cache import TauController, TileCache
 from citylod.lod.runtime.loader import TileLoader, resolve_layers
 from citylod.lod.runtime.selection import Budget, Selection, select
-from citylod.render import _vtk, flat_colors
+from citylod.render import _vtk, flat_colors, skirts
 from citylod.render.colors import COLOR_MODES, classification_rgb, intensity_rgb, level_color, ramp_rgb
 from citylod.render.reproject import Reprojection, reprojection_for
 from citylod.render.texture_residency import TextureResidency
@@ -128,6 +128,12 @@ def _load_node(node: _Node) -> tuple[PreparedTile, int]:
     if node.reproject is not None:
         # On the loader's worker thread, in float64, before the scene origin shift.
         prepared = node.reproject.prepared(prepared, node.tile.matrix, node.matrix[:3, 3])
+    for mesh in prepared.meshes:
+        if len(mesh.skirt):
+            # Skirts grouped by the side they hang on, so a frame draws only those a crack needs (render/skirts.py).
+            order, mesh.skirt_groups = skirts.side_offsets(skirts.skirt_sides(mesh.positions, mesh.skirt, node.matrix,
+                                                                              node.box))
+            mesh.skirt = np.ascontiguousarray(mesh.skirt.reshape(-1, 3)[order].reshape(-1))
     node.point_count = prepared.point_count
     node.triangle_count = prepared.triangles
     return prepared, nbytes
@@ -235,11 +241,41 @@ class _MeshProps:
         self.data: Any = None
         self.mesh: PreparedMesh | None = None
         self.flat = False  # the colour varying is flat (render/flat_colors.py)
+        # The cell array this actor's tile was last given by fit_skirts or _upload, and the sides whose skirts
+        # it holds; another owner of the cells (polygon edits) makes fit_skirts leave them alone.
+        self.skirt_cells: Any = None
+        self.skirt_kept = skirts.ALL_SIDES
 
     def set_flat(self, on: bool) -> None:
         if on != self.flat:
             flat_colors.set_flat(self.actor.GetShaderProperty(), on)
             self.flat = on
+
+    def fit_skirts(self, sides: frozenset[int]) -> None:
+        """Draw the surface and the skirts of ``sides`` only (render/skirts.py); skirts on no side always.
+
+        Left alone: meshes without grouped skirts, meshes that could carry one colour per cell (their cell
+        arrays must keep every triangle), and cells another owner has replaced."""
+        mesh, data = self.mesh, self.data
+        if mesh is None or data is None or mesh.skirt_groups is None or sides == self.skirt_kept:
+            return
+        if not (mesh.provoking or mesh.texture is not None or mesh.colors is not None):
+            return
+        if data.GetPolys() is not self.skirt_cells:
+            return
+        off = mesh.skirt_groups
+        parts = [mesh.surface, mesh.skirt[3 * off[0]:3 * off[1]]]
+        parts += [mesh.skirt[3 * off[s + 1]:3 * off[s + 2]] for s in sorted(sides)]
+        conn = np.concatenate(parts)
+        cells = _cells(conn, 3)
+        data.SetPolys(cells)
+        flags = np.zeros(len(conn) // 3, np.uint8)
+        flags[len(mesh.surface) // 3:] = 1
+        flag_array = _vtk.numpy_to_vtk(flags, deep=True, array_type=_vtk.VTK_UNSIGNED_CHAR)
+        flag_array.SetName(SKIRT_ARRAY)
+        data.GetCellData().AddArray(flag_array)
+        self.skirt_cells = data.GetPolys()
+        self.skirt_kept = sides
 
 class _PointProps:
     def __init__(self, counter: Callable[[], None]) -> None:
@@ -395,6 +431,13 @@ class TilesetLayer:
         self.point_shape = "points"
         #: ASPRS classes to draw (None: all); points of other classes are left out of the drawn cells.
         self.class_filter: frozenset[int] | None = None
+        #: Refine a tile whose visible children hold fewer triangles, though its error is small enough
+        #: (``select(..., refine_to_cull=...)``; False for A/B measurements).
+        self.refine_to_cull = True
+        #: Draw a tile's skirts only on sides without a drawn same-level neighbour (render/skirts.py; False
+        #: draws every skirt, for A/B measurements).
+        self.skirts_where_needed = True
+        self._skirt_keys: frozenset[str] = frozenset()
         self.selection: Selection | None = None
         self._slots: dict[str, _Slot] = {}
         self._shown: set[str] = set()
@@ -564,6 +607,7 @@ class TilesetLayer:
             flag_array = _vtk.numpy_to_vtk(flags, deep=True, array_type=_vtk.VTK_UNSIGNED_CHAR)
             flag_array.SetName(SKIRT_ARRAY)
             data.GetCellData().AddArray(flag_array)
+            props.skirt_cells, props.skirt_kept = data.GetPolys(), skirts.ALL_SIDES
             if mesh.tcoords is not None and mesh.texture is not None:
                 tc = _vtk.numpy_to_vtk(mesh.tcoords, deep=True)
                 tc.SetName("tcoords")
@@ -589,6 +633,7 @@ class TilesetLayer:
             slot.points.data = None
         self._style_slot(slot, self.effective_color_by)
         self._slots[node.key] = slot
+        self._skirt_keys = frozenset()  # its skirts are fitted with the next frame's
         self.scene.uploads += 1
         return slot
 
@@ -636,6 +681,19 @@ class TilesetLayer:
                     pts.fade_start_s = None
                     pts.draw_first(pts.total)
         self._shown = shown
+        self._fit_skirts(render)
+
+    def _fit_skirts(self, render: Sequence[Any]) -> None:
+        """Give every shown tile the skirts its drawn neighbours leave a crack for (once per set of tiles)."""
+        keys = frozenset(self._shown)
+        if keys == self._skirt_keys:
+            return
+        self._skirt_keys = keys
+        nodes = [n for n in render if n.key in self._shown]
+        need = skirts.needed_sides(nodes) if self.skirts_where_needed else {}
+        for n in nodes:
+            for props in self._slots[n.key].meshes:
+                props.fit_skirts(need.get(n.key, skirts.ALL_SIDES))
 
     def show_leaves(self, keys: Iterable[str] | None = None) -> None:
         """Show the given tiles (default: every leaf), bypassing selection; used for full-resolution
@@ -905,7 +963,8 @@ class Scene:
                 sels.append(Selection([], [], _empty_stats()))
                 continue
             sels.append(select(layer.root, view, tau_px=self._tau(layer), budget=layer.budget,
-                               resident=residency, unavailable=failed, frame=self.frame))
+                               resident=residency, unavailable=failed, frame=self.frame,
+                               refine_to_cull=layer.refine_to_cull))
         return sels
 
     def _pin_and_request(self, sels: Sequence[Selection], request: bool = True) -> int:

@@ -15,6 +15,14 @@ Rules, in one place:
   a tile refines while ``sse_px > tau_px``.
 * **Culling.** Tiles whose box lies outside the frustum (``View.cull_box``) are neither drawn nor
   requested, and a culled child never blocks its parent's refinement.
+* **Refining to cull** (``refine_to_cull``): a REPLACE tile whose error is already small enough still
+  refines when the tiles that would draw its *visible* part hold fewer triangles than it does (the
+  children the frustum does not cull, each replaced in turn by its own visible children where that is
+  cheaper still). Finer tiles have no larger error, so the frame's error can only fall; what it saves is
+  the part of a coarse tile outside the view, which is drawn whole otherwise. Costs are the triangles
+  of :meth:`_Frame.cost` (resident sizes or hints); a tile or child without a known triangle count never
+  refines by this rule, and a tile wholly inside the frustum is not looked below (its children cover
+  the same part of the view, with more triangles in a tree whose levels add detail).
 * **REPLACE without holes** (CesiumJS base traversal, ``updateAndPushChildren``): a tile with content
   refines only when every visible child that has content is resident; until then it stays drawn and
   the missing children are requested. A visible child *without* content (an empty interior node) is
@@ -246,6 +254,9 @@ class _Frame:
         self.culled = 0
         # id(node) -> (culled, sse_px, distance); nodes are alive for the whole call.
         self._memo: dict[int, tuple[bool, float, float]] = {}
+        # id(node) -> fewest triangles that draw the node's visible part (see cover_triangles).
+        self._cover: dict[int, int] = {}
+        self.refine_to_cull = False
 
     def evaluate(self, node: TileNode) -> tuple[bool, float, float]:
         """(culled, sse_px, distance) of ``node``, computed once per call."""
@@ -284,7 +295,45 @@ class _Frame:
 
     def refines(self, node: TileNode, tau_px: float) -> bool:
         culled, sse, _ = self.evaluate(node)
-        return not culled and bool(node.children) and sse > tau_px
+        if culled or not node.children:
+            return False
+        if sse > tau_px:
+            return True
+        return self.refine_to_cull and self.cover_triangles(node) < self.cost(node).triangles
+
+    def cover_triangles(self, node: TileNode) -> int:
+        """Fewest triangles that draw the visible part of ``node`` with it or finer tiles (refining to cull).
+
+        The tile's own triangles, or the sum over its children not culled of their cover when every one
+        of them has content and a known triangle count and the sum is smaller. Not looked below: ADD
+        tiles, tiles without triangles, tiles none of whose children is visible, and tiles wholly inside
+        the frustum. Memoised per call; the
+        children's cull tests are :meth:`evaluate`'s, so each tile is tested once.
+        """
+        key = id(node)
+        hit = self._cover.get(key)
+        if hit is not None:
+            return hit
+        own = self.cost(node).triangles
+        best = own
+        if (own > 0 and node.children and node.refine.upper() != ADD and self.has_content(node)
+                and not self.view.inside_box(node.box)):
+            total, seen = 0, False
+            for c in node.children:
+                if self.evaluate(c)[0]:
+                    continue
+                seen = True
+                if not self.has_content(c) or self.cost(c).triangles <= 0:
+                    total = own
+                    break
+                total += self.cover_triangles(c)
+                if total >= own:
+                    break
+            # No visible child: select() keeps such a tile as it is (its box test is conservative), so
+            # drawing it costs its own triangles.
+            best = min(own, total) if seen else own
+        self._cover[key] = best
+        return best
 
 
 def _fits(budget: Budget, total: _Cost) -> bool:
@@ -327,6 +376,7 @@ def select(
     resident: Residency = frozenset(),
     unavailable: Container[str] = frozenset(),
     frame: int = 0,
+    refine_to_cull: bool = True,
 ) -> Selection:
     """Choose the tiles to draw and to load for ``view``.
 
@@ -347,6 +397,9 @@ def select(
         Keys of tiles that failed to load; treated as tiles without content (never drawn nor requested).
     frame
         Frame number, copied into the result.
+    refine_to_cull
+        Also refine a REPLACE tile whose visible children (recursively) hold fewer triangles than it does
+        (see the module docstring); False keeps the refinement by error alone.
 
     Returns
     -------
@@ -365,6 +418,7 @@ def select(
     """
     budget = budget or UNLIMITED
     fr = _Frame(view, resident, unavailable)
+    fr.refine_to_cull = refine_to_cull
     # Requests: key -> (priority tuple, node); a dict so a tile reached twice is requested once.
     wanted: dict[str, tuple[tuple[float, float, str], TileNode]] = {}
 
