@@ -169,12 +169,13 @@ class View:
         radius = np.abs(n @ box.half_axes).sum(axis=1)
         return bool(np.any(dist < -radius))
 
-    def inside_box(self, box: Box) -> bool:
-        """True if ``box`` lies entirely inside the frustum (conservative: False when unsure)."""
+    def box_in_frustum(self, box: Box) -> tuple[bool, bool]:
+        """(entirely outside, entirely inside) the frustum for ``box``, both conservative: False when unsure.
+        The first is :meth:`cull_box`."""
         n = self.planes[:, :3]
         dist = n @ box.center + self.planes[:, 3]
         radius = np.abs(n @ box.half_axes).sum(axis=1)
-        return bool(np.all(dist >= radius))
+        return bool((dist < -radius).any()), bool((dist >= radius).all())
 
     def cull_sphere(self, sphere: Sphere) -> bool:
         """True if ``sphere`` lies entirely outside the frustum."""
