@@ -3,7 +3,9 @@
 ``python -m citylod.bench.order_bench TILESET PATH.json [STEP] [NAME=VALUE]``: two off-screen renderers
 (960×540) load the same tileset, one with ``CITYLOD_MESH_ORDER=file`` (the order the tiles store), one in
 cache order; with ``NAME=VALUE`` the first loads with that setting instead (for example
-``CITYLOD_FACE_COLORS=cells``, the cell-scalar colours of :mod:`citylod.render.flat_colors`). For every
+``CITYLOD_FACE_COLORS=cells``, the cell-scalar colours of :mod:`citylod.render.flat_colors`), and with
+``layer.NAME=VALUE`` its tileset layers get that attribute instead (``layer.skirts_where_needed=0`` draws
+every skirt, ``layer.refine_to_cull=0`` refines by error alone; 0/1 are read as booleans). For every
 STEP-th camera of the path, camera by camera in turns (the order of the two renderers alternating), each
 draws the full-resolution frame and the τ = 1 px frame: median of 3 draws after a warm-up, timed as
 ``citylod bench`` times them (:meth:`~citylod.render.offscreen.OffscreenRenderer.draw`). Prints per camera,
@@ -23,6 +25,17 @@ from citylod.render.mesh_order import ENV
 from citylod.render.offscreen import OffscreenRenderer
 
 
+def _parse(value: str) -> object:
+    """A layer attribute's value: 0/1 and true/false as booleans, else a number, else the text."""
+    low = value.strip().lower()
+    if low in ("0", "false", "1", "true"):
+        return low in ("1", "true")
+    try:
+        return float(value)
+    except ValueError:
+        return value
+
+
 def _timed(r: OffscreenRenderer) -> float:
     r.draw()  # warm-up: uploads
     return 1000.0 * float(np.median([r.draw() for _ in range(3)]))
@@ -38,22 +51,26 @@ def compare_orders(tileset: str, path: str, step: int = 1, size: tuple[int, int]
     renderers = {}
     name, value = setting
     before = os.environ.get(name)
+    attribute = name[len("layer."):] if name.startswith("layer.") else None
     try:
         for mode in ("file", "cache"):
             # Read by the loader threads while the tiles load.
-            if mode == "file":
+            if attribute is None and mode == "file":
                 os.environ[name] = value
-            else:
+            elif attribute is None:
                 os.environ.pop(name, None)
             r = OffscreenRenderer([tileset], size=size, tau_px=1.0, cache_bytes=4 << 30)
+            if attribute is not None and mode == "file":
+                for layer in r.scene.layers:
+                    setattr(layer, attribute, _parse(value))
             r.prepare(cams[0], full_resolution=True)
             for c in cams:
                 r.prepare(c)
             renderers[mode] = r
     finally:
-        if before is None:
+        if attribute is None and before is None:
             os.environ.pop(name, None)
-        else:
+        elif attribute is None:
             os.environ[name] = before
     times: dict[tuple[str, str], list[float]] = {(m, k): [] for m in renderers for k in ("full", "tau1")}
     differ = 0

@@ -434,9 +434,9 @@ class TilesetLayer:
         #: Refine a tile whose visible children hold fewer triangles, though its error is small enough
         #: (``select(..., refine_to_cull=...)``; False for A/B measurements).
         self.refine_to_cull = True
-        #: Draw a tile's skirts only on sides without a drawn same-level neighbour (render/skirts.py; False
-        #: draws every skirt, for A/B measurements).
-        self.skirts_where_needed = True
+        #: Draw a tile's skirts only on sides without a drawn same-level neighbour (render/skirts.py). Off by
+        #: default: each change of a tile's sides uploads its whole mesh again (see render/skirts.py).
+        self.skirts_where_needed = False
         self._skirt_keys: frozenset[str] = frozenset()
         self.selection: Selection | None = None
         self._slots: dict[str, _Slot] = {}
