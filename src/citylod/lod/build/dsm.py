@@ -575,7 +575,7 @@ def build_tile(job: DsmJob) -> TileResult:
         if kept is None:
             _journal_result(job.out_dir, key, res)
             return res
-        return _stage1_done(job, res, key, kept, 1, valid, stride, last_r, last_c, t0)
+        return _stage1_done(job, res, key, kept, 1, valid, stride, last_r, last_c, t0, fp)
     if stride > 1:
         full = grid_error_lower_bound(fp.read_block, fp.footprint, rpos, cpos, heights, valid, block=fp.block)
         if full > 2.0 * job.target:
@@ -588,7 +588,7 @@ def build_tile(job: DsmJob) -> TileResult:
             # do not cover.
             quick = attempt(0.8 * full, _border_vertices(heights, valid, job.target), per_cell=False, lattice=True)
             if len(quick[2]) and quick[0] <= full * _SHORTCUT_SLACK:
-                return _stage1_done(job, res, key, quick, 1, valid, stride, last_r, last_c, t0)
+                return _stage1_done(job, res, key, quick, 1, valid, stride, last_r, last_c, t0, fp)
     best = attempt(job.target, None, check=stride > 1)
     if len(best[2]) == 0:
         _journal_result(job.out_dir, key, res)
@@ -634,7 +634,7 @@ def build_tile(job: DsmJob) -> TileResult:
         coarse = attempt(0.8 * best[0], None, per_cell=False, lattice=True)  # only its maximum is looked at
         if len(coarse[2]) and coarse[0] <= best[0] and len(coarse[2]) < len(best[2]):
             best = coarse
-    return _stage1_done(job, res, key, best, passes, valid, stride, last_r, last_c, t0)
+    return _stage1_done(job, res, key, best, passes, valid, stride, last_r, last_c, t0, fp)
 
 
 def _border_vertices(heights: np.ndarray, valid: np.ndarray, tol: float) -> np.ndarray:
@@ -653,18 +653,17 @@ def _border_vertices(heights: np.ndarray, valid: np.ndarray, tol: float) -> np.n
 
 def _stage1_done(job: DsmJob, res: TileResult, key: str, best: tuple[float, np.ndarray, np.ndarray, np.ndarray,
                                                                       np.ndarray],
-                 passes: int, valid: np.ndarray, stride: int, last_r: int, last_c: int, t0: float) -> TileResult:
+                 passes: int, valid: np.ndarray, stride: int, last_r: int, last_c: int, t0: float,
+                 fp: _Footprint) -> TileResult:
     err, vij, faces, vz, _ = best
     res.has_content = True
     res.passes = passes
     res.certified = err
     res.samples = int(valid.sum()) * stride * stride
     res.borders = _border_sets(vij, last_r, last_c)
-    g = _tile_grid(job)
-    assert g is not None  # a tile with content lies in the raster
-    _, rpos, cpos = g
+    rpos, cpos = fp.rpos, fp.cpos
     res.border_dev = {side: d for side, (d, _) in
-                      _border_deviations(job.source, rpos, cpos, vij, vz, last_r, last_c).items()}
+                      _border_deviations(fp.read_block, rpos, cpos, vij, vz, last_r, last_c).items()}
     res.box = [int(rpos[0]), int(rpos[-1]), int(cpos[0]), int(cpos[-1])]
     res.seconds = time.perf_counter() - t0
     _save_tin(job.out_dir, key, vij, faces, vz, res)
@@ -789,7 +788,12 @@ def finish_tile(job: DsmJob) -> TileResult:
     # skirt reaches that, plus the level's target. Sized from the actual borders, not from geometricError,
     # which under the Hausdorff metric says nothing vertical, and which hung coarse tiles' skirts tens of
     # metres under the data's outline where it ends at no-data inside the raster (a reprojected raster).
-    dev = _border_deviations(job.source, rpos, cpos, vij, zq, last_r, last_c)
+    if len(replaced) == 0 and job.stage1 is not None and job.stage1.box and job.skirt_reach is not None:
+        # stage 1's TIN, unchanged: its deviations (its heights before float32, which the margin covers)
+        dev = {side: (d, 0.0) for side, d in job.stage1.border_dev.items()}
+    else:
+        dev = _border_deviations(fp.read_block if fp is not None else job.source.read_window, rpos, cpos, vij, zq,
+                                 last_r, last_c)
     if job.skirt_reach is not None:
         reach = dict(job.skirt_reach)
         depth = {s: max(2.0 * job.target, dev.get(s, (0.0, 0.0))[0] + reach.get(s, 0.0) + job.target) for s in sides}
@@ -832,12 +836,14 @@ def finish_tile(job: DsmJob) -> TileResult:
     return res
 
 
-def _border_deviations(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray, vij: np.ndarray, z: np.ndarray,
-                       last_r: int, last_c: int) -> dict[str, tuple[float, float]]:
+def _border_deviations(read: Callable[[int, int, int, int], tuple[np.ndarray, np.ndarray]], rpos: np.ndarray,
+                       cpos: np.ndarray, vij: np.ndarray, z: np.ndarray, last_r: int,
+                       last_c: int) -> dict[str, tuple[float, float]]:
     """Per side ("n", "s", "w", "e"): max |TIN − raster| along the side's line, at every full-resolution
     sample on it (the TIN's border is linear between its border vertices, which are samples, so that is the
     exact maximum), and how far the lowest valid sample on the line lies below the TIN's highest vertex on
-    it. A side with fewer than two vertices has no border edge (no surface reaches it) and is left out."""
+    it. A side with fewer than two vertices has no border edge (no surface reaches it) and is left out.
+    ``read(row, col, rows, cols)`` gives full-resolution heights and validity (a footprint's, or the raster's)."""
     out: dict[str, tuple[float, float]] = {}
     for side in "nswe":
         axis, fixed, _ = _side(side, last_r, last_c)
@@ -849,9 +855,9 @@ def _border_deviations(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray, vi
         pos = (cpos if axis == 0 else rpos)[along[order]].astype(np.float64)
         zt = z[on][order]
         if axis == 0:
-            f, v = src.read_window(int(rpos[fixed]), int(pos[0]), 1, int(pos[-1] - pos[0]) + 1)
+            f, v = read(int(rpos[fixed]), int(pos[0]), 1, int(pos[-1] - pos[0]) + 1)
         else:
-            f, v = src.read_window(int(pos[0]), int(cpos[fixed]), int(pos[-1] - pos[0]) + 1, 1)
+            f, v = read(int(pos[0]), int(cpos[fixed]), int(pos[-1] - pos[0]) + 1, 1)
         f, v = f.reshape(-1), v.reshape(-1)
         x = pos[0] + np.arange(len(f))
         t = np.interp(x, pos, zt)
