@@ -6,8 +6,8 @@ of the *same* level there is no crack to close: stage 2 of the build gives both 
 wherever both have a surface (the module docstring of :mod:`citylod.lod.build.dsm`; on the 4097² city every
 shared border of every level has the same vertices on both sides, to 2e-9 m: docs/PERFORMANCE_LOG.md), so
 the two surfaces meet edge to edge and a skirt there is drawn, and costs, for nothing. At τ = 1 px on the
-4097² city skirts are 3 % of the triangles drawn and about 9 % of the frame: they are tall (twice the
-tile's error, down to the lowest sample of the border line), so they cover many pixels behind the surface.
+4097² city (built with the skirts that reached down to the lowest sample of the border line) skirts were
+3 % of the triangles drawn and about 9 % of the frame: tall, they cover many pixels behind the surface.
 
 Which skirt is which is decided once per loaded tile (:func:`skirt_sides`): the side of the tile's box
 (``−``/``+`` its first and second half-axis) on which a skirt triangle hangs, or −1 when it lies on none
