@@ -213,10 +213,15 @@ def test_skirts_drawn_where_levels_meet_only(sample_tiles) -> None:
                 # A full-resolution frame is all one level: no skirt drawn at all.
                 assert _drawn_skirts(r) == []
                 d_full = full.depth
+                # Turned off again, every tile drawn has all its skirts back.
+                r.scene.layers[0].skirts_where_needed = False
+                r.render(cam)
+                restored = len(_drawn_skirts(r))
     # Without fitting, some skirts lie between tiles of one level; they are gone, and the others stay.
     same = [(n, p) for n, p in kept[False] if any(o.level == n.level for o in _across(n, p, shown))]
     other = [(n, p) for n, p in kept[False] if not any(o.level == n.level for o in _across(n, p, shown))]
     assert same and other
     assert len(kept[True]) == len(other)
+    assert restored == len(kept[False])
     holes = np.isfinite(depth[False]) & ~np.isfinite(depth[True]) & np.isfinite(d_full)
     assert int(holes.sum()) == 0

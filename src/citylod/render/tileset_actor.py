@@ -437,7 +437,8 @@ class TilesetLayer:
         #: Draw a tile's skirts only on sides without a drawn same-level neighbour (render/skirts.py). Off by
         #: default: each change of a tile's sides uploads its whole mesh again (see render/skirts.py).
         self.skirts_where_needed = False
-        self._skirt_keys: frozenset[str] = frozenset()
+        self._skirt_keys: tuple[frozenset[str], bool] | None = None
+        self._skirts_fitted = False
         self.selection: Selection | None = None
         self._slots: dict[str, _Slot] = {}
         self._shown: set[str] = set()
@@ -633,7 +634,7 @@ class TilesetLayer:
             slot.points.data = None
         self._style_slot(slot, self.effective_color_by)
         self._slots[node.key] = slot
-        self._skirt_keys = frozenset()  # its skirts are fitted with the next frame's
+        self._skirt_keys = None  # its skirts are fitted with the next frame's
         self.scene.uploads += 1
         return slot
 
@@ -685,10 +686,13 @@ class TilesetLayer:
 
     def _fit_skirts(self, render: Sequence[Any]) -> None:
         """Give every shown tile the skirts its drawn neighbours leave a crack for (once per set of tiles)."""
-        keys = frozenset(self._shown)
-        if keys == self._skirt_keys:
+        state = (frozenset(self._shown), self.skirts_where_needed)
+        # Until fitting is first turned on every tile keeps every skirt, and there is nothing to do; after, a
+        # tile shown again gets its skirts back once fitting is off.
+        self._skirts_fitted = self._skirts_fitted or self.skirts_where_needed
+        if state == self._skirt_keys or not self._skirts_fitted:
             return
-        self._skirt_keys = keys
+        self._skirt_keys = state
         nodes = [n for n in render if n.key in self._shown]
         need = skirts.needed_sides(nodes) if self.skirts_where_needed else {}
         for n in nodes:
