@@ -151,3 +151,27 @@ def test_not_a_far_field_tileset(box_slf: Path, tmp_path: Path) -> None:
     (bad / "tileset.json").write_text(json.dumps(doc))
     with pytest.raises(InputError, match="incomplete"):
         SlfView(bad, size=SIZE)
+
+
+def test_a_finer_level_keeps_fading_cells_to_fields(tmp_path: Path) -> None:
+    """Only a finest cell fades to buildings. Where the one-level field (one cell of 1 m texels) is above half
+    its switching error and grows its box, loading the city tile, the same field with one level more draws
+    the same cell as a field: no building, no city bytes (why the overview of the sample city is built with
+    one level more, docs/PERFORMANCE_LOG.md)."""
+    city = write_box_city(tmp_path / "city")
+    kw = {"texels": 64, "grid": 7, "oversample": 2, "clusters": 32, "progress": False}
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert build_slf(city, one, texel_m=1.0, **kw).levels == 1
+    assert build_slf(city, two, texel_m=0.5, **kw).levels == 2
+    with SlfView(one, size=SIZE, tau_px=2.0) as sv1, SlfView(two, size=SIZE, tau_px=2.0) as sv2:
+        fading = []
+        for dist in np.geomspace(6000.0, 300.0, 16):
+            cam = _camera(float(dist), 200.0, 40.0)
+            f1 = sv1.prepare(cam)
+            if f1.fading:
+                f2 = sv2.prepare(cam)
+                fading.append(dist)
+                assert f1.bytes_buildings > 0 and f1.bytes_fields > 0
+                assert f2.geometry_cells == 0 and f2.bytes_buildings == 0 and f2.cells >= 1
+                assert f2.levels == {0: 1}  # the same (root) cell, as a field
+        assert len(fading) >= 2  # the fade spans several of these distances
