@@ -175,3 +175,26 @@ def test_a_finer_level_keeps_fading_cells_to_fields(tmp_path: Path) -> None:
                 assert f2.geometry_cells == 0 and f2.bytes_buildings == 0 and f2.cells >= 1
                 assert f2.levels == {0: 1}  # the same (root) cell, as a field
         assert len(fading) >= 2  # the fade spans several of these distances
+
+
+def test_anisotropic_filtering_only_for_oblique_views(box_slf: Path) -> None:
+    """A field's texture is filtered anisotropically while a pixel's ground footprint is at least 1.5 times
+    elongated (elevation ≤ 41.8° from the cell's centre) and isotropically above; ``anisotropic_from=1`` keeps
+    it everywhere. The GL texture gets the setting (read back from VTK), and the steep picture stays the field's."""
+    with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv, SlfView(box_slf, size=SIZE, tau_px=8.0,
+                                                               anisotropic_from=1.0) as always:
+        for el, expect in ((30.0, 16.0), (40.0, 16.0), (44.0, 1.0), (70.0, 1.0), (35.0, 16.0)):
+            cam = _camera(2000.0, 200.0, el)
+            f = sv.prepare(cam)
+            always.prepare(cam)
+            assert f.cells == 1
+            (cell,) = sv.cells.values()
+            assert cell.tex.GetMaximumAnisotropicFiltering() == expect, el
+            assert next(iter(always.cells.values())).tex.GetMaximumAnisotropicFiltering() == 16.0
+        sv.prepare(_camera(2000.0, 200.0, 70.0))
+        always.prepare(_camera(2000.0, 200.0, 70.0))
+        sv.draw()
+        always.draw()
+        a, b = sv.grab_rgb().astype(int), always.grab_rgb().astype(int)
+        mask = sv.field_mask()
+        assert mask.sum() > 100 and np.abs(a - b).mean(axis=2)[mask].mean() < 3.0
