@@ -44,11 +44,12 @@ faces, and each face evaluates to the same numbers in any subset); a leaf's chan
 stage 2, beside the kernel's bound for the others.
 
 Skirts (Wahl 2004: "a triangle strip along the border that reaches down") hang from each tile's outer
-border, except along the raster's own edges, by twice its error: two neighbours differ along a shared
-border by at most the sum of their errors, so the skirt of the coarser one closes the crack where its
-border lies above the finer one's (where it lies lower by more than twice the finer error, a gap can
-remain; not seen in the crack test). Skirt triangles are marked in the glb and are not part of the
-certified surface.
+border, except along the raster's own edges. Every border is linear between samples of its line, so its
+vertical deviation from the raster line is measured exactly; stage 1 records it per side, and a tile's
+skirt reaches its own deviation plus twice the largest of any tile across that line, at any level (stage
+2's insertions at most double a border's deviation): where this tile's border is the higher one, that
+closes the crack whatever neighbour a view selects (`_skirt_reach`). Skirt triangles are marked in the glb
+and are not part of the certified surface.
 
 Every tile is an independent task per stage (decision 5): it reads its own windows, so tasks run on worker
 processes forked from the builder (the default where forking is safe), threads of the calling process
@@ -144,6 +145,9 @@ class DsmJob:
     stage1_tin: journal.Entry | None = None  # stage 2 only: where its stage-1 TIN is journalled
     certify_leaves: bool = False  # certify leaves against the raster too (see finish_tile)
     metric: str = "vertical"  # what geometricError bounds: "hausdorff" (3D, symmetric) or "vertical" (L∞)
+    # Stage 2 only: per side, how far below the raster line any tile across that side (any level) may lie
+    # along it (_skirt_reach); None where a neighbour's stage 1 did not record it (the old bound is used).
+    skirt_reach: tuple[tuple[str, float], ...] | None = None
 
 
 @dataclass
@@ -169,6 +173,11 @@ class TileResult:
     borders: dict[str, list[int]] = field(default_factory=dict)
     # Leaves: the TIN kernel's bound on the tile's own (full-resolution) grid, NaN when it has none
     kernel_bound: float = math.nan
+    # Stage 1: max |TIN − raster| along each side's line ("n", "s", "w", "e"; see _border_deviations), and the
+    # full-resolution rows and columns of the sides [first row, last row, first column, last column]: what
+    # the neighbours' skirts are sized from (_skirt_reach).
+    border_dev: dict[str, float] = field(default_factory=dict)
+    box: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -566,7 +575,7 @@ def build_tile(job: DsmJob) -> TileResult:
         if kept is None:
             _journal_result(job.out_dir, key, res)
             return res
-        return _stage1_done(job, res, key, kept, 1, valid, stride, last_r, last_c, t0)
+        return _stage1_done(job, res, key, kept, 1, valid, stride, last_r, last_c, t0, fp)
     if stride > 1:
         full = grid_error_lower_bound(fp.read_block, fp.footprint, rpos, cpos, heights, valid, block=fp.block)
         if full > 2.0 * job.target:
@@ -579,7 +588,7 @@ def build_tile(job: DsmJob) -> TileResult:
             # do not cover.
             quick = attempt(0.8 * full, _border_vertices(heights, valid, job.target), per_cell=False, lattice=True)
             if len(quick[2]) and quick[0] <= full * _SHORTCUT_SLACK:
-                return _stage1_done(job, res, key, quick, 1, valid, stride, last_r, last_c, t0)
+                return _stage1_done(job, res, key, quick, 1, valid, stride, last_r, last_c, t0, fp)
     best = attempt(job.target, None, check=stride > 1)
     if len(best[2]) == 0:
         _journal_result(job.out_dir, key, res)
@@ -625,7 +634,7 @@ def build_tile(job: DsmJob) -> TileResult:
         coarse = attempt(0.8 * best[0], None, per_cell=False, lattice=True)  # only its maximum is looked at
         if len(coarse[2]) and coarse[0] <= best[0] and len(coarse[2]) < len(best[2]):
             best = coarse
-    return _stage1_done(job, res, key, best, passes, valid, stride, last_r, last_c, t0)
+    return _stage1_done(job, res, key, best, passes, valid, stride, last_r, last_c, t0, fp)
 
 
 def _border_vertices(heights: np.ndarray, valid: np.ndarray, tol: float) -> np.ndarray:
@@ -644,13 +653,18 @@ def _border_vertices(heights: np.ndarray, valid: np.ndarray, tol: float) -> np.n
 
 def _stage1_done(job: DsmJob, res: TileResult, key: str, best: tuple[float, np.ndarray, np.ndarray, np.ndarray,
                                                                       np.ndarray],
-                 passes: int, valid: np.ndarray, stride: int, last_r: int, last_c: int, t0: float) -> TileResult:
+                 passes: int, valid: np.ndarray, stride: int, last_r: int, last_c: int, t0: float,
+                 fp: _Footprint) -> TileResult:
     err, vij, faces, vz, _ = best
     res.has_content = True
     res.passes = passes
     res.certified = err
     res.samples = int(valid.sum()) * stride * stride
     res.borders = _border_sets(vij, last_r, last_c)
+    rpos, cpos = fp.rpos, fp.cpos
+    res.border_dev = {side: d for side, (d, _) in
+                      _border_deviations(fp.read_block, rpos, cpos, vij, vz, last_r, last_c).items()}
+    res.box = [int(rpos[0]), int(rpos[-1]), int(cpos[0]), int(cpos[-1])]
     res.seconds = time.perf_counter() - t0
     _save_tin(job.out_dir, key, vij, faces, vz, res)
     return res
@@ -762,26 +776,36 @@ def finish_tile(job: DsmJob) -> TileResult:
     res.quantisation = q_xy
     res.projection = 0.0 if to_metric is None else _projection_bound(info, to_metric, rpos, cpos, vij, faces)
     res.geometric_error = err + q_xy + res.projection
-    # Two neighbours' borders lie on the same grid line, each within its vertical error there of the raster,
-    # so they differ by at most the sum of those errors: the skirt reaches twice this tile's. Under the
-    # Hausdorff metric the geometricError says nothing vertical (a façade on the border line), so the
-    # border's own vertical error is measured (exact along the line: both are linear between samples).
-    # A neighbour of another level may lie lower by its own vertical error, which this tile does not know:
-    # the skirt also reaches the lowest raster sample on this tile's border lines (a coarse neighbour's
-    # border interpolates samples of the same line).
-    skirt_depth = 2.0 * max(res.geometric_error, job.target)
-    if haus is not None:
-        border_err, drop = _border_vertical_error(job.source, rpos, cpos, vij, zq, last_r, last_c)
-        skirt_depth = max(2.0 * max(border_err, job.target), drop + job.target)
-    out_faces = faces[:, ::-1] if info.transform[0] * info.transform[4] > 0 else faces  # south-up: mirrored
     # No skirt along the raster's own edges: no tile lies beyond them, so there is no crack to close, and a
     # skirt there only hangs a curtain of twice the tile's error under the data's outline (40 m under the
     # coarse tiles of a city).
     sides = "".join(side for side, outer in (("n", rpos[0] == 0), ("s", rpos[-1] >= info.height - 1),
                                              ("w", cpos[0] == 0), ("e", cpos[-1] >= info.width - 1))
                     if not outer)
-    positions, faces_all, skirt, skirt_src = _add_skirts(local, out_faces, vij, last_r, last_c, skirt_depth,
-                                                         sides)
+    # Along a side, this tile's border lies within dev (its measured deviation, exact: both it and the raster
+    # are linear between samples) of the raster line, and any tile across it, of any level, within its reach
+    # (_skirt_reach) of it, so where this border is the higher one the crack is at most dev + reach deep: the
+    # skirt reaches that, plus the level's target. Sized from the actual borders, not from geometricError,
+    # which under the Hausdorff metric says nothing vertical, and which hung coarse tiles' skirts tens of
+    # metres under the data's outline where it ends at no-data inside the raster (a reprojected raster).
+    if len(replaced) == 0 and job.stage1 is not None and job.stage1.box and job.skirt_reach is not None:
+        # stage 1's TIN, unchanged: its deviations (its heights before float32, which the margin covers)
+        dev = {side: (d, 0.0) for side, d in job.stage1.border_dev.items()}
+    else:
+        dev = _border_deviations(fp.read_block if fp is not None else job.source.read_window, rpos, cpos, vij, zq,
+                                 last_r, last_c)
+    if job.skirt_reach is not None:
+        reach = dict(job.skirt_reach)
+        depth = {s: max(2.0 * job.target, dev.get(s, (0.0, 0.0))[0] + reach.get(s, 0.0) + job.target) for s in sides}
+    else:  # an older journal: neighbours' deviations unknown, so the lowest sample on the lines bounds them
+        border_err = max((d for d, _ in dev.values()), default=0.0)
+        drop = max((k for _, k in dev.values()), default=0.0)
+        old = (max(2.0 * max(border_err, job.target), drop + job.target) if haus is not None
+               else 2.0 * max(res.geometric_error, job.target))
+        depth = {s: old for s in sides}
+    skirt_depth = max(depth.values(), default=0.0)
+    out_faces = faces[:, ::-1] if info.transform[0] * info.transform[4] > 0 else faces  # south-up: mirrored
+    positions, faces_all, skirt, skirt_src = _add_skirts(local, out_faces, vij, last_r, last_c, depth)
     uv = texture = None
     if job.ortho:
         from citylod.io.image import encode_image
@@ -812,33 +836,65 @@ def finish_tile(job: DsmJob) -> TileResult:
     return res
 
 
-def _border_vertical_error(src: RasterSource, rpos: np.ndarray, cpos: np.ndarray, vij: np.ndarray, zq: np.ndarray,
-                           last_r: int, last_c: int) -> tuple[float, float]:
-    """max |TIN − raster| along the tile's four border lines, at every full-resolution sample on them (the
-    TIN's border is linear between its border vertices, which are samples, so that is the exact maximum), and
-    how far the lowest valid sample on a border line lies below the TIN's highest border vertex."""
-    worst = 0.0
-    drop = 0.0
-    for axis, fixed in ((0, 0), (0, last_r), (1, 0), (1, last_c)):
+def _border_deviations(read: Callable[[int, int, int, int], tuple[np.ndarray, np.ndarray]], rpos: np.ndarray,
+                       cpos: np.ndarray, vij: np.ndarray, z: np.ndarray, last_r: int,
+                       last_c: int) -> dict[str, tuple[float, float]]:
+    """Per side ("n", "s", "w", "e"): max |TIN − raster| along the side's line, at every full-resolution
+    sample on it (the TIN's border is linear between its border vertices, which are samples, so that is the
+    exact maximum), and how far the lowest valid sample on the line lies below the TIN's highest vertex on
+    it. A side with fewer than two vertices has no border edge (no surface reaches it) and is left out.
+    ``read(row, col, rows, cols)`` gives full-resolution heights and validity (a footprint's, or the raster's)."""
+    out: dict[str, tuple[float, float]] = {}
+    for side in "nswe":
+        axis, fixed, _ = _side(side, last_r, last_c)
         on = vij[:, axis] == fixed
         if on.sum() < 2:
             continue
         along = vij[on, 1 - axis]
         order = np.argsort(along)
         pos = (cpos if axis == 0 else rpos)[along[order]].astype(np.float64)
-        zt = zq[on][order]
+        zt = z[on][order]
         if axis == 0:
-            f, v = src.read_window(int(rpos[fixed]), int(pos[0]), 1, int(pos[-1] - pos[0]) + 1)
+            f, v = read(int(rpos[fixed]), int(pos[0]), 1, int(pos[-1] - pos[0]) + 1)
         else:
-            f, v = src.read_window(int(pos[0]), int(cpos[fixed]), int(pos[-1] - pos[0]) + 1, 1)
+            f, v = read(int(pos[0]), int(cpos[fixed]), int(pos[-1] - pos[0]) + 1, 1)
         f, v = f.reshape(-1), v.reshape(-1)
         x = pos[0] + np.arange(len(f))
         t = np.interp(x, pos, zt)
         d = np.abs(t - f)[v]
-        worst = max(worst, float(d.max(initial=0.0)))
-        if v.any():
-            drop = max(drop, float(zt.max() - f[v].min()))
-    return worst, drop
+        out[side] = (float(d.max(initial=0.0)), float(zt.max() - f[v].min()) if v.any() else 0.0)
+    return out
+
+
+def _skirt_reach(stage1: dict[str, TileResult]) -> dict[str, tuple[tuple[str, float], ...] | None]:
+    """For every tile with content, per side: how far below the raster along that side's line the border of
+    any tile across it (of any level) may lie: 2× the largest stage-1 deviation of those borders.
+
+    Why 2×: a tile's final border is its stage-1 border plus samples of the line inserted in stage 2, and
+    between two consecutive final vertices the stage-1 border is linear and within e of the raster at both,
+    so the final one is within e of the stage-1 one, and within 2e of the raster. All None when a stage-1
+    record has no deviations (a build resumed from an older journal): the skirts then keep the older bound.
+    """
+    if any(r.has_content and len(r.box) != 4 for r in stage1.values()):
+        return {key: None for key, r in stage1.items() if r.has_content}
+    # a side's line in the tile's box, and the side a tile across it shows to it
+    where = {"n": (0, "s"), "s": (1, "n"), "w": (2, "e"), "e": (3, "w")}
+    lines: dict[tuple[str, int], list[tuple[int, int, float]]] = {}
+    for r in stage1.values():
+        if r.has_content:
+            for side, (k, _) in where.items():
+                lo, hi = (r.box[2], r.box[3]) if k < 2 else (r.box[0], r.box[1])
+                lines.setdefault((side, r.box[k]), []).append((lo, hi, r.border_dev.get(side, 0.0)))
+    out: dict[str, tuple[tuple[str, float], ...] | None] = {}
+    for key, r in stage1.items():
+        if r.has_content:
+            reach = []
+            for side, (k, other) in where.items():
+                lo, hi = (r.box[2], r.box[3]) if k < 2 else (r.box[0], r.box[1])
+                near = [d for a, b, d in lines.get((other, r.box[k]), []) if a < hi and b > lo]
+                reach.append((side, 2.0 * max(near, default=0.0)))
+            out[key] = tuple(reach)
+    return out
 
 
 def _projection_bound(info: RasterInfo, to_metric: pyproj.Transformer, rpos: np.ndarray, cpos: np.ndarray,
@@ -972,18 +1028,18 @@ def _decode_tin(data: bytes) -> tuple[TileResult, dict[str, np.ndarray]]:
 
 
 def _add_skirts(local: np.ndarray, faces: np.ndarray, vij: np.ndarray, last_r: int, last_c: int,
-                depth: float, sides: str = "nswe") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Append a vertical strip below each TIN edge on the tile's outer border, on the ``sides`` given
-    ("n": row 0, "s": the last row, "w": column 0, "e": the last column).
+                depth: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Append a vertical strip below each TIN edge on the tile's outer border, ``depth[side]`` deep on each
+    side given ("n": row 0, "s": the last row, "w": column 0, "e": the last column).
 
     Returns positions, faces, the skirt mask per face, and for each appended vertex the surface vertex it
     hangs from (so attributes such as texture coordinates can be copied).
     """
-    sd = [_side(side, last_r, last_c) for side in sides]
+    sd = [_side(side, last_r, last_c) for side in depth]
     return aot.kernel(skirt_strip, np.ascontiguousarray(local, np.float32), np.ascontiguousarray(faces, np.int64),
                       np.ascontiguousarray(vij[:, 0], np.int64), np.ascontiguousarray(vij[:, 1], np.int64),
                       np.array([a for a, _, _ in sd], np.int64), np.array([line for _, line, _ in sd], np.int64),
-                      float(depth))
+                      np.array([float(d) for d in depth.values()], np.float64))
 
 
 def _as_doc(res: TileResult) -> dict[str, Any]:
@@ -1031,7 +1087,7 @@ def plan_levels(info: RasterInfo, tile_size: int) -> int:
 def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, ortho: str | os.PathLike[str] | None = None,
               max_error: float | None = None, tile_size: int = 129, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, texture_size: int | None = None,
-              certify_leaves: bool = False, metric: str = "vertical",
+              certify_leaves: bool = False, metric: str = "hausdorff",
               _stop_after: int | None = None) -> DsmBuildReport:
     """Build a 3D Tiles quadtree from a DSM raster. See the module docstring for the method.
 
@@ -1061,11 +1117,12 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         heights, and only the faces stage 2 changed are certified: the same guarantee, a fraction of the
         time, a bound instead of the measured maximum (at most the target).
     metric
-        What ``geometricError`` bounds: ``"hausdorff"``, the symmetric 3D Hausdorff distance between a
+        What ``geometricError`` bounds: ``"hausdorff"`` (default), the symmetric 3D Hausdorff distance between a
         tile and the raster surface over its footprint (:mod:`citylod.lod.kernels.hausdorff`), or
-        ``"vertical"`` (default), the vertical L∞ distance (which bounds Hausdorff too, but counts a façade between two
-        coarse samples at its full height). Leaves keep the TIN kernel's vertical bound under both, and
-        geographic rasters are certified vertically under both.
+        ``"vertical"``, the vertical L∞ distance (which bounds Hausdorff too, but counts a façade between two
+        coarse samples at its full height, so that on cities the coarse levels certify at tens of metres and
+        views refine to the leaves; terrain users may prefer it, and it builds faster). Leaves keep the TIN
+        kernel's vertical bound under both, and geographic rasters are certified vertically under both.
 
     Returns
     -------
@@ -1077,7 +1134,7 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     --------
     >>> report = build_dsm("dsm.tif", "tiles", ortho="ortho.tif", workers=2)      # doctest: +SKIP
     >>> print(report.summary())                                                   # doctest: +SKIP
-    >>> build_dsm("dsm.tif", "tiles_h", metric="hausdorff")                      # doctest: +SKIP
+    >>> build_dsm("dsm.tif", "tiles_v", metric="vertical")                       # doctest: +SKIP
     >>> build_dsm("dsm.tif", "tiles", scheduler="tcp://127.0.0.1:8786")          # doctest: +SKIP
     """
     if metric not in ("hausdorff", "vertical"):
@@ -1179,11 +1236,12 @@ def build_dsm(raster: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
             # Stage 2: every tile takes the border vertices its neighbours chose and it lacks (one round: the
             # insertions add no vertex elsewhere), then is certified and written.
             extra = _border_additions(borders)
+            reach = _skirt_reach(borders)
             journal.close(jdir)  # this thread's records (inline builds) are on disk; index all of them
             idx = journal.index(jdir)
             stage2 = [dataclasses.replace(all_jobs[k], stage1=borders[k], stage1_tin=idx.get("tin/" + k),
                                           border_extra=tuple(
-                (s, tuple(v)) for s, v in sorted(extra.get(k, {}).items())))
+                (s, tuple(v)) for s, v in sorted(extra.get(k, {}).items())), skirt_reach=reach.get(k))
                       for k in sorted(borders, key=lambda k: int(k.split("/")[0])) if k not in results]
             for r in _run_batched(ex, finish_tile, stage2, progress, "dsm borders"):
                 results[r.key] = r

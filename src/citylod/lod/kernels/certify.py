@@ -273,65 +273,73 @@ def _edge_table(faces, nv):
 
 @njit(cache=True, nogil=True)
 def skirt_strip(local: np.ndarray, faces: np.ndarray, vr: np.ndarray, vc: np.ndarray, side_ax: np.ndarray,
-                side_line: np.ndarray, depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                side_line: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The DSM builder's skirts (`citylod.lod.build.dsm._add_skirts`) in one compiled pass: below every edge of
     ``faces`` that belongs to one face and lies on a side (grid line ``side_line[s]`` of axis ``side_ax[s]``,
-    0: a row of ``vr``, 1: a column of ``vc``), a vertical strip ``depth`` deep. Edges are taken in
-    `edge_table`'s order (edge 0 of every face, then 1, then 2). Returns positions (float32, the skirt
-    vertices after ``local``), faces (the given ones, then every strip's first triangle, then every strip's
-    second), the skirt mask per face and the surface vertex each skirt vertex hangs from (sorted)."""
+    0: a row of ``vr``, 1: a column of ``vc``), a vertical strip ``depth[s]`` deep. Each side's strip has
+    bottom vertices of its own, so at a corner a shallow side does not slope down to its neighbour's depth.
+    Edges are taken in `edge_table`'s order (edge 0 of every face, then 1, then 2). Returns positions
+    (float32, the skirt vertices after ``local``), faces (the given ones, then every strip's first triangle,
+    then every strip's second), the skirt mask per face and the surface vertex each skirt vertex hangs from
+    (sorted)."""
     nf = faces.shape[0]
     nv = local.shape[0]
+    nsd = side_ax.shape[0]
     sel = np.empty(3 * nf, np.int64)
+    sel_side = np.empty(3 * nf, np.int64)
     ns = 0
-    is_src = np.zeros(nv, np.bool_)
+    is_src = np.zeros((nv, max(nsd, 1)), np.bool_)
     # An edge on a side line has faces on one side of it only (the tile ends there), so it belongs to one
     # face: no edge table is needed to find the mesh border there (building one was 0.2 ms a leaf tile).
+    # Its two vertices are distinct grid points, so it lies on one side at most.
     for k in range(3):
         for t in range(nf):
             i = k * nf + t
             a = faces[t, k]
             b = faces[t, (k + 1) % 3]
-            on = False
-            for s in range(side_ax.shape[0]):
+            for s in range(nsd):
                 if side_ax[s] == 0:
-                    on = on or (vr[a] == side_line[s] and vr[b] == side_line[s])
+                    here = vr[a] == side_line[s] and vr[b] == side_line[s]
                 else:
-                    on = on or (vc[a] == side_line[s] and vc[b] == side_line[s])
-            if on:
-                sel[ns] = i
-                ns += 1
-                is_src[a] = True
-                is_src[b] = True
-    dup = np.full(nv, -1, np.int64)
+                    here = vc[a] == side_line[s] and vc[b] == side_line[s]
+                if here:
+                    sel[ns] = i
+                    sel_side[ns] = s
+                    ns += 1
+                    is_src[a, s] = True
+                    is_src[b, s] = True
+                    break
+    dup = np.full((nv, max(nsd, 1)), -1, np.int64)
     nsrc = 0
     for v in range(nv):
-        if is_src[v]:
-            dup[v] = nv + nsrc
-            nsrc += 1
+        for s in range(nsd):
+            if is_src[v, s]:
+                dup[v, s] = nv + nsrc
+                nsrc += 1
     sources = np.empty(nsrc, np.int64)
     positions = np.empty((nv + nsrc, 3), np.float32)
     positions[:nv] = local
-    d32 = np.float32(depth)
     for v in range(nv):
-        if is_src[v]:
-            j = dup[v] - nv
-            sources[j] = v
-            positions[nv + j, 0] = local[v, 0]
-            positions[nv + j, 1] = local[v, 1]
-            positions[nv + j, 2] = local[v, 2] - d32
+        for s in range(nsd):
+            if is_src[v, s]:
+                j = dup[v, s] - nv
+                sources[j] = v
+                positions[nv + j, 0] = local[v, 0]
+                positions[nv + j, 1] = local[v, 1]
+                positions[nv + j, 2] = local[v, 2] - np.float32(depth[s])
     faces_all = np.empty((nf + 2 * ns, 3), np.int64)
     faces_all[:nf] = faces
     for q in range(ns):
         i = sel[q]
+        s = sel_side[q]
         k = i // nf
         t = i - k * nf
         a = faces[t, k]
         b = faces[t, (k + 1) % 3]
         # The surface runs a->b counter-clockwise seen from above, so outside is to the right: these two
         # triangles are counter-clockwise seen from outside.
-        faces_all[nf + q, 0], faces_all[nf + q, 1], faces_all[nf + q, 2] = b, a, dup[a]
-        faces_all[nf + ns + q, 0], faces_all[nf + ns + q, 1], faces_all[nf + ns + q, 2] = b, dup[a], dup[b]
+        faces_all[nf + q, 0], faces_all[nf + q, 1], faces_all[nf + q, 2] = b, a, dup[a, s]
+        faces_all[nf + ns + q, 0], faces_all[nf + ns + q, 1], faces_all[nf + ns + q, 2] = b, dup[a, s], dup[b, s]
     skirt = np.zeros(nf + 2 * ns, np.bool_)
     skirt[nf:] = True
     return positions, faces_all, skirt, sources
