@@ -151,3 +151,50 @@ def test_not_a_far_field_tileset(box_slf: Path, tmp_path: Path) -> None:
     (bad / "tileset.json").write_text(json.dumps(doc))
     with pytest.raises(InputError, match="incomplete"):
         SlfView(bad, size=SIZE)
+
+
+def test_a_finer_level_keeps_fading_cells_to_fields(tmp_path: Path) -> None:
+    """Only a finest cell fades to buildings. Where the one-level field (one cell of 1 m texels) is above half
+    its switching error and grows its box, loading the city tile, the same field with one level more draws
+    the same cell as a field: no building, no city bytes (why the overview of the sample city is built with
+    one level more, docs/PERFORMANCE_LOG.md)."""
+    city = write_box_city(tmp_path / "city")
+    kw = {"texels": 64, "grid": 7, "oversample": 2, "clusters": 32, "progress": False}
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert build_slf(city, one, texel_m=1.0, **kw).levels == 1
+    assert build_slf(city, two, texel_m=0.5, **kw).levels == 2
+    with SlfView(one, size=SIZE, tau_px=2.0) as sv1, SlfView(two, size=SIZE, tau_px=2.0) as sv2:
+        fading = []
+        for dist in np.geomspace(6000.0, 300.0, 16):
+            cam = _camera(float(dist), 200.0, 40.0)
+            f1 = sv1.prepare(cam)
+            if f1.fading:
+                f2 = sv2.prepare(cam)
+                fading.append(dist)
+                assert f1.bytes_buildings > 0 and f1.bytes_fields > 0
+                assert f2.geometry_cells == 0 and f2.bytes_buildings == 0 and f2.cells >= 1
+                assert f2.levels == {0: 1}  # the same (root) cell, as a field
+        assert len(fading) >= 2  # the fade spans several of these distances
+
+
+def test_anisotropic_filtering_only_for_oblique_views(box_slf: Path) -> None:
+    """A field's texture is filtered anisotropically while a pixel's ground footprint is at least 1.5 times
+    elongated (elevation ≤ 41.8° from the cell's centre) and isotropically above; ``anisotropic_from=1`` keeps
+    it everywhere. The GL texture gets the setting (read back from VTK), and the steep picture stays the field's."""
+    with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv, SlfView(box_slf, size=SIZE, tau_px=8.0,
+                                                               anisotropic_from=1.0) as always:
+        for el, expect in ((30.0, 16.0), (40.0, 16.0), (44.0, 1.0), (70.0, 1.0), (35.0, 16.0)):
+            cam = _camera(2000.0, 200.0, el)
+            f = sv.prepare(cam)
+            always.prepare(cam)
+            assert f.cells == 1
+            (cell,) = sv.cells.values()
+            assert cell.tex.GetMaximumAnisotropicFiltering() == expect, el
+            assert next(iter(always.cells.values())).tex.GetMaximumAnisotropicFiltering() == 16.0
+        sv.prepare(_camera(2000.0, 200.0, 70.0))
+        always.prepare(_camera(2000.0, 200.0, 70.0))
+        sv.draw()
+        always.draw()
+        a, b = sv.grab_rgb().astype(int), always.grab_rgb().astype(int)
+        mask = sv.field_mask()
+        assert mask.sum() > 100 and np.abs(a - b).mean(axis=2)[mask].mean() < 3.0

@@ -103,6 +103,7 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
                 mean1, _ = _err(img, ref, mask)
                 rows.append({"set": name, "frame": k, "slf_ms": 1e3 * t_slf, "slf_eval_ms": 1e3 * f.eval_s,
                              "geometry_ms": 1e3 * t_geo, "slf_bytes": f.bytes_drawn, "geometry_bytes": geo_bytes,
+                             "slf_field_bytes": f.bytes_fields, "slf_building_bytes": f.bytes_buildings,
                              "field_cells": f.cells, "building_cells": f.geometry_cells, "levels": f.levels,
                              "field_pixels": int(mask.sum()), "slf_mean_err": mean, "slf_p99_err": p99,
                              "geometry_tau_mean_err": gmean, "geometry_tau_p99_err": gp99,
@@ -137,6 +138,8 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
             "geometry_ms_median": float(np.median([x["geometry_ms"] for x in r])),
             "speedup": float(np.median([x["geometry_ms"] / x["slf_ms"] for x in r])),
             "slf_bytes_median": float(np.median([x["slf_bytes"] for x in r])),
+            "slf_building_bytes_median": float(np.median([x["slf_building_bytes"] for x in r])),
+            "building_cells_median": float(np.median([x["building_cells"] for x in r])),
             "geometry_bytes_median": float(np.median([x["geometry_bytes"] for x in r])),
             "data_ratio": float(np.median([x["geometry_bytes"] / max(x["slf_bytes"], 1) for x in r])),
             "slf_mean_err": float(np.nanmean([x["slf_mean_err"] for x in r])),
@@ -150,15 +153,18 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
     (out / "slf_report.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
     lines = [f"# Far-field SLF against building geometry (τ = {tau_px} px, texels ≤ {texel_px} px, "
              f"{size[0]}×{size[1]})", "",
-             "| cameras | frames | SLF frame ms (eval) | geometry ms | speed-up | SLF MB | geometry MB | less data |"
-             " mean err | p99 err | geometry@τ mean err |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "| cameras | frames | SLF frame ms (eval) | geometry ms | speed-up | SLF MB (of it buildings) |"
+             " geometry MB | less data | mean err | p99 err | geometry@τ mean err | building cells |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name in sets:
         s = summary.get(name)
         if s:
             lines.append(f"| {name} | {s['frames']} | {s['slf_ms_median']:.0f} ({s['slf_eval_ms_median']:.0f}) | "
-                         f"{s['geometry_ms_median']:.0f} | {s['speedup']:.1f}× | {s['slf_bytes_median'] / 1e6:.2f} | "
+                         f"{s['geometry_ms_median']:.0f} | {s['speedup']:.1f}× | {s['slf_bytes_median'] / 1e6:.2f} "
+                         f"({s['slf_building_bytes_median'] / 1e6:.2f}) | "
                          f"{s['geometry_bytes_median'] / 1e6:.2f} | {s['data_ratio']:.1f}× | {s['slf_mean_err']:.1f} | "
-                         f"{s['slf_p99_err']:.0f} | {s['geometry_tau_mean_err']:.1f} |")
+                         f"{s['slf_p99_err']:.0f} | {s['geometry_tau_mean_err']:.1f} | "
+                         f"{s['building_cells_median']:.0f} |")
     fl = summary["flicker"]
     lines += ["", f"Flicker (slow orbit, {fl['pairs']} frame pairs, field pixels): SLF {fl['slf']:.2f}, "
               f"geometry {fl['geometry']:.2f} (mean |Δ| per channel, 0..255)."]
