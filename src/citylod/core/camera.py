@@ -163,15 +163,12 @@ class View:
 
     def cull_box(self, box: Box) -> bool:
         """True if ``box`` lies entirely outside the frustum (conservative: False when unsure)."""
-        # Projected radius of an oriented box on a plane normal: sum |n · half_axis_i|.
-        n = self.planes[:, :3]
-        dist = n @ box.center + self.planes[:, 3]
-        radius = np.abs(n @ box.half_axes).sum(axis=1)
-        return bool(np.any(dist < -radius))
+        return self.box_in_frustum(box)[0]
 
     def box_in_frustum(self, box: Box) -> tuple[bool, bool]:
         """(entirely outside, entirely inside) the frustum for ``box``, both conservative: False when unsure.
         The first is :meth:`cull_box`."""
+        # Projected radius of an oriented box on a plane normal: sum |n · half_axis_i|.
         n = self.planes[:, :3]
         dist = n @ box.center + self.planes[:, 3]
         radius = np.abs(n @ box.half_axes).sum(axis=1)

@@ -308,8 +308,8 @@ class _Frame:
         return self.refine_to_cull and self.cover_triangles(node, CULL_LOOKAHEAD) < self.cost(node).triangles
 
     def frustum(self, node: TileNode) -> tuple[bool, bool]:
-        """(wholly outside, wholly inside) the frustum for ``node``'s box: :meth:`View.cull_box` and
-        :meth:`View.inside_box` in one pass, without the distance and error :meth:`evaluate` adds."""
+        """(wholly outside, wholly inside) the frustum for ``node``'s box (:meth:`View.box_in_frustum`, once per
+        tile), without the distance and error :meth:`evaluate` adds."""
         key = id(node)
         hit = self._frustum.get(key)
         if hit is None:
