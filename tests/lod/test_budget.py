@@ -250,6 +250,38 @@ def test_feed_forward_meets_a_cut_in_the_frame_it_happens() -> None:
         pts = max(p for p, _, _ in dense if p <= b)
 
 
+@pytest.mark.parametrize("cut_share", [0.7, 2.0])
+def test_a_cut_into_a_costlier_view_is_priced_cautiously(cut_share: float) -> None:
+    """Dense views cost 0.2 µs a point, then a sparse stretch at 0.1 µs a point (cheap far points), then a
+    cut back to a new dense view. With cut handling (0.7) the cut frame is priced at the upper quartile of the
+    recent speeds and the frame after it from the cut frame alone, so both land within ±20 %; without it
+    (2.0: never a cut) the model carries the sparse stretch's speed into the dense view and the cut frame
+    runs far over the target."""
+    from citylod.lod.runtime.budget import FeedForwardBudgetController
+
+    c = FeedForwardBudgetController(40.0, base_points=1_000_000, cut_share=cut_share)
+    dense_a = [(k * 10_000, 0, 0) for k in range(1, 101)]
+    for _ in range(12):
+        b = c.plan(dense_a)
+        pts = max(p for p, _, _ in dense_a if p <= b)
+        c.update(2.0 + 2e-4 * pts, pts, 0, 0, True)
+    for _ in range(6):  # 300 k cheap points, short of the target: drawn whole
+        sparse = [(k * 10_000, 0, 0) for k in range(1, 31)]
+        c.plan(sparse)
+        c.update(2.0 + 1e-4 * 300_000, 300_000, 0, 0, False)
+    dense_b = [(k * 10_000, 0, k * 10_000) for k in range(1, 101)]  # all new to the GL
+    times = []
+    for i in range(2):
+        b = c.plan(dense_b if i == 0 else [(p, t, 0) for p, t, _ in dense_b])
+        pts = max(p for p, _, _ in dense_b if p <= b)
+        times.append(2.0 + 2e-4 * pts)
+        c.update(times[-1], pts, 0, pts if i == 0 else 0, True)
+    if cut_share < 1.0:
+        assert all(abs(t / 40.0 - 1.0) <= 0.2 for t in times), times
+    else:
+        assert times[0] > 1.2 * 40.0, times  # the control: the failure the cut handling removes
+
+
 @pytest.mark.parametrize("refine", ["ADD", "REPLACE"])
 def test_admitted_curve_predicts_what_a_smaller_budget_draws(refine: str) -> None:
     """The planner's premise, checked against select itself: with a point budget B the drawn set has the

@@ -23,6 +23,7 @@ Pure: no clock, no I/O, no VTK. The caller measures frame times and applies :att
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -260,7 +261,10 @@ class CostModel:
     is the median over the last ``window`` frames of measured / fitted time (the fit does not depend on it,
     so the two cannot chase each other): it follows a drift within a
     few frames, and one 3× slow frame of a loaded machine moves neither part much (least squares alone was
-    thrown by such frames, docs/PERFORMANCE_LOG.md). Coefficients are clamped at 0.
+    thrown by such frames, docs/PERFORMANCE_LOG.md). A frame added with ``restart`` (a camera cut: most of what it
+    drew is new) starts the speed's window afresh: the last frames' speeds belong to another view, and with
+    them the frame after a cut was predicted from the view before it (1.8× too fast on the budget bench).
+    Coefficients are clamped at 0.
 
     Examples
     --------
@@ -283,15 +287,24 @@ class CostModel:
         self.coef = self.prior.copy()
         self.speed = 1.0
         self._recent: deque[tuple[np.ndarray, float]] = deque(maxlen=int(window))
+        self._history: deque[tuple[np.ndarray, float]] = deque(maxlen=20)  # (coef, speed) after each frame
 
     @staticmethod
     def features(points: float, triangles: float = 0.0, new: float = 0.0) -> np.ndarray:
         return np.array([1.0, points * 1e-5, triangles * 1e-5, new * 1e-5])  # per 100 k elements
 
-    def predict(self, points: float, triangles: float = 0.0, new: float = 0.0) -> float:
-        return self.speed * float(self.features(points, triangles, new) @ self.coef)
+    def predict(self, points: float, triangles: float = 0.0, new: float = 0.0, *, cautious: bool = False) -> float:
+        """Predicted ms. ``cautious``: the upper quartile of what the models of the last 20 frames (costs and
+        speed as they stood after each) predict, for the first frame of a new view, whose costs no recent
+        frame tells (a stretch of cheap views teaches the model cheap points; a quartile, not the maximum, so
+        that one 3× frame of a loaded machine does not set it)."""
+        phi = self.features(points, triangles, new)
+        if cautious and self._history:
+            return float(np.quantile([s * float(phi @ c) for c, s in self._history], 0.75))
+        return self.speed * float(phi @ self.coef)
 
-    def add(self, ms: float, points: float, triangles: float = 0.0, new: float = 0.0) -> None:
+    def add(self, ms: float, points: float, triangles: float = 0.0, new: float = 0.0, *,
+            restart: bool = False) -> None:
         phi = self.features(points, triangles, new)
         ms = max(float(ms), 1e-3)
         y = ms
@@ -304,10 +317,13 @@ class CostModel:
         self.frames += 1
         ridge = np.diag(self.prior_weight / (scale * scale))  # in frames' worth of weight
         self.coef = np.maximum(np.linalg.solve(self.S + ridge, self.b + ridge @ self.prior), 0.0)
+        if restart:
+            self._recent.clear()
         self._recent.append((phi, ms))
         ratios = sorted(m / max(float(f @ self.coef), 1e-6) for f, m in self._recent)
         mid = len(ratios) // 2
         self.speed = ratios[mid] if len(ratios) % 2 else 0.5 * (ratios[mid - 1] + ratios[mid])
+        self._history.append((self.coef.copy(), self.speed))
 
     def reset(self) -> None:
         self.S[:] = 0.0
@@ -316,6 +332,7 @@ class CostModel:
         self.coef = self.prior.copy()
         self.speed = 1.0
         self._recent.clear()
+        self._history.clear()
 
 
 class FeedForwardBudgetController:
@@ -362,7 +379,7 @@ class FeedForwardBudgetController:
 
     def __init__(self, target_ms: float, *, base_points: int, base_tau_px: float = 1.0, ki: float = 0.1,
                  clip: float = 0.4, max_growth: float = 1.15, min_points: int | None = None,
-                 model: CostModel | None = None) -> None:
+                 model: CostModel | None = None, cut_share: float = 0.7) -> None:
         if target_ms <= 0 or base_points <= 0:
             raise ValueError("target_ms and base_points must be > 0")
         self.target_ms = float(target_ms)
@@ -372,6 +389,7 @@ class FeedForwardBudgetController:
         self.ki, self.clip, self.max_growth = float(ki), float(clip), float(max_growth)
         self.min_points = int(min_points if min_points is not None else max(1, base_points // 1000))
         self.model = model or CostModel()
+        self.cut_share = float(cut_share)  # new share of a view that makes it a cut (> 1: never)
         self.correction = 0.0
         self.point_budget = self.base_points
         self.predicted_ms: float | None = None
@@ -393,28 +411,36 @@ class FeedForwardBudgetController:
             return self.point_budget
         goal = self.target_ms * math.exp(-self.correction)
         cap = min(float(self.base_points), self.point_budget * self.max_growth)
+        # A view mostly new to the GL (a camera cut) is priced cautiously (CostModel.predict): the last
+        # frames' costs are another view's, and on the budget bench the first frame after a cut from a
+        # sparse stretch took 1.8× its prediction. The new share is taken over the prefix the last budget
+        # admits (beyond it, tiles are new in any view).
+        j = max(bisect.bisect_right([c[0] for c in curve], self.point_budget) - 1, 0)
+        cut = curve[j][2] > self.cut_share * (curve[j][0] + curve[j][1])
         k = 0
         for i, (pts, tri, new) in enumerate(curve):
-            if pts > cap or self.model.predict(pts, tri, new) > goal:
+            if pts > cap or self.model.predict(pts, tri, new, cautious=cut) > goal:
                 break
             k = i
         else:
             k = len(curve) - 1
         total = curve[-1][0]
-        self.reachable = self.model.predict(*curve[-1]) >= goal or total > cap
+        self.reachable = self.model.predict(*curve[-1], cautious=cut) >= goal or total > cap
         pts = curve[k][0]
         if k == len(curve) - 1:  # all of the view fits: keep the budget, raised to the view if need be
             self.point_budget = max(self.min_points, int(min(cap, max(self.point_budget, pts))))
         else:  # the budget binds: the largest budget that still refuses the next admission
             self.point_budget = max(self.min_points, int(min(cap, max(pts, curve[k + 1][0] - 1))))
-        self.predicted_ms = self.model.predict(*curve[k])
+        self.predicted_ms = self.model.predict(*curve[k], cautious=cut)
         return self.point_budget
 
     def update(self, frame_ms: float, drawn_points: int, drawn_triangles: int = 0, new_elements: int = 0,
                budget_limited: bool = True) -> None:
         """Feed the frame just drawn: its time, what it drew (points, triangles, elements new to the GL) and
-        whether the budget stopped refinement."""
-        self.model.add(frame_ms, drawn_points, drawn_triangles, new_elements)
+        whether the budget stopped refinement. A frame where most of what it drew is new (a camera cut)
+        restarts the model's speed window (:class:`CostModel`)."""
+        cut = self.model.frames > 0 and new_elements > self.cut_share * (drawn_points + drawn_triangles)
+        self.model.add(frame_ms, drawn_points, drawn_triangles, new_elements, restart=cut)
         if budget_limited:
             e = math.log(max(frame_ms, 1e-3) / self.target_ms)
             self.correction += self.ki * max(-self.clip, min(self.clip, e))
