@@ -246,3 +246,49 @@ def test_mipmaps_only_for_power_of_two_textures() -> None:
         jlen = struct.unpack_from("<I", data, 12)[0]
         sampler = json.loads(data[20:20 + jlen])["samplers"][0]
         assert sampler["minFilter"] == min_filter, (w, h)
+
+
+def _with_json(data: bytes, edit) -> bytes:
+    """The glb ``data`` with its JSON chunk replaced by ``edit(json)`` (padded; the binary chunk kept)."""
+    jlen = struct.unpack_from("<I", data, 12)[0]
+    doc = edit(json.loads(data[20:20 + jlen]))
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    rest = data[20 + jlen:]
+    body = struct.pack("<I4s", len(js), b"JSON") + js + rest
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def _up_normals(mesh: MeshData) -> np.ndarray:
+    p = mesh.positions.astype(np.float64)
+    f = mesh.faces.astype(np.int64)
+    return np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])[:, 2]
+
+
+def test_single_sided_materials_round_trip_and_mirrored_nodes_keep_their_front() -> None:
+    """``double_sided`` is the glTF material's ``doubleSided`` both ways; a primitive without a material is
+    single-sided (glTF's default material). A node that mirrors (scale −1 on x) turns its front faces
+    clockwise (glTF 2.0 §3.7.4): decoded with the transform baked into the positions, the triangles come
+    back reversed, so the side that faced up still faces up."""
+    tri = MeshData(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32), np.array([[0, 1, 2]], np.uint32),
+                   double_sided=False)
+    assert _up_normals(tri)[0] > 0  # counter-clockwise seen from above
+    one = encode_glb(TileContent([tri]))
+    both = encode_glb(TileContent([MeshData(tri.positions, tri.faces)]))
+    assert decode_glb(one).meshes[0].double_sided is False
+    assert decode_glb(both).meshes[0].double_sided is True
+
+    def no_material(doc):
+        for prim in doc["meshes"][0]["primitives"]:
+            prim.pop("material", None)
+        return doc
+
+    assert decode_glb(_with_json(both, no_material)).meshes[0].double_sided is False
+
+    def mirror(doc):
+        doc["nodes"][0]["scale"] = [-1.0, 1.0, 1.0]
+        return doc
+
+    mirrored = decode_glb(_with_json(one, mirror)).meshes[0]
+    assert mirrored.positions[:, 0].min() == -1.0  # the mirror was applied
+    assert _up_normals(mirrored)[0] > 0, mirrored.faces  # and the front still faces up

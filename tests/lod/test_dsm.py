@@ -489,3 +489,63 @@ def test_skirts_only_where_a_neighbour_can_be(tmp_path) -> None:
         assert not along_edge.any(), tile.key  # no skirt triangle runs along the raster's edge
         inner += int(mesh.skirt.sum())
     assert inner > 0
+
+
+def _winding(out) -> tuple[int, int, int, int, set[bool]]:
+    """Counts over every written tile: surface triangles facing up / not, skirt triangles facing away from
+    their tile / not (the horizontal normal against the direction from the tile's surface centre), and the
+    materials' ``doubleSided`` values (read from the glb, not through the decoder)."""
+    import struct
+
+    up = down = out_ = in_ = 0
+    sides: set[bool] = set()
+    for t in open_tileset(out).walk():
+        if t.content_uri is None:
+            continue
+        data = t.content_path.read_bytes()
+        (json_len,) = struct.unpack_from("<I", data, 12)  # the glb's first chunk is its JSON
+        gltf = json.loads(data[20:20 + json_len])
+        sides |= {bool(m.get("doubleSided", False)) for m in gltf.get("materials", [])}
+        mesh = t.load()  # in the tileset's CRS, as a client places it
+        p, f, sk = mesh.vertices - mesh.vertices.mean(axis=0), mesh.faces, mesh.skirt
+        n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+        big = np.linalg.norm(n, axis=1) > 1e-9  # degenerate slivers have no side
+        up += int((n[~sk & big, 2] > 0).sum())
+        down += int((n[~sk & big, 2] <= 0).sum())
+        if sk.any():
+            surf = p[np.unique(f[~sk])]
+            mid = (surf.min(axis=0) + surf.max(axis=0)) / 2
+            cen = p[f[sk & big]].mean(axis=1)
+            away = ((cen[:, :2] - mid[:2]) * n[sk & big, :2]).sum(axis=1)
+            out_ += int((away > 0).sum())
+            in_ += int((away <= 0).sum())
+    return up, down, out_, in_, sides
+
+
+@pytest.mark.parametrize(("case", "metric"), [("north-up", "hausdorff"), ("north-up", "vertical"),
+                                              ("south-up", "hausdorff"), ("holes", "hausdorff")])
+def test_tiles_are_single_sided_surface_up_skirts_outward(tmp_path, case, metric) -> None:
+    """The tiles are written single-sided (clients cull back faces), so every surface triangle must be
+    wound counter-clockwise seen from above and every skirt triangle must face away from its tile: a
+    skirt facing in would be culled where it closes a crack. Rows running south (a positive y step)
+    reverse the raster's own orientation; no-data holes add inner borders. The control: the test finds
+    skirts at all."""
+    from rasterio.transform import Affine
+
+    z = city_like(130, 120, seed=4)
+    if case == "holes":
+        z[40:60, 30:55] = NODATA
+        z[:, :6] = NODATA
+    path = tmp_path / "dsm.tif"
+    if case == "south-up":
+        with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1,
+                           dtype="float32", crs="EPSG:32632", nodata=NODATA,
+                           transform=Affine(1.0, 0.0, 500_000.0, 0.0, 1.0, 5_400_000.0)) as ds:
+            ds.write(z[::-1].astype(np.float32), 1)
+    else:
+        write_raster(path, z)
+    build_dsm(path, tmp_path / "out", tile_size=33, workers=0, progress=False, metric=metric)
+    up, down, outward, inward, sides = _winding(tmp_path / "out")
+    assert up > 1000 and outward > 50, (up, outward)
+    assert down == 0 and inward == 0, (down, inward)
+    assert sides == {False}

@@ -33,6 +33,7 @@ class PreparedMesh:
     (:func:`citylod.render.flat_colors.provoking_layout`), so a per-vertex colour can be its triangle's.
     ``skirt_groups``: when set, the skirt triangles are ordered by the side of the tile they hang on, and
     these six triangle offsets delimit the groups (no side, then sides 0–3: :mod:`citylod.render.skirts`).
+    ``double_sided`` False: back faces are culled (the content's glTF material says so).
     """
 
     positions: npt.NDArray[np.float32]
@@ -44,6 +45,7 @@ class PreparedMesh:
     name: str = "surface"
     provoking: bool = False
     skirt_groups: tuple[int, ...] | None = None
+    double_sided: bool = True
 
     @property
     def triangles(self) -> int:
@@ -145,6 +147,7 @@ def prepare_content(content: Any, key: str, level: int, source: str = "") -> Pre
         out.meshes.append(PreparedMesh(
             positions=positions, surface=surface, skirt=skirt_faces,
             tcoords=tcoords, texture=texture, colors=colors, name=mesh.name, provoking=provoking,
+            double_sided=mesh.double_sided,
         ))
     return out
 

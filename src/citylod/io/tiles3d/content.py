@@ -35,7 +35,10 @@ class MeshData:
     """One triangle mesh of a tile. ``positions`` (N, 3) float32 relative to the tile centre, z up;
     ``faces`` (M, 3) uint32; ``skirt`` (M,) bool or None; ``uv`` (N, 2) float32 (origin top-left);
     ``texture`` encoded JPEG/PNG bytes; ``colors`` (N, 4) uint8; ``features`` the feature ID sets
-    (``EXT_mesh_features``), the k-th written as vertex attribute ``_FEATURE_ID_k``."""
+    (``EXT_mesh_features``), the k-th written as vertex attribute ``_FEATURE_ID_k``. ``double_sided``
+    False: only the faces wound counter-clockwise seen from outside are to be drawn (glTF's
+    ``material.doubleSided``; clients cull the back faces). Builders set it only where every triangle is
+    wound that way: a height field's surface faces up and its skirts outward."""
 
     positions: npt.NDArray[np.float32]
     faces: npt.NDArray[np.uint32]
@@ -45,6 +48,7 @@ class MeshData:
     colors: npt.NDArray[np.uint8] | None = None
     name: str = "surface"
     features: list[FeatureIdSet] = field(default_factory=list)
+    double_sided: bool = True
 
     @property
     def nbytes(self) -> int:
@@ -268,7 +272,7 @@ def glb_buffer(content: TileContent) -> npt.NDArray[np.uint8]:
         if len(pos) == 0 or len(faces) == 0:
             continue
         attrs = {"POSITION": b.accessor(_to_gltf_axes(pos), "VEC3", minmax=True)}
-        material: dict[str, Any] = {"name": mesh.name, "doubleSided": True,
+        material: dict[str, Any] = {"name": mesh.name, "doubleSided": bool(mesh.double_sided),
                                     "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}}
         if mesh.uv is not None and mesh.texture:
             attrs["TEXCOORD_0"] = b.accessor(np.asarray(mesh.uv, dtype=np.float32), "VEC2")

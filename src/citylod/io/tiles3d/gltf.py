@@ -361,6 +361,10 @@ def _decode_group(gltf: dict[str, Any], buffers: list[bytes], group: list[dict[s
         return
     if mode not in (4, 5, 6):
         return  # lines are not drawn by citylod
+    # A node or instance whose matrix mirrors (negative determinant) turns the front faces clockwise (glTF
+    # 2.0 §3.7.4); the positions are baked here, so such copies get their triangles reversed, and the faces
+    # seen as front stay the ones the material means.
+    mirrored = np.array([np.linalg.det(m[:3, :3]) < 0.0 for m in mats])
     faces_list, skirt_list = [], []
     for prim in group:
         if draco_idx is not None:
@@ -373,8 +377,12 @@ def _decode_group(gltf: dict[str, Any], buffers: list[bytes], group: list[dict[s
         if len(tri) and int(tri.max()) >= nv:
             raise InputError("triangle indices point past the vertices", source)
         if k > 1:
-            tri = (tri[None, :, :] + (np.arange(k, dtype=np.uint32) * nv)[:, None, None]).reshape(-1, 3)
-        faces_list.append(tri)
+            tri = tri[None, :, :] + (np.arange(k, dtype=np.uint32) * nv)[:, None, None]
+            tri[mirrored] = tri[mirrored][..., ::-1]
+            tri = tri.reshape(-1, 3)
+        elif mirrored[0]:
+            tri = tri[:, ::-1]
+        faces_list.append(np.ascontiguousarray(tri))
         skirt_list.append(np.full(len(tri), bool(prim.get("extras", {}).get("citylod_skirt", False))))
     uv = texture = None
     if "TEXCOORD_0" in names:
@@ -390,7 +398,18 @@ def _decode_group(gltf: dict[str, Any], buffers: list[bytes], group: list[dict[s
         uv=uv, texture=texture, colors=colors,
         name=str(first.get("extras", {}).get("citylod_name", "surface")),
         features=_feature_ids(first, lambda name: repeat(np.asarray(attribute(name)))),
+        double_sided=_double_sided(gltf, first),
     ))
+
+
+def _double_sided(gltf: dict[str, Any], prim: dict[str, Any]) -> bool:
+    """The primitive's ``material.doubleSided``; False (the default material's) without one (glTF 2.0 §3.9)."""
+    if "material" not in prim:
+        return False
+    try:
+        return bool(gltf["materials"][prim["material"]].get("doubleSided", False))
+    except (KeyError, IndexError, TypeError, AttributeError):
+        return True  # a broken reference: draw both sides rather than guess
 
 
 def _feature_ids(prim: dict[str, Any], attribute: Any) -> list[FeatureIdSet]:
@@ -529,7 +548,8 @@ def _gltf1_to_2(doc: dict[str, Any], source: str) -> dict[str, Any]:
                 # glTF 1.0 colours are sRGB; 2.0 factors linear (gltf-pipeline's updateVersion converts too)
                 rgb = srgb_to_linear(np.clip(np.asarray(diffuse[:3], float), 0, 1))
                 pbr["baseColorFactor"] = [*map(float, rgb), float(diffuse[3]) if len(diffuse) > 3 else 1.0]
-            out["materials"].append({"pbrMetallicRoughness": pbr})
+            # glTF 1.0 culls through technique states, which are not read: draw both sides.
+            out["materials"].append({"pbrMetallicRoughness": pbr, "doubleSided": True})
         out["meshes"] = []
         for mesh in doc.get("meshes", {}).values():
             prims = []

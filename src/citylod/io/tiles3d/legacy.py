@@ -191,12 +191,15 @@ def _decode_i3dm(data: bytes, source: str, y_up: bool, resolve: Resolver | None)
         local = m.positions.astype(np.float64) + model.origin
         p = np.einsum("kij,vj->kvi", lin, local) + (pos - centre)[:, None, :]
         nv = len(m.positions)
-        faces = (m.faces[None].astype(np.int64) + (np.arange(n) * nv)[:, None, None]).reshape(-1, 3)
+        faces = m.faces[None].astype(np.int64) + (np.arange(n) * nv)[:, None, None]
+        mirrored = np.linalg.det(lin) < 0.0  # a mirroring instance turns its front faces clockwise
+        faces[mirrored] = faces[mirrored][..., ::-1]
         out.meshes.append(MeshData(
-            positions=p.reshape(-1, 3).astype(np.float32), faces=faces.astype(np.uint32),
+            positions=p.reshape(-1, 3).astype(np.float32), faces=faces.reshape(-1, 3).astype(np.uint32),
             skirt=None if m.skirt is None else np.tile(m.skirt, n),
             uv=None if m.uv is None else np.tile(m.uv, (n, 1)), texture=m.texture,
-            colors=None if m.colors is None else np.tile(m.colors, (n, 1)), name=m.name))
+            colors=None if m.colors is None else np.tile(m.colors, (n, 1)), name=m.name,
+            double_sided=m.double_sided))
     if model.points is not None:
         local = model.points.positions.astype(np.float64) + model.origin
         p = np.einsum("kij,vj->kvi", lin, local) + (pos - centre)[:, None, :]

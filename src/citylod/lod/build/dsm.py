@@ -820,7 +820,10 @@ def finish_tile(job: DsmJob) -> TileResult:
             v = (bounds[3] - gy) / max(bounds[3] - bounds[1], 1e-12)
             uv_v = np.column_stack([u, v]).astype(np.float32)
             uv = np.concatenate([uv_v, uv_v[skirt_src]])
-    mesh = MeshData(positions, faces_all.astype(np.uint32), skirt=skirt, uv=uv, texture=texture, name="surface")
+    # Single-sided: the surface is wound counter-clockwise seen from above and each skirt strip faces away
+    # from its tile (tests/lod/test_dsm.py checks every triangle), so clients may cull back faces.
+    mesh = MeshData(positions, faces_all.astype(np.uint32), skirt=skirt, uv=uv, texture=texture, name="surface",
+                    double_sided=False)
     # Not atomic (no temporary name and rename): the tile counts as finished only through its journal record,
     # written after this returns, so a glb torn by an interruption is rewritten when the build resumes.
     write_content(job.out_dir, key, TileContent([mesh]), atomic=False)
