@@ -122,3 +122,50 @@ def test_broken_input_leaves_nothing(tmp_path: Path) -> None:
     with pytest.raises(CitylodError):
         build_city_tiles(bad, tmp_path / "out", progress=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.city.json"]
+
+
+def _cube(offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """A unit cube at UTM-sized coordinates, every face counter-clockwise seen from outside."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    f = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5],
+                  [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
+    return v + np.array([500_000.0, 5_400_000.0, 40.0]) + offset, f
+
+
+def test_only_closed_outward_shells_count_as_single_sided() -> None:
+    """The check behind single-sided city tiles: outward normals computed independently (each face's normal
+    against the direction from the cube's centre) agree, and every way of breaking the property is refused:
+    an inverted shell, an open one, one flipped face, a second shell inverted, duplicated vertices per face
+    (welded, still closed), a T-junction (an edge split on one side only)."""
+    from citylod.lod.build.city import _closed_outward
+
+    v, f = _cube()
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    assert (np.einsum("ij,ij->i", n, v[f].mean(axis=1) - v.mean(axis=0)) > 0).all()  # the cube is outward
+    assert _closed_outward(v, f)
+    assert not _closed_outward(v, f[:, ::-1])
+    assert not _closed_outward(v, f[2:])
+    flipped = f.copy()
+    flipped[5] = flipped[5][::-1]
+    assert not _closed_outward(v, flipped)
+    v2, _ = _cube((3.0, 0.0, 0.0))
+    assert _closed_outward(np.vstack([v, v2]), np.vstack([f, f + 8]))
+    assert not _closed_outward(np.vstack([v, v2]), np.vstack([f, (f + 8)[:, ::-1]]))
+    unwelded = v[f].reshape(-1, 3)  # three vertices of its own per face, as polygon rings give
+    assert _closed_outward(unwelded, np.arange(len(unwelded)).reshape(-1, 3))
+    mid = np.vstack([v, [(v[0] + v[1]) / 2]])  # vertex 8 splits edge 0-1 in the bottom face (f[0]) only
+    assert f[0].tolist() == [0, 2, 1]
+    assert not _closed_outward(mid, np.vstack([f[1:], [[0, 2, 8], [8, 2, 1]]]))
+
+
+def test_closed_buildings_are_written_single_sided(tiles: SimpleNamespace) -> None:
+    """The sample city's houses are closed, outward solids: their tiles are single-sided (glTF
+    ``doubleSided: false``, read back through the glb's own JSON), so clients cull their back faces."""
+    import struct
+
+    sides = set()
+    for t in _leaves(tiles.ts):
+        data = t.content_path.read_bytes()
+        (jlen,) = struct.unpack_from("<I", data, 12)
+        sides |= {bool(m.get("doubleSided", False)) for m in json.loads(data[20:20 + jlen])["materials"]}
+    assert sides == {False}

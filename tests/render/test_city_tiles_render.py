@@ -63,3 +63,27 @@ def test_pick_on_city_tiles_returns_the_building_under_its_roof(city: SimpleName
         overlay.close()
     store.close()
     assert picked >= 3
+
+
+def test_closed_houses_drawn_single_sided_look_the_same(city: SimpleNamespace) -> None:
+    """The sample's houses are written single-sided and drawn with back faces culled. From outside (an oblique
+    view over the city, and one down a street) the picture is the one drawn with back faces: the same pixels
+    at the same depth."""
+    from citylod.io.tiles3d import open_tileset
+    from tests.render.test_dsm import _frame
+
+    lo, hi = open_tileset(city.tiles).bounds
+    c = (lo + hi) / 2
+    ext = float(hi[0] - lo[0])
+    cams = [Camera((c[0] - ext, c[1] - ext, hi[2] + 0.6 * ext), tuple(c), (0.0, 0.0, 1.0), 45.0),
+            Camera((lo[0] - 5.0, c[1], lo[2] + 3.0), (hi[0], c[1], lo[2] + 3.0), (0.0, 0.0, 1.0), 60.0)]
+    with OffscreenRenderer([city.tiles], size=SIZE) as r:
+        for cam in cams:
+            rgb, depth, share = _frame(r, cam, None)
+            assert share == 1.0
+            rgb2, depth2, _ = _frame(r, cam, False)
+            covered = np.isfinite(depth2)
+            assert covered.mean() > 0.05
+            assert np.array_equal(np.isfinite(depth), covered)
+            assert np.abs(depth[covered] - depth2[covered]).max() <= 1e-3 * depth2[covered].max()
+            assert (np.abs(rgb - rgb2).max(axis=2) > 8).mean() < 2e-3

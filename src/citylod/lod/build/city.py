@@ -235,6 +235,46 @@ def _object_table(objects: Sequence[CityObject]) -> PropertyTable:
     })
 
 
+def _closed_outward(verts: F64, faces: npt.NDArray[np.int64]) -> bool:
+    """Whether the triangles bound closed volumes with every face wound counter-clockwise seen from outside,
+    so that a client may cull back faces without opening a hole in what can be seen from outside.
+
+    Vertices are welded by position first (texture seams and per-polygon rings duplicate them). The surface
+    is then closed and consistently oriented exactly when every directed edge occurs once and its reverse
+    occurs too (each edge shared by two faces that traverse it in opposite directions; a T-junction, a hole
+    or a flipped face breaks this). Each connected shell then has a signed volume of one sign, and it is
+    positive when the normals point out (divergence theorem), which is checked per shell. Degenerate
+    triangles (two corners welded together) have no side and are left out. Conservative: any other input,
+    such as shells that share edges or the open shells that CityGML data often has, says False.
+    """
+    if not len(faces):
+        return False
+    pts = np.asarray(verts, np.float64)
+    tri = np.asarray(faces, np.int64)
+    _, vid = np.unique(np.round(pts, 6), axis=0, return_inverse=True)
+    vid = vid.reshape(-1)
+    f = vid[tri]
+    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
+    f, tri = f[keep], tri[keep]
+    if not len(f):
+        return False
+    n = int(vid.max()) + 1
+    a = f.ravel()
+    b = f[:, [1, 2, 0]].ravel()
+    code = a * n + b
+    if len(np.unique(code)) != len(code) or not np.isin(b * n + a, code).all():
+        return False
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, comp = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
+    p = pts[tri] - pts.mean(axis=0)  # volumes about a near origin: no cancellation at UTM coordinates
+    vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])) / 6.0
+    shell = np.bincount(comp[f[:, 0]], weights=vol, minlength=int(comp.max()) + 1)
+    used = np.bincount(comp[f[:, 0]], minlength=len(shell)) > 0
+    return bool((shell[used] > 0.0).all())
+
+
 def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[CityObject],
              centre: F64, atlas: tuple[bytes, Square] | None = None,
              originals: Sequence[Path] | None = None) -> tuple[TileContent, float, int]:
@@ -266,6 +306,9 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
     # float32 rounding of positions relative to the centre: half an ulp per coordinate, in 3D.
     rounding = float(np.abs(pos).max() * 2.0**-24 * np.sqrt(3.0)) if len(pos) else 0.0
     meshes = []
+    # Single-sided only where every building of the tile is a closed, outward-wound shell: back faces are then
+    # hidden from every viewpoint outside, and clients (citylod too) cull them (a quarter of a city frame).
+    one_sided = _closed_outward(verts, faces)
     textured = np.zeros(len(faces), bool)
     uv = None
     # The surface classes are a second feature ID set when the tile has any (a table needs a property).
@@ -289,7 +332,7 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
             img_uv = np.column_stack([uv[used, 0], 1.0 - uv[used, 1]]).astype(np.float32)  # glTF: origin top left
             meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), uv=img_uv,
                                    texture=Path(originals[int(k)]).read_bytes(), name=f"image_{int(k)}",
-                                   features=feature_sets(used)))
+                                   features=feature_sets(used), double_sided=not one_sided))
         textured_done = True
     else:
         textured_done = False
@@ -303,10 +346,11 @@ def _content(pieces: list[_Piece], extra_rows: Sequence[int], objects: Sequence[
         if tex:
             assert atlas is not None and uv is not None
             meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), uv=tile_uv(uv[used], atlas[1]),
-                                   texture=atlas[0], name="city_textured", features=sets))
+                                   texture=atlas[0], name="city_textured", features=sets,
+                                   double_sided=not one_sided))
         else:
             meshes.append(MeshData(pos[used], inv.reshape(-1, 3).astype(np.uint32), colors=rgba[used], name="city",
-                                   features=sets))
+                                   features=sets, double_sided=not one_sided))
     tables = [_object_table([objects[i] for i in rows])]
     if has_classes:
         tables.append(PropertyTable("surface", {"surface_class": [c or None for c in classes]}))
