@@ -153,6 +153,19 @@ def _cells(conn: npt.NDArray[np.int64], per_cell: int) -> Any:
     return ca
 
 
+def _set_surface_and_skirts(data: Any, surface: npt.NDArray[np.int64], skirt: npt.NDArray[np.int64]) -> Any:
+    """Give ``data`` one triangle cell array, the surface's then the skirts' (one actor per tile, see the
+    module docstring), with the skirt cells flagged in :data:`SKIRT_ARRAY` so a picker can reject them
+    (:func:`is_skirt_cell`); returns the cell array."""
+    data.SetPolys(_cells(np.concatenate([surface, skirt]), 3))
+    flags = np.zeros((len(surface) + len(skirt)) // 3, np.uint8)
+    flags[len(surface) // 3:] = 1
+    flag_array = _vtk.numpy_to_vtk(flags, deep=True, array_type=_vtk.VTK_UNSIGNED_CHAR)
+    flag_array.SetName(SKIRT_ARRAY)
+    data.GetCellData().AddArray(flag_array)
+    return data.GetPolys()
+
+
 def _points(positions: npt.NDArray[np.float32]) -> Any:
     pts = _vtk.vtkPoints()
     # deep=True: VTK must own the buffer, since the numpy array may be freed with the cache entry.
@@ -264,18 +277,10 @@ class _MeshProps:
         if data.GetPolys() is not self.skirt_cells:
             return
         off = mesh.skirt_groups
-        parts = [mesh.surface, mesh.skirt[3 * off[0]:3 * off[1]]]
-        parts += [mesh.skirt[3 * off[s + 1]:3 * off[s + 2]] for s in sorted(sides)]
-        conn = np.concatenate(parts)
-        cells = _cells(conn, 3)
-        data.SetPolys(cells)
-        flags = np.zeros(len(conn) // 3, np.uint8)
-        flags[len(mesh.surface) // 3:] = 1
-        flag_array = _vtk.numpy_to_vtk(flags, deep=True, array_type=_vtk.VTK_UNSIGNED_CHAR)
-        flag_array.SetName(SKIRT_ARRAY)
-        data.GetCellData().AddArray(flag_array)
-        self.skirt_cells = data.GetPolys()
+        kept = [mesh.skirt[3 * off[0]:3 * off[1]]] + [mesh.skirt[3 * off[s + 1]:3 * off[s + 2]] for s in sorted(sides)]
+        self.skirt_cells = _set_surface_and_skirts(data, mesh.surface, np.concatenate(kept))
         self.skirt_kept = sides
+
 
 class _PointProps:
     def __init__(self, counter: Callable[[], None]) -> None:
@@ -524,8 +529,8 @@ class TilesetLayer:
             prop.LightingOff()
         props.set_flat(flat)
         # Single-sided content (a height field: surface up, skirts outward) has its back faces culled, as
-        # glTF clients do: on a city DSM a sixth of the τ = 1 px frame's time went to rasterising faces that
-        # the front ones hide (docs/PERFORMANCE_LOG.md). Not through a reprojection, whose warp may mirror.
+        # glTF clients do: on a city DSM about a quarter of the τ = 1 px frame's time went to rasterising faces
+        # that the front ones hide (docs/PERFORMANCE_LOG.md). Not through a reprojection, whose warp may mirror.
         prop.SetBackfaceCulling(not mesh.double_sided and self.reprojection is None)
 
     @staticmethod
@@ -604,15 +609,8 @@ class TilesetLayer:
         for props, mesh in zip(slot.meshes, prepared.meshes, strict=False):
             data = _vtk.vtkPolyData()
             data.SetPoints(_points(mesh.positions))
-            # Skirt triangles follow the surface's in one cell array (one actor per tile, see the module
-            # docstring) and are flagged per cell, so a picker can reject them (is_skirt_cell).
-            data.SetPolys(_cells(np.concatenate([mesh.surface, mesh.skirt]), 3))
-            flags = np.zeros((len(mesh.surface) + len(mesh.skirt)) // 3, np.uint8)
-            flags[len(mesh.surface) // 3:] = 1
-            flag_array = _vtk.numpy_to_vtk(flags, deep=True, array_type=_vtk.VTK_UNSIGNED_CHAR)
-            flag_array.SetName(SKIRT_ARRAY)
-            data.GetCellData().AddArray(flag_array)
-            props.skirt_cells, props.skirt_kept = data.GetPolys(), skirts.ALL_SIDES
+            props.skirt_cells = _set_surface_and_skirts(data, mesh.surface, mesh.skirt)
+            props.skirt_kept = skirts.ALL_SIDES
             if mesh.tcoords is not None and mesh.texture is not None:
                 tc = _vtk.numpy_to_vtk(mesh.tcoords, deep=True)
                 tc.SetName("tcoords")

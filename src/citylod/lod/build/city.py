@@ -246,6 +246,9 @@ def _closed_outward(verts: F64, faces: npt.NDArray[np.int64]) -> bool:
     positive when the normals point out (divergence theorem), which is checked per shell. Degenerate
     triangles (two corners welded together) have no side and are left out. Conservative: any other input,
     such as shells that share edges or the open shells that CityGML data often has, says False.
+
+    The reader (:func:`citylod.io.city.model.orient_outward`) already flips closed solids outward as a whole;
+    this checks the triangles as written, face by face, which that repair does not promise.
     """
     if not len(faces):
         return False
