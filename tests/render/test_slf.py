@@ -121,6 +121,43 @@ def test_cli_build_slf(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     assert not (tmp_path / "g").exists()
 
 
+def test_cli_render_draws_a_far_field_tileset_with_its_fields(box_slf: Path, tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """``citylod render SLF_DIR`` draws what SlfView draws for the camera (the field evaluated for its
+    direction), not the average texture that other clients see; options of the tileset scene are refused in
+    one line, with nothing written."""
+    from citylod.io.image import decode_image
+    from citylod.render.offscreen import OffscreenRenderer
+
+    cam = _camera(2000.0, 200.0, 40.0)
+    cam.save(tmp_path / "cam.json")
+    png = tmp_path / "far.png"
+    assert main(["-q", "render", str(box_slf), "-o", str(png), "--camera", str(tmp_path / "cam.json"),
+                 "--size", f"{BIG[0]}x{BIG[1]}", "--tau", "8"]) == 0
+    assert "field cells" in capsys.readouterr().out
+    got = decode_image(png.read_bytes())[..., :3].astype(int)
+    with SlfView(box_slf, size=BIG, tau_px=8.0) as sv:
+        sv.prepare(cam)
+        sv.draw()
+        want = sv.grab_rgb().astype(int)
+        mask = sv.field_mask()
+    assert np.abs(got - want).max() <= 1 and mask.sum() > 1000
+    with GeometryView(box_slf, size=BIG) as gv:
+        gv.prepare(cam, full_resolution=True)
+        gv.draw()
+        ref = gv.grab_rgb().astype(int)
+    with OffscreenRenderer([box_slf], size=BIG, tau_px=8.0) as r:  # the average texture, as other clients
+        plain = r.render(cam).rgb.astype(int)
+    err_field = np.abs(got - ref).mean(axis=2)[mask].mean()
+    err_plain = np.abs(plain - ref).mean(axis=2)[mask].mean()
+    assert err_field < 0.7 * err_plain, (err_field, err_plain)
+    bad = tmp_path / "bad.png"
+    assert main(["-q", "render", str(box_slf), "-o", str(bad), "--camera", str(tmp_path / "cam.json"),
+                 "--depth", str(tmp_path / "d.npy")]) == 2
+    err = capsys.readouterr().err
+    assert "--depth" in err and len(err.strip().splitlines()) == 1 and not bad.exists()
+
+
 def test_damaged_field_file_is_refused(box_slf: Path, tmp_path: Path) -> None:
     import shutil
 

@@ -9,7 +9,8 @@ from citylod.cli._args import size
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    r = sub.add_parser("render", help="off-screen render of tilesets and city stores")
+    r = sub.add_parser("render", help="off-screen render of tilesets and city stores (a far-field tileset is "
+                                      "drawn with its light fields)")
     r.add_argument("sources", type=Path, nargs="+")
     r.add_argument("-o", "--output", type=Path, required=True, help="PNG; with a camera path, a frame pattern")
     r.add_argument("--camera", type=Path, required=True, help="camera JSON (one camera or a path)")
@@ -71,5 +72,8 @@ def _milliseconds(text: str) -> float:
 
 def run(args: argparse.Namespace, progress: bool) -> int:
     from citylod.render.offscreen import render_command
+    from citylod.render.slf import is_far_field, render_far_field_command
 
+    if any(is_far_field(s) for s in args.sources):  # drawn with its fields, not as the average texture
+        return render_far_field_command(args, progress=progress)
     return render_command(args, progress=progress)

@@ -32,7 +32,7 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod.core.camera import Camera, View
-from citylod.core.errors import InputError
+from citylod.core.errors import CitylodError, InputError
 from citylod.io.image import decode_image
 from citylod.io.tiles3d import Tile, open_tileset
 from citylod.lod.build.slf import read_cell_arrays, read_group
@@ -50,7 +50,7 @@ from citylod.render.gl_context import guard
 from citylod.render.offscreen import OffscreenRenderer
 from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
 
-__all__ = ["GeometryView", "SlfFrame", "SlfView", "open_slf"]
+__all__ = ["GeometryView", "SlfFrame", "SlfView", "is_far_field", "open_slf", "render_far_field_command"]
 
 U8 = npt.NDArray[np.uint8]
 F64 = npt.NDArray[np.float64]
@@ -604,3 +604,55 @@ class GeometryView:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def is_far_field(source: str | Path) -> bool:
+    """Whether ``source`` (a tileset folder or ``tileset.json``) is a far-field tileset (``citylod build
+    slf``). Unreadable sources answer False: the ordinary renderer reports them."""
+    p = Path(source)
+    if not (p.is_dir() or p.suffix.lower() == ".json") or not p.exists():
+        return False
+    try:
+        return open_tileset(p).citylod.get("kind") == "slf"
+    except (CitylodError, OSError, ValueError):  # the renderer that reads it for real reports the damage
+        return False
+
+
+#: ``citylod render`` options that act on a scene of tilesets; a far-field view draws its city and fields only.
+_SCENE_ONLY = ("depth", "city", "highlight", "hide", "flood", "edits", "texture_budget", "point_budget",
+               "target_ms")
+
+
+def render_far_field_command(args: Any, progress: bool = True) -> int:
+    """``citylod render SLF_DIR -o IMAGE.png --camera CAMERA.json [--tau PX] [--size WxH]``: the city of a
+    far-field tileset as :class:`SlfView` draws it (fields evaluated for each camera, buildings where the
+    fields hand over), one PNG per camera. The far-field tileset is the only source."""
+    from tqdm import tqdm
+
+    from citylod.core.camera import load_cameras
+    from citylod.render.offscreen import frame_path, save_png
+
+    if len(args.sources) != 1:
+        raise CitylodError("a far-field tileset is rendered alone (it names its own city tileset); "
+                           f"got {len(args.sources)} sources")
+    used = [f"--{name.replace('_', '-')}" for name in _SCENE_ONLY if getattr(args, name, None) not in (None, False)]
+    if getattr(args, "splats", False):
+        used.append("--splats")
+    if used:
+        raise CitylodError(f"{', '.join(used)}: not available with a far-field tileset")
+    out = Path(args.output)
+    if out.suffix.lower() != ".png":
+        raise CitylodError(f"output must be a .png file, got {out.name!r}")
+    cameras = load_cameras(args.camera)
+    n = len(cameras)
+    last = None
+    with SlfView(args.sources[0], size=tuple(args.size), tau_px=args.tau) as sv:
+        for i, cam in enumerate(tqdm(cameras, desc="render", unit="frame", disable=not progress or n < 2)):
+            last = sv.prepare(cam)
+            sv.draw()
+            save_png(frame_path(out, i, n), sv.grab_rgb())
+    if last is not None:
+        where = out if n == 1 else out.with_name(f"{out.stem}_NNNN{out.suffix}")
+        print(f"{where}: {n} frame(s), last: {last.cells} field cells, {last.geometry_cells} cells of buildings, "
+              f"{last.bytes_drawn / 1e6:.2f} MB")
+    return 0
