@@ -47,7 +47,7 @@ from citylod.lod.kernels.slf import (
 )
 from citylod.render import _vtk
 from citylod.render.gl_context import guard
-from citylod.render.offscreen import OffscreenRenderer
+from citylod.render.offscreen import OffscreenRenderer, frame_path, save_png
 from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
 
 __all__ = ["GeometryView", "SlfFrame", "SlfView", "is_far_field", "open_slf", "render_far_field_command"]
@@ -630,7 +630,6 @@ def render_far_field_command(args: Any, progress: bool = True) -> int:
     from tqdm import tqdm
 
     from citylod.core.camera import load_cameras
-    from citylod.render.offscreen import frame_path, save_png
 
     if len(args.sources) != 1:
         raise CitylodError("a far-field tileset is rendered alone (it names its own city tileset); "
@@ -638,6 +637,8 @@ def render_far_field_command(args: Any, progress: bool = True) -> int:
     used = [f"--{name.replace('_', '-')}" for name in _SCENE_ONLY if getattr(args, name, None) not in (None, False)]
     if getattr(args, "splats", False):
         used.append("--splats")
+    if getattr(args, "color_by", "auto") not in (None, "auto"):
+        used.append("--color-by")
     if used:
         raise CitylodError(f"{', '.join(used)}: not available with a far-field tileset")
     out = Path(args.output)
