@@ -633,3 +633,78 @@ def test_cli_view_profile_gui(sample, tmp_path) -> None:  # noqa: F811
     assert out.is_file()
     assert "GUI-thread handlers (longest run):" in r.stderr
     assert "SceneView.render" in r.stderr and "event." in r.stderr
+
+
+def _box_far_field(tmp_path: Path) -> Path:
+    from citylod.lod.build.slf import build_slf
+    from tests.lod.slf_scene import write_box_city
+
+    out = tmp_path / "far"
+    build_slf(write_box_city(tmp_path / "city"), out, texel_m=0.5, texels=128, grid=11, oversample=2, clusters=64,
+              progress=False)
+    return out
+
+
+def _far_camera(dist: float, az_deg: float, el_deg: float):
+    from citylod.core.camera import Camera
+    from tests.lod.slf_scene import X0, Y0, Z0
+
+    c = np.array([X0 + 30.0, Y0 + 30.0, Z0])
+    az, el = math.radians(az_deg), math.radians(el_deg)
+    eye = c + dist * np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+    return Camera(tuple(eye), tuple(c), (0.0, 0.0, 1.0), 20.0)
+
+
+def _offscreen_far(path: Path, camera, size: tuple[int, int], tau: float):
+    """The same camera drawn by an off-screen SlfView of its own: (picture, field pixels)."""
+    from citylod.render.slf import SlfView
+
+    with SlfView(path, size=size, tau_px=tau) as sv:
+        sv.prepare(camera)
+        sv.draw()
+        return sv.grab_rgb().astype(int), sv.field_mask()
+
+
+def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, window, xin, tmp_path) -> None:
+    """A far-field tileset opened in the app is drawn with its light fields, evaluated for the view's
+    direction: the app's picture of the field equals an off-screen SlfView's for the same camera, before and
+    after an orbit by a real mouse drag, and the drag re-evaluates the field for the new direction."""
+    from tests.app.test_qt import _rgb
+
+    far_dir = _box_far_field(tmp_path)
+    assert window.open_path(far_dir)
+    doc = window.document
+    entry = doc.entries[-1]
+    assert entry.kind == "far field" and entry.far is not None and entry.layer is None
+    doc.set_tau(8.0)
+    view = window.view
+    view.set_camera(_far_camera(2000.0, 200.0, 40.0))
+    _wait_resolved(qtbot, window)
+    far = entry.far
+
+    def compare() -> tuple[float, int]:
+        got = _rgb(view.framebuffer()).astype(int)
+        h, w = got.shape[:2]
+        want, mask = _offscreen_far(far_dir, view.camera(), (w, h), 8.0)
+        d = np.abs(got - want).mean(axis=2)[mask]
+        return float(d.mean()), int(mask.sum())
+
+    frame = far.last_frame
+    assert frame is not None and frame.cells >= 1 and frame.geometry_cells == 0
+    err, pixels = compare()
+    assert pixels > 300 and err < 2.0, (err, pixels)
+    cell = next(c for c in far.cells.values() if c.actor.GetVisibility())
+    before = cell.last_dir.copy()
+    cam_before = view.camera()
+    w, h = view.vtk.width(), view.vtk.height()
+    xin.drag(view.vtk, [(w // 2 + dx, h // 2) for dx in range(0, 241, 20)])
+    _wait_resolved(qtbot, window)
+    assert np.linalg.norm(np.subtract(view.camera().position, cam_before.position)) > 100.0  # it orbited
+    assert math.degrees(math.acos(min(1.0, float(before @ cell.last_dir)))) > 5.0  # evaluated again
+    err, pixels = compare()
+    assert pixels > 300 and err < 2.0, (err, pixels)
+    window._update_status()
+    assert "light-field cells" in window.status.text()
+    doc.set_visible(len(doc.entries) - 1, False)
+    view.render_now()
+    assert not any(c.actor.GetVisibility() for c in far.cells.values())

@@ -462,6 +462,18 @@ def format_status(stats: Any, frame_ms: float, pending: int, loading: bool = Tru
     return text
 
 
+def format_far_status(document: Document) -> str:
+    """The status bar's far-field part (empty without one): cells drawn as light fields and cells whose
+    buildings are drawn, over the open far-field tilesets, in the last frame."""
+    frames = [e.far.last_frame for e in document.entries if e.far is not None and e.far.visible]
+    frames = [f for f in frames if f is not None]
+    if not frames:
+        return ""
+    fields = sum(f.cells for f in frames)
+    houses = sum(f.geometry_cells for f in frames)
+    return f"far field: {fields} light-field cells, {houses} cells of buildings"
+
+
 def format_budget_status(document: Document) -> str:
     """The status bar's budget-mode part (empty when it is off): the target, the last frame as budget
     mode measured it (draw until the GL finished) and the point budget it set, summed over the layers."""
@@ -512,12 +524,15 @@ def format_cursor(point: npt.ArrayLike | None, crs: Any, geographic: bool = Fals
 # --------------------------------------------------------------------------------------------- document
 @dataclass
 class LayerEntry:
-    """A row of the layer panel: a tileset layer (``layer`` set) or the city store (``layer`` None)."""
+    """A row of the layer panel: a tileset layer (``layer`` set), a far-field tileset drawn with its light
+    fields (``far`` set: a :class:`~citylod.render.slf.SlfView` in the view's renderer) or the city store
+    (neither)."""
 
     name: str
-    kind: str  # tileset | store
+    kind: str  # tileset | far field | store
     path: Path
     layer: Any = None
+    far: Any = None
     visible: bool = True
     opacity: float = 1.0
     color_by: str = "auto"
@@ -603,6 +618,10 @@ class Document:
         p = Path(path)
         kind = source_kind(p)
         if kind == "tileset":
+            from citylod.render.slf import is_far_field
+
+            if is_far_field(p):
+                return self._open_far_field(p)
             layer = self.scene.add(p)
             layer.tau_px = self.effective_tau()
             self._apply_budget(layer)
@@ -630,6 +649,22 @@ class Document:
             raise InputError(f"a {kind} file must be built before it can be viewed (File → Open builds it)", p)
         else:
             raise InputError("not a tileset folder, tileset.json or .gpkg city store", p)
+        self.entries.append(entry)
+        self._emit("layers")
+        return entry
+
+    def _open_far_field(self, p: Path) -> LayerEntry:
+        """A far-field tileset (``citylod build slf``): its city drawn with the light fields evaluated for
+        the view's direction before every render, buildings where the fields hand over (Ruiters). It has no
+        tiles in the scene: picking, queries and the point tools do not see it."""
+        from citylod.render.slf import SlfView, open_slf
+
+        if self.scene.origin is None:
+            lo, hi = open_slf(p)[0].root.box.bounds()
+            self.scene.origin = np.round(0.5 * (lo + hi))
+        far = SlfView(p, renderer=self.scene.renderer, origin=self.scene.origin, tau_px=self.effective_tau())
+        far.attach()
+        entry = LayerEntry(p.name if p.is_dir() else p.parent.name, "far field", p, far=far)
         self.entries.append(entry)
         self._emit("layers")
         return entry
@@ -702,7 +737,7 @@ class Document:
 
     def bounds(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
         """(lo, hi) of every layer and the store, in the data's CRS; None when nothing is open."""
-        boxes = []
+        boxes = [e.far.bounds() for e in self.entries if e.far is not None]
         if self.scene.layers:
             boxes.append(self.scene.bounds)
         if self.store is not None:
@@ -724,7 +759,9 @@ class Document:
     def set_visible(self, index: int, on: bool) -> None:
         e = self.entries[index]
         e.visible = bool(on)
-        if e.layer is not None:
+        if e.far is not None:
+            e.far.visible = e.visible
+        elif e.layer is not None:
             e.layer.visible = e.visible
         elif self.semantic is not None:
             self.semantic.set_enabled(e.visible)
@@ -922,6 +959,8 @@ class Document:
         tau = self.effective_tau()
         self.scene.tau_px = tau
         for e in self.entries:
+            if e.far is not None:
+                e.far.tau_px = tau
             if e.layer is not None:
                 e.layer.tau_px = tau
                 self._apply_budget(e.layer)
@@ -1114,6 +1153,9 @@ class Document:
         self.state.clear()
 
     def close(self) -> None:
+        for e in self.entries:
+            if e.far is not None:
+                e.far.close()
         if self.frame_budget is not None:
             self.frame_budget.close()
             self.frame_budget = None

@@ -39,6 +39,7 @@ from citylod.app.models import (
     check_crs,
     format_budget_status,
     format_cursor,
+    format_far_status,
     format_status,
     missing_crs,
     source_kind,
@@ -282,7 +283,8 @@ class MainWindow(QMainWindow):
         text = format_status(self.document.scene.last_stats, getattr(self, "_last_frame_ms", 0.0),
                              self.view.pending())
         budget = format_budget_status(self.document)
-        self.status.setText(f"{budget} · {text}" if budget else text)
+        far = format_far_status(self.document)
+        self.status.setText(" · ".join(t for t in (budget, text, far) if t))
 
     def _on_cursor(self, point: Any) -> None:
         if self.document.entries:

@@ -110,7 +110,11 @@ class LayerPanel(QWidget):
             combo.addItems(COLOR_MODES)
             combo.setCurrentText(e.color_by)
             combo.currentTextChanged.connect(lambda m, i=i: self.document.set_color_by(i, m))
-            if e.layer is None:  # the city store: semantics, not drawn geometry
+            if e.far is not None:  # light fields and textured buildings: no colour modes, drawn opaque
+                slider.setEnabled(False)
+                combo.setEnabled(False)
+                check.setToolTip(f"{e.path}: the city with distant buildings drawn as surface light fields")
+            elif e.layer is None:  # the city store: semantics, not drawn geometry
                 slider.setEnabled(False)
                 combo.setEnabled(False)
                 check.setToolTip(f"{e.path}: show or hide the city objects (their shading on tiles, or "

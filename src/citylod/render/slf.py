@@ -21,6 +21,7 @@ field replace each other without a blend (they differ only in texel size).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
@@ -48,7 +49,7 @@ from citylod.lod.kernels.slf import (
 from citylod.render import _vtk
 from citylod.render.gl_context import guard
 from citylod.render.offscreen import OffscreenRenderer, frame_path, save_png
-from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
+from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk, view_from_renderer
 
 __all__ = ["GeometryView", "SlfFrame", "SlfView", "is_far_field", "open_slf", "render_far_field_command"]
 
@@ -182,11 +183,17 @@ class SlfView:
         at 1.5 (elevation 42°) by under 0.6 of a mip level. On a software rasteriser the anisotropic filter
         doubles the cost of a field pixel (whole-city overview at 55°: 9.3 against 4.3 ms, colour error
         10.9 against 10.6; at 35° it lowers the error, docs/PERFORMANCE_LOG.md).
+    renderer, origin
+        Draw into this VTK renderer (an application's view, shifted by ``origin``, the world point at its
+        coordinate origin) instead of an off-screen window of its own. :meth:`attach` then updates the far
+        field before every render of it, from its camera and size; ``size``, :meth:`draw` and the grabs are
+        the own window's only.
     """
 
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
                  fields: bool = True, reeval_deg: float = 0.5, city_dir: str | Path | None = None,
-                 texel_px: float | None = None, depth_correct: bool = True, anisotropic_from: float = 1.5) -> None:
+                 texel_px: float | None = None, depth_correct: bool = True, anisotropic_from: float = 1.5,
+                 renderer: Any = None, origin: npt.ArrayLike | None = None) -> None:
         self.ts, self.meta = open_slf(slf_dir)
         self.anisotropic_from = float(anisotropic_from)
         self.depth_correct = depth_correct
@@ -212,12 +219,21 @@ class SlfView:
         if not ok:
             raise InputError("far-field tileset's direction patches are damaged", self.ts.path)
         lo, hi = self.ts.root.box.bounds()
-        self.origin = np.round(0.5 * (lo + hi))
-        self.window = _vtk.offscreen_window(*self.size)
-        self.gl = guard(self.window)  # apart from a PyVista window's GLX context (render.gl_context)
-        self.renderer = _vtk.vtkOpenGLRenderer()
-        self.renderer.SetBackground(*BACKGROUND)
-        self.window.AddRenderer(self.renderer)
+        self.origin = np.round(0.5 * (lo + hi)) if origin is None else np.asarray(origin, np.float64)
+        self.embedded = renderer is not None
+        self._observer: int | None = None
+        self._visible = True
+        self.last_frame: SlfFrame | None = None
+        if renderer is None:
+            self.window = _vtk.offscreen_window(*self.size)
+            self.gl: Any = guard(self.window)  # apart from a PyVista window's GLX context (render.gl_context)
+            self.renderer = _vtk.vtkOpenGLRenderer()
+            self.renderer.SetBackground(*BACKGROUND)
+            self.window.AddRenderer(self.renderer)
+        else:
+            self.window = None
+            self.gl = contextlib.nullcontext()  # the application's window holds the context while it renders
+            self.renderer = renderer
         self.cell_info = {t.key: t for t in self.ts.walk()}
         self._extras = self._tile_extras()
         self.cells: dict[str, _Cell] = {}
@@ -389,7 +405,11 @@ class SlfView:
         return c
 
     def prepare(self, camera: Camera) -> SlfFrame:
-        """Choose, evaluate and show this camera's cells (no drawing)."""
+        """Choose, evaluate and show this camera's cells (no drawing). Embedded (``renderer`` given), the
+        renderer's own camera is not moved."""
+        if self.embedded:
+            w, h = self.renderer.GetSize()
+            self.size = (max(int(w), 1), max(int(h), 1))
         view = View(camera, *self.size)
         eye = np.asarray(camera.position, np.float64)
         frame = SlfFrame()
@@ -442,9 +462,40 @@ class SlfView:
         frame.bytes_loaded = self.bytes_loaded
         frame.bytes_fields, frame.bytes_buildings = self._bytes_drawn(show)
         frame.bytes_drawn = frame.bytes_fields + frame.bytes_buildings
-        camera_to_vtk(camera, self.renderer.GetActiveCamera(), self.origin)
+        if not self.embedded:
+            camera_to_vtk(camera, self.renderer.GetActiveCamera(), self.origin)
         self.renderer.ResetCameraClippingRange()
+        self.last_frame = frame
         return frame
+
+    # -- in an application's view --------------------------------------------------------------------
+    def bounds(self) -> tuple[F64, F64]:
+        """(lo, hi) of the far field's cells, in the data's CRS."""
+        return self.ts.root.box.bounds()
+
+    def attach(self) -> None:
+        """Embedded: update the far field from the renderer's camera before each of its renders."""
+        if self.embedded and self._observer is None:
+            self._observer = self.renderer.AddObserver(_vtk.vtkCommand.StartEvent, self._on_start)
+
+    def _on_start(self, _obj: Any, _event: str) -> None:
+        if self._visible:
+            self.prepare(view_from_renderer(self.renderer, self.origin).camera)
+
+    @property
+    def visible(self) -> bool:
+        return self._visible
+
+    @visible.setter
+    def visible(self, on: bool) -> None:
+        """Show or hide every cell and building (hidden, the far field is not updated either)."""
+        self._visible = bool(on)
+        if not on:
+            for cell in self.cells.values():
+                cell.actor.VisibilityOff()
+            for actors in self._building_actors.values():
+                for a in actors:
+                    a.VisibilityOff()
 
     def _bytes_drawn(self, show: dict[str, float]) -> tuple[int, int]:
         """Bytes of what this frame needs: the files of fields drawn (groups once), and the city tiles of the
@@ -511,6 +562,8 @@ class SlfView:
         return True
 
     def draw(self) -> float:
+        if self.window is None:
+            raise RuntimeError("an embedded far field is drawn by the application's window")
         t0 = time.perf_counter()
         with self.gl:
             self.window.Render()
@@ -554,6 +607,16 @@ class SlfView:
         return mask
 
     def close(self) -> None:
+        if self.embedded:  # leave the application's renderer as it was
+            if self._observer is not None:
+                self.renderer.RemoveObserver(self._observer)
+                self._observer = None
+            for cell in self.cells.values():
+                self.renderer.RemoveActor(cell.actor)
+            for actors in self._building_actors.values():
+                for a in actors:
+                    self.renderer.RemoveActor(a)
+            return
         with self.gl:
             self.window.Finalize()
 
