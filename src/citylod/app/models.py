@@ -669,6 +669,14 @@ class Document:
         self._emit("layers")
         return entry
 
+    def far_pending(self) -> int:
+        """City tiles the far-field layers are reading for their buildings."""
+        return sum(e.far.pending() for e in self.entries if e.far is not None)
+
+    def far_loads_ready(self) -> bool:
+        """A far-field layer has read a city tile that the next frame draws."""
+        return any(e.far.loads_ready() for e in self.entries if e.far is not None)
+
     def _attach_semantics(self) -> None:
         """Semantic shading of the drawn geometry inside proxies (``citylod.render.semantic``), once a store
         and a tileset are both open. Without it the view falls back to drawing proxies."""

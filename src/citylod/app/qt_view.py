@@ -216,7 +216,7 @@ class SceneView(QWidget):
         if self._store_future is not None and self._store_future.done():
             self._attach_store_actor()
         # Finished tiles are admitted by the scene's update inside the render, a bounded amount a frame.
-        newly = self.scene.layers and self.scene.loader.stats().ready > 0
+        newly = (self.scene.layers and self.scene.loader.stats().ready > 0) or self.document.far_loads_ready()
         if self.document.poll_semantics():
             self._dirty = True
         mtime = self.renderer.GetActiveCamera().GetMTime()
@@ -234,9 +234,9 @@ class SceneView(QWidget):
                 self.gc_policy.tick(busy)
 
     def pending(self) -> int:
-        """Tile requests queued or being decoded."""
+        """Tile requests queued or being decoded, and city tiles the far-field layers are reading."""
         st = self.scene.loader.stats()
-        return int(st.pending + st.in_flight + st.ready)
+        return int(st.pending + st.in_flight + st.ready) + self.document.far_pending()
 
     def is_resolved(self) -> bool:
         """The last frame drew everything selection wanted and nothing is loading."""

@@ -25,6 +25,8 @@ import contextlib
 import json
 import math
 import time
+import warnings
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -82,7 +84,8 @@ class SlfFrame:
     evaluating fields for this view (``eval_s``: the view's ray march, the blend, the texture; work every
     frame of a moving view repeats) and seconds loading them (``load_s``: reading a cell's field for a patch
     of directions and reconstructing the stored directions' images and ray marches, kept per cell: work done
-    once per cell and patch, like reading a city tile). ``eval_s`` does not include ``load_s``."""
+    once per cell and patch, like reading a city tile). ``eval_s`` does not include ``load_s``. ``loading``:
+    cells drawn as fields because their buildings are still being read (embedded views only)."""
 
     cells: int = 0
     levels: dict[int, int] = field(default_factory=dict)
@@ -95,6 +98,7 @@ class SlfFrame:
     eval_s: float = 0.0
     load_s: float = 0.0
     evaluations: int = 0
+    loading: int = 0
 
 
 def _texture_actor(size_m: float, centre: F64, origin: F64, z: float) -> tuple[Any, Any, Any]:
@@ -155,6 +159,36 @@ class _Cell:
         self.images: dict[tuple[int, int], tuple[Any, Any]] = {}  # (patch, direction) -> image, ray march
         self.files: tuple[str, str] | None = None  # the field files of the patch last drawn
         self.anisotropy = 16.0
+
+
+def _load_leaf(leaf: Tile) -> list[tuple[Any, F64, F64]]:
+    """A city tile's meshes in world coordinates, each with the centre of the object of each vertex (the
+    middle of the object's footprint box over all meshes of the tile: feature ID 0 is the object's row).
+    No state: runs on a worker thread for an embedded view."""
+    content = leaf.load_content()
+    m = leaf.matrix
+    out = []
+    meshes = [(mesh, mesh.positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]) for mesh in content.meshes]
+    # Object centres over all meshes of the leaf (feature ID 0 is the object's row).
+    sums: dict[int, list[float]] = {}
+    for mesh, pos in meshes:
+        if not mesh.features:
+            continue
+        ids = mesh.features[0].ids.astype(np.int64)
+        for k in np.unique(ids):
+            p = pos[ids == k]
+            s = sums.setdefault(int(k), [np.inf, np.inf, -np.inf, -np.inf])
+            s[0], s[1] = min(s[0], p[:, 0].min()), min(s[1], p[:, 1].min())
+            s[2], s[3] = max(s[2], p[:, 0].max()), max(s[3], p[:, 1].max())
+    for mesh, pos in meshes:
+        if mesh.features:
+            ids = mesh.features[0].ids.astype(np.int64)
+            box = np.array([sums[int(k)] for k in range(int(ids.max()) + 1)] if len(ids) else [[0, 0, 0, 0]])
+            cen = 0.5 * (box[ids, :2] + box[ids, 2:])
+        else:
+            cen = pos[:, :2]
+        out.append((mesh, pos, cen))
+    return out
 
 
 class SlfView:
@@ -243,6 +277,14 @@ class SlfView:
         self._building_actors: dict[tuple[str, str], list[Any]] = {}  # (city tile, cell) -> actors
         self._used: dict[str, list[Tile]] = {}
         self._load_s = 0.0
+        self._leaf_cache: dict[str, list[tuple[Any, F64, F64]]] = {}
+        self._loads: dict[str, Future[list[tuple[Any, F64, F64]]]] = {}
+        self._pool: ThreadPoolExecutor | None = None
+        self._built_all = True
+        #: Embedded: seconds a frame may spend making building actors (the app's upload slice is 30 ms),
+        #: and reading and evaluating fields.
+        self.build_slice_s = 0.03
+        self.eval_slice_s = 0.05
         if depth_correct:  # load the compiled lookup now, not in the first frame (numba's start: ~0.4 s)
             depth_corrected_blend(np.zeros((1, 2, 2, 3)), np.zeros(1, np.int64), np.ones(1), self.ds.dirs,
                                   np.ones((2, 2)), 1.0, self.ds.dirs[0])
@@ -332,36 +374,49 @@ class SlfView:
             actors += self._building_actors[key]
         return actors
 
+    def _leaf_ready(self, leaf: Tile) -> bool:
+        """Whether the city tile's buildings are loaded. With its own window the tile is read now; embedded
+        in an application's view it is read on a worker thread, and False until it has been (the frame does
+        not wait: the cell stays a field meanwhile). A tile that cannot be read there adds no buildings and
+        is reported once as a warning."""
+        if leaf.key in self._leaf_cache:
+            return True
+        if not self.embedded:
+            self._leaf_cache[leaf.key] = _load_leaf(leaf)
+            self.bytes_loaded += leaf.content_bytes
+            return True
+        fut = self._loads.get(leaf.key)
+        if fut is None:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="citylod-far-field")
+            self._loads[leaf.key] = self._pool.submit(_load_leaf, leaf)
+            return False
+        if not fut.done():
+            return False
+        del self._loads[leaf.key]
+        try:
+            self._leaf_cache[leaf.key] = fut.result()
+            self.bytes_loaded += leaf.content_bytes
+        except (CitylodError, OSError, ValueError) as exc:
+            warnings.warn(f"far field: city tile {leaf.key} could not be read ({exc}); its buildings are not "
+                          "drawn", stacklevel=2)
+            self._leaf_cache[leaf.key] = []
+        return True
+
+    def pending(self) -> int:
+        """City tiles being read for buildings, plus one while cells wait for their building actors or
+        their field's evaluation (embedded only)."""
+        return len(self._loads) + (not self._built_all)
+
+    def loads_ready(self) -> bool:
+        """The next frame would draw more: a city tile has been read since the last frame, or cells wait
+        for their building actors or their field's evaluation."""
+        return not self._built_all or any(f.done() for f in self._loads.values())
+
     def _leaf_content(self, leaf: Tile) -> list[tuple[Any, F64, F64]]:
-        cache = self.__dict__.setdefault("_leaf_cache", {})
-        if leaf.key in cache:
-            return cache[leaf.key]
-        content = leaf.load_content()
-        self.bytes_loaded += leaf.content_bytes
-        m = leaf.matrix
-        out = []
-        meshes = [(mesh, mesh.positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]) for mesh in content.meshes]
-        # Object centres over all meshes of the leaf (feature ID 0 is the object's row).
-        sums: dict[int, list[float]] = {}
-        for mesh, pos in meshes:
-            if not mesh.features:
-                continue
-            ids = mesh.features[0].ids.astype(np.int64)
-            for k in np.unique(ids):
-                p = pos[ids == k]
-                s = sums.setdefault(int(k), [np.inf, np.inf, -np.inf, -np.inf])
-                s[0], s[1] = min(s[0], p[:, 0].min()), min(s[1], p[:, 1].min())
-                s[2], s[3] = max(s[2], p[:, 0].max()), max(s[3], p[:, 1].max())
-        for mesh, pos in meshes:
-            if mesh.features:
-                ids = mesh.features[0].ids.astype(np.int64)
-                box = np.array([sums[int(k)] for k in range(int(ids.max()) + 1)] if len(ids) else [[0, 0, 0, 0]])
-                cen = 0.5 * (box[ids, :2] + box[ids, 2:])
-            else:
-                cen = pos[:, :2]
-            out.append((mesh, pos, cen))
-        cache[leaf.key] = out
-        return out
+        if not self._leaf_ready(leaf):  # called only for tiles found ready in this frame
+            raise RuntimeError(f"city tile {leaf.key} is not loaded")
+        return self._leaf_cache[leaf.key]
 
     def _mesh_actor(self, mesh: Any, pos: F64, faces: npt.NDArray[np.int64]) -> Any:
         data = _vtk.vtkPolyData()
@@ -434,25 +489,53 @@ class SlfView:
                 cell.actor.VisibilityOff()
         shown: set[int] = set()
         used: dict[str, list[Tile]] = {}
-        for key, alpha in show.items():
+        self._built_all = True
+        building_s = 0.0
+        for key, alpha in list(show.items()):
             cell = self._cell(self.cell_info[key])
+            tiles: list[Tile] = []
+            if alpha > 0.0:
+                lo, hi = cell.tile.box.bounds()
+                tiles = self._city_tiles(view, lo, hi)
+                if not all([self._leaf_ready(t) for t in tiles]):  # a list: every missing tile is requested
+                    alpha = show[key] = 0.0  # drawn as its field until its buildings have loaded
+                    frame.loading += 1
+                elif (self.embedded and building_s > self.build_slice_s
+                      and any((t.key, key) not in self._building_actors for t in tiles)):
+                    # Building actors (and their atlases' textures) are made a bounded time a frame, so a
+                    # view that zooms in on many cells at once renders in steps rather than stalling.
+                    alpha = show[key] = 0.0
+                    frame.loading += 1
+                    self._built_all = False
             frame.cells += alpha < 1.0
             frame.levels[cell.tile.level] = frame.levels.get(cell.tile.level, 0) + 1
             if alpha > 0.0:
                 frame.geometry_cells += 1
                 frame.fading += alpha < 1.0
-                lo, hi = cell.tile.box.bounds()
-                used[key] = self._city_tiles(view, lo, hi)
-                for a in self._buildings(cell, used[key]):
+                used[key] = tiles
+                tb = time.perf_counter()
+                for a in self._buildings(cell, tiles):
                     a.VisibilityOn()
                     a.SetScale(1.0, 1.0, max(alpha, 1e-3))
                     shown.add(id(a))
-            t0 = time.perf_counter()
-            self._load_s = 0.0
-            if self._update_texture(cell, eye, alpha):
-                frame.evaluations += 1
-            frame.eval_s += time.perf_counter() - t0 - self._load_s
-            frame.load_s += self._load_s
+                building_s += time.perf_counter() - tb
+            if (self.embedded and frame.eval_s + frame.load_s > self.eval_slice_s
+                    and self._stale(cell, eye, alpha)):
+                # Fields are read and evaluated a bounded time a frame in an application's view: a cell not
+                # reached keeps the direction it was evaluated for, or shows the bare ground until its first
+                # evaluation, and the next frames go on.
+                if cell.colours is None and cell.last_alpha != 1.0:
+                    _set_image(cell.tex, np.full((2, 2, 3), np.rint(self.ground_rgb), np.uint8))
+                    cell.last_alpha = 1.0
+                self._built_all = False
+                frame.loading += 1
+            else:
+                t0 = time.perf_counter()
+                self._load_s = 0.0
+                if self._update_texture(cell, eye, alpha):
+                    frame.evaluations += 1
+                frame.eval_s += time.perf_counter() - t0 - self._load_s
+                frame.load_s += self._load_s
             cell.actor.VisibilityOn()
         for actors in self._building_actors.values():
             for a in actors:
@@ -510,6 +593,16 @@ class SlfView:
                 leaves.update(self._used.get(key, []))
         size = sum((self.folder / f).stat().st_size for f in files)
         return size, sum(t.content_bytes for t in leaves)
+
+    def _stale(self, cell: _Cell, eye: F64, alpha: float) -> bool:
+        """Whether :meth:`_update_texture` would evaluate the cell's field (the tests it makes first)."""
+        if alpha >= 1.0:
+            return False
+        if cell.colours is None or abs(alpha - cell.last_alpha) >= 1e-3:
+            return True
+        v = eye - np.array([cell.centre[0], cell.centre[1], self.ground_z])
+        v /= np.linalg.norm(v)
+        return cell.last_dir is None or float(v @ cell.last_dir) <= math.cos(self.reeval)
 
     def _update_texture(self, cell: _Cell, eye: F64, alpha: float) -> bool:
         v = eye - np.array([cell.centre[0], cell.centre[1], self.ground_z])
@@ -616,6 +709,8 @@ class SlfView:
             for actors in self._building_actors.values():
                 for a in actors:
                     self.renderer.RemoveActor(a)
+            if self._pool is not None:
+                self._pool.shutdown(wait=False, cancel_futures=True)
             return
         with self.gl:
             self.window.Finalize()
