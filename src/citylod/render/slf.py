@@ -279,6 +279,7 @@ class SlfView:
         self._load_s = 0.0
         self._leaf_cache: dict[str, list[tuple[Any, F64, F64]]] = {}
         self._faces: dict[tuple[str, str], list[tuple[int, npt.NDArray[np.int64]]]] = {}
+        self._box_cache: dict[int, tuple[F64, F64]] = {}
         self._merged: dict[str, tuple[frozenset[str], list[Any]]] = {}
         # The ground of the cells whose buildings are drawn in full, one plain mesh for all of them: their own
         # textured quads cost 24 of a 119 ms frame with 115 such cells (one draw call and texture each).
@@ -351,13 +352,20 @@ class SlfView:
         got = cell.fields[patch] = (cl, q.astype(np.float64), top, mean, basis, cell_file, group_file)
         return got
 
+    def _bounds(self, tile: Tile) -> tuple[F64, F64]:
+        """A tile's axis-aligned bounds, kept (selection asks for them every frame, for every cell)."""
+        got = self._box_cache.get(id(tile))
+        if got is None:
+            got = self._box_cache[id(tile)] = tile.box.bounds()
+        return got
+
     def _city_tiles(self, view: View, lo: F64, hi: F64) -> list[Tile]:
         """The city tiles the ordinary selection draws at τ (refine while ``sse > τ``) over the box lo–hi."""
         eye = view.eye
         out, stack = [], [self.city.root]
         while stack:
             t = stack.pop()
-            tlo, thi = t.box.bounds()
+            tlo, thi = self._bounds(t)
             if tlo[0] > hi[0] or thi[0] < lo[0] or tlo[1] > hi[1] or thi[1] < lo[1]:
                 continue
             d = float(np.linalg.norm(np.maximum(np.maximum(tlo - eye, eye - thi), 0.0)))
@@ -551,7 +559,7 @@ class SlfView:
             t = stack.pop()
             if view.cull_box(t.box):
                 continue
-            lo, hi = t.box.bounds()
+            lo, hi = self._bounds(t)
             d = float(np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0)))
             sse = view.sse(t.geometric_error, max(d, 1e-6))
             fine = self.texel_px is not None and view.sse(self._extras[t.key]["texel_m"], max(d, 1e-6)) > self.texel_px
@@ -573,7 +581,7 @@ class SlfView:
             cell = self._cell(self.cell_info[key])
             tiles: list[Tile] = []
             if alpha > 0.0:
-                lo, hi = cell.tile.box.bounds()
+                lo, hi = self._bounds(cell.tile)
                 tiles = self._city_tiles(view, lo, hi)
                 if not all([self._leaf_ready(t) for t in tiles]):  # a list: every missing tile is requested
                     alpha = show[key] = 0.0  # drawn as its field until its buildings have loaded
