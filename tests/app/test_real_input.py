@@ -704,7 +704,7 @@ def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, wi
     err, pixels = compare()
     assert pixels > 300 and err < 2.0, (err, pixels)
     window._update_status()
-    assert "light-field cells" in window.status.text()
+    assert "light-field cells" in window.status.text() and "τ 0.00" not in window.status.text()
     doc.set_visible(len(doc.entries) - 1, False)
     view.render_now()
     assert not any(c.actor.GetVisibility() for c in far.cells.values())

@@ -280,8 +280,12 @@ class MainWindow(QMainWindow):
     def _update_status(self) -> None:
         if not self.document.entries:
             return
-        text = format_status(self.document.scene.last_stats, getattr(self, "_last_frame_ms", 0.0),
-                             self.view.pending())
+        ms = getattr(self, "_last_frame_ms", 0.0)
+        if self.document.scene.layers or not any(e.far is not None for e in self.document.entries):
+            text = format_status(self.document.scene.last_stats, ms, self.view.pending())
+        else:  # only far fields: the scene's tile counts and τ would read as zeros
+            pending = self.view.pending()
+            text = f"{ms:.0f} ms" + (f" · {pending} loading" if pending else " · complete")
         budget = format_budget_status(self.document)
         far = format_far_status(self.document)
         self.status.setText(" · ".join(t for t in (budget, text, far) if t))
