@@ -3,6 +3,7 @@ scene, the cross-fade without popping, the command line and the validator."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import time
@@ -238,6 +239,39 @@ def test_anisotropic_filtering_only_for_oblique_views(box_slf: Path) -> None:
         assert mask.sum() > 100 and np.abs(a - b).mean(axis=2)[mask].mean() < 3.0
 
 
+@contextlib.contextmanager
+def _embedded(path: Path, size: tuple[int, int], tau: float, cam: Camera):
+    """A far field drawn into a renderer of another window, as the desktop app draws it: (the SlfView, a
+    function that renders that window and returns its picture)."""
+    from citylod.render import _vtk
+    from citylod.render.gl_context import guard
+    from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
+
+    window = _vtk.offscreen_window(*size)
+    ren = _vtk.vtkOpenGLRenderer()
+    ren.SetBackground(*BACKGROUND)
+    window.AddRenderer(ren)
+    origin = np.array([X0 + 30.0, Y0 + 30.0, Z0])
+    far = SlfView(path, renderer=ren, origin=origin, tau_px=tau)
+    far.attach()
+    camera_to_vtk(cam, ren.GetActiveCamera(), origin)
+
+    def frame() -> np.ndarray:
+        with guard(window):
+            window.Render()
+            window.WaitForCompletion()
+            arr = _vtk.vtkUnsignedCharArray()
+            window.GetPixelData(0, 0, size[0] - 1, size[1] - 1, 0, arr, 0)
+        return _vtk.vtk_to_numpy(arr).reshape(size[1], size[0], 3)[::-1].astype(int)
+
+    try:
+        yield far, frame
+    finally:
+        far.close()
+        with guard(window):
+            window.Finalize()
+
+
 def test_embedded_view_reads_buildings_without_waiting(box_slf: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Drawn into another renderer (as the desktop app does), a far field does not wait for a city tile: the
     frame that first needs the box's buildings draws the cell's field and requests the tile from a worker;
@@ -245,9 +279,7 @@ def test_embedded_view_reads_buildings_without_waiting(box_slf: Path, monkeypatc
     window (which reads the tile at once) draws for the same camera."""
     import threading
 
-    from citylod.render import _vtk, slf
-    from citylod.render.gl_context import guard
-    from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
+    from citylod.render import slf
 
     gate = threading.Event()
     real = slf._load_leaf
@@ -258,40 +290,21 @@ def test_embedded_view_reads_buildings_without_waiting(box_slf: Path, monkeypatc
 
     monkeypatch.setattr(slf, "_load_leaf", gated)
     cam = _camera(150.0, 200.0, 40.0)  # the box's cell (0.55 m) at 2.5 px of τ = 1: its buildings are drawn
-    window = _vtk.offscreen_window(*SIZE)
-    ren = _vtk.vtkOpenGLRenderer()
-    ren.SetBackground(*BACKGROUND)
-    window.AddRenderer(ren)
-    origin = np.array([X0 + 30.0, Y0 + 30.0, Z0])
-    far = SlfView(box_slf, renderer=ren, origin=origin, tau_px=1.0)
-    far.attach()
-    camera_to_vtk(cam, ren.GetActiveCamera(), origin)
-
-    def frame() -> np.ndarray:
-        with guard(window):
-            window.Render()
-            window.WaitForCompletion()
-            arr = _vtk.vtkUnsignedCharArray()
-            window.GetPixelData(0, 0, SIZE[0] - 1, SIZE[1] - 1, 0, arr, 0)
-        return _vtk.vtk_to_numpy(arr).reshape(SIZE[1], SIZE[0], 3)[::-1].astype(int)
-
     try:
-        frame()
-        first = far.last_frame
-        assert first is not None and first.loading == 1 and first.geometry_cells == 0 and first.cells >= 1
-        assert far.pending() == 1 and not far.loads_ready()
-        gate.set()
-        deadline = time.monotonic() + 30.0
-        while not far.loads_ready():
-            assert time.monotonic() < deadline
-            time.sleep(0.01)
-        got = frame()
-        assert far.last_frame.geometry_cells == 1 and far.last_frame.loading == 0 and far.pending() == 0
+        with _embedded(box_slf, SIZE, 1.0, cam) as (far, frame):
+            frame()
+            first = far.last_frame
+            assert first is not None and first.loading == 1 and first.geometry_cells == 0 and first.cells >= 1
+            assert far.pending() == 1 and not far.loads_ready()
+            gate.set()
+            deadline = time.monotonic() + 30.0
+            while not far.loads_ready():
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+            got = frame()
+            assert far.last_frame.geometry_cells == 1 and far.last_frame.loading == 0 and far.pending() == 0
     finally:
         gate.set()
-        far.close()
-        with guard(window):
-            window.Finalize()
     with SlfView(box_slf, size=SIZE, tau_px=1.0) as own:
         assert own.prepare(cam).geometry_cells == 1
         own.draw()
@@ -303,29 +316,8 @@ def test_embedded_view_defers_evaluation_past_its_time_slice(box_slf: Path) -> N
     """Past its time slice for reading and evaluating fields, an embedded far field shows a cell not yet
     evaluated as bare ground and asks for another frame (pending); the next frame within the slice draws
     the field, as a SlfView with its own window does."""
-    from citylod.render import _vtk
-    from citylod.render.gl_context import guard
-    from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk
-
     cam = _camera(2000.0, 200.0, 40.0)
-    window = _vtk.offscreen_window(*BIG)
-    ren = _vtk.vtkOpenGLRenderer()
-    ren.SetBackground(*BACKGROUND)
-    window.AddRenderer(ren)
-    origin = np.array([X0 + 30.0, Y0 + 30.0, Z0])
-    far = SlfView(box_slf, renderer=ren, origin=origin, tau_px=8.0)
-    far.attach()
-    camera_to_vtk(cam, ren.GetActiveCamera(), origin)
-
-    def frame() -> np.ndarray:
-        with guard(window):
-            window.Render()
-            window.WaitForCompletion()
-            arr = _vtk.vtkUnsignedCharArray()
-            window.GetPixelData(0, 0, BIG[0] - 1, BIG[1] - 1, 0, arr, 0)
-        return _vtk.vtk_to_numpy(arr).reshape(BIG[1], BIG[0], 3)[::-1].astype(int)
-
-    try:
+    with _embedded(box_slf, BIG, 8.0, cam) as (far, frame):
         far.eval_slice_s = -1.0  # spent before the first cell
         bare = frame()
         assert far.last_frame.loading == 1 and far.last_frame.evaluations == 0 and far.pending() == 1
@@ -333,10 +325,6 @@ def test_embedded_view_defers_evaluation_past_its_time_slice(box_slf: Path) -> N
         far.eval_slice_s = 0.05
         got = frame()
         assert far.last_frame.evaluations == 1 and far.pending() == 0 and not far.loads_ready()
-    finally:
-        far.close()
-        with guard(window):
-            window.Finalize()
     with SlfView(box_slf, size=BIG, tau_px=8.0) as own:
         own.prepare(cam)
         own.draw()

@@ -657,12 +657,11 @@ class Document:
         """A far-field tileset (``citylod build slf``): its city drawn with the light fields evaluated for
         the view's direction before every render, buildings where the fields hand over (Ruiters). It has no
         tiles in the scene: picking, queries and the point tools do not see it."""
-        from citylod.render.slf import SlfView, open_slf
+        from citylod.render.slf import SlfView
 
-        if self.scene.origin is None:
-            lo, hi = open_slf(p)[0].root.box.bounds()
-            self.scene.origin = np.round(0.5 * (lo + hi))
         far = SlfView(p, renderer=self.scene.renderer, origin=self.scene.origin, tau_px=self.effective_tau())
+        if self.scene.origin is None:  # the far field's own origin (its actors are made from the first frame)
+            self.scene.origin = far.origin
         far.attach()
         entry = LayerEntry(p.name if p.is_dir() else p.parent.name, "far field", p, far=far)
         self.entries.append(entry)

@@ -101,10 +101,16 @@ class SlfFrame:
     loading: int = 0
 
 
-def _texture_actor(size_m: float, centre: F64, origin: F64, z: float) -> tuple[Any, Any, Any]:
+def _square(size_m: float, centre: F64, origin: F64, z: float) -> F64:
+    """The corners (4, 3) of a cell's square at height ``z``, counter-clockwise from the south-west, relative
+    to ``origin``."""
     h = size_m / 2
-    pts = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]]) + [centre[0] - origin[0],
-                                                                        centre[1] - origin[1], z - origin[2]]
+    return np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]]) + [centre[0] - origin[0],
+                                                                         centre[1] - origin[1], z - origin[2]]
+
+
+def _texture_actor(size_m: float, centre: F64, origin: F64, z: float) -> tuple[Any, Any, Any]:
+    pts = _square(size_m, centre, origin, z)
     data = _vtk.vtkPolyData()
     p = _vtk.vtkPoints()
     p.SetData(_vtk.numpy_to_vtk(pts.astype(np.float32), deep=True))
@@ -169,22 +175,18 @@ def _load_leaf(leaf: Tile) -> list[tuple[Any, F64, F64]]:
     m = leaf.matrix
     out = []
     meshes = [(mesh, mesh.positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]) for mesh in content.meshes]
-    # Object centres over all meshes of the leaf (feature ID 0 is the object's row).
-    sums: dict[int, list[float]] = {}
-    for mesh, pos in meshes:
-        if not mesh.features:
-            continue
-        ids = mesh.features[0].ids.astype(np.int64)
-        for k in np.unique(ids):
-            p = pos[ids == k]
-            s = sums.setdefault(int(k), [np.inf, np.inf, -np.inf, -np.inf])
-            s[0], s[1] = min(s[0], p[:, 0].min()), min(s[1], p[:, 1].min())
-            s[2], s[3] = max(s[2], p[:, 0].max()), max(s[3], p[:, 1].max())
+    # Object footprint boxes over all meshes of the leaf (feature ID 0 is the object's row), by scatter-min/max.
+    tagged = [(mesh.features[0].ids.astype(np.int64), pos) for mesh, pos in meshes if mesh.features]
+    n_obj = max((int(ids.max()) + 1 for ids, _ in tagged if len(ids)), default=0)
+    lo = np.full((n_obj, 2), np.inf)
+    hi = np.full((n_obj, 2), -np.inf)
+    for ids, pos in tagged:
+        np.minimum.at(lo, ids, pos[:, :2])
+        np.maximum.at(hi, ids, pos[:, :2])
     for mesh, pos in meshes:
         if mesh.features:
             ids = mesh.features[0].ids.astype(np.int64)
-            box = np.array([sums[int(k)] for k in range(int(ids.max()) + 1)] if len(ids) else [[0, 0, 0, 0]])
-            cen = 0.5 * (box[ids, :2] + box[ids, 2:])
+            cen = 0.5 * (lo[ids] + hi[ids])
         else:
             cen = pos[:, :2]
         out.append((mesh, pos, cen))
@@ -276,7 +278,8 @@ class SlfView:
         self.bytes_loaded = 0
         self._building_actors: dict[tuple[str, str], list[Any]] = {}  # (city tile, cell) -> actors
         self._used: dict[str, list[Tile]] = {}
-        self._load_s = 0.0
+        self._file_bytes: dict[str, int] = {}
+        self._ground_rgb_u8 = np.full((2, 2, 3), np.rint(self.ground_rgb), np.uint8)
         self._leaf_cache: dict[str, list[tuple[Any, F64, F64]]] = {}
         self._faces: dict[tuple[str, str], list[tuple[int, npt.NDArray[np.int64]]]] = {}
         self._box_cache: dict[int, tuple[F64, F64]] = {}
@@ -381,7 +384,7 @@ class SlfView:
         key = (tile.key, cell.tile.key)
         got = self._faces.get(key)
         if got is None:
-            lo, hi = cell.tile.box.bounds()
+            lo, hi = self._bounds(cell.tile)
             got = []
             for mi, (mesh, _pos, centre_of_vertex) in enumerate(self._leaf_content(tile)):
                 inside = ((centre_of_vertex[:, 0] >= lo[0]) & (centre_of_vertex[:, 0] < hi[0])
@@ -422,13 +425,8 @@ class SlfView:
         """The plain ground under ``cells`` (drawn in full), remade when the set changes."""
         if cells != self._ground_cells:
             self._ground_cells = cells
-            quads = []
-            for key in sorted(cells):
-                c = self.cells[key]
-                h = c.size / 2
-                quads.append(np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]])
-                             + [c.centre[0] - self.origin[0], c.centre[1] - self.origin[1],
-                                self.ground_z - 0.05 - self.origin[2]])
+            quads = [_square(self.cells[k].size, self.cells[k].centre, self.origin, self.ground_z - 0.05)
+                     for k in sorted(cells)]
             data = _vtk.vtkPolyData()
             if quads:
                 pts = _vtk.vtkPoints()
@@ -616,17 +614,16 @@ class SlfView:
                 # reached keeps the direction it was evaluated for, or shows the bare ground until its first
                 # evaluation, and the next frames go on.
                 if cell.colours is None and cell.last_alpha != 1.0:
-                    _set_image(cell.tex, np.full((2, 2, 3), np.rint(self.ground_rgb), np.uint8))
+                    _set_image(cell.tex, self._ground_rgb_u8)
                     cell.last_alpha = 1.0
                 self._built_all = False
                 frame.loading += 1
             else:
                 t0 = time.perf_counter()
-                self._load_s = 0.0
-                if self._update_texture(cell, eye, alpha):
-                    frame.evaluations += 1
-                frame.eval_s += time.perf_counter() - t0 - self._load_s
-                frame.load_s += self._load_s
+                evaluated, load_s = self._update_texture(cell, eye, alpha)
+                frame.evaluations += evaluated
+                frame.eval_s += time.perf_counter() - t0 - load_s
+                frame.load_s += load_s
             cell.actor.SetVisibility(alpha < 1.0)  # a cell drawn in full stands on the shared ground
         self._set_ground(frozenset(k for k, a in show.items() if a >= 1.0))
         for tile, cells in full.values():
@@ -689,41 +686,49 @@ class SlfView:
                 files.update(drawn)
             if alpha > 0.0:
                 leaves.update(self._used.get(key, []))
-        size = sum((self.folder / f).stat().st_size for f in files)
+        size = 0
+        for f in files:  # each file's size read once: this runs every frame
+            got = self._file_bytes.get(f)
+            if got is None:
+                got = self._file_bytes[f] = (self.folder / f).stat().st_size
+            size += got
         return size, sum(t.content_bytes for t in leaves)
 
+    def _direction(self, cell: _Cell, eye: F64) -> F64:
+        """The unit view direction from the cell's centre on the ground towards ``eye``."""
+        v = eye - np.array([cell.centre[0], cell.centre[1], self.ground_z])
+        return v / np.linalg.norm(v)
+
+    def _same_dir(self, cell: _Cell, v: F64) -> bool:
+        """The cell was last evaluated within ``reeval`` of direction ``v``."""
+        return cell.last_dir is not None and float(v @ cell.last_dir) > math.cos(self.reeval)
+
     def _stale(self, cell: _Cell, eye: F64, alpha: float) -> bool:
-        """Whether :meth:`_update_texture` would evaluate the cell's field (the tests it makes first)."""
+        """Whether :meth:`_update_texture` would evaluate the cell's field or recolour it."""
         if alpha >= 1.0:
             return False
-        if cell.colours is None or abs(alpha - cell.last_alpha) >= 1e-3:
-            return True
-        v = eye - np.array([cell.centre[0], cell.centre[1], self.ground_z])
-        v /= np.linalg.norm(v)
-        return cell.last_dir is None or float(v @ cell.last_dir) <= math.cos(self.reeval)
+        return (cell.colours is None or abs(alpha - cell.last_alpha) >= 1e-3
+                or not self._same_dir(cell, self._direction(cell, eye)))
 
-    def _update_texture(self, cell: _Cell, eye: F64, alpha: float) -> bool:
-        v = eye - np.array([cell.centre[0], cell.centre[1], self.ground_z])
-        v /= np.linalg.norm(v)
+    def _update_texture(self, cell: _Cell, eye: F64, alpha: float) -> tuple[bool, float]:
+        """Bring the cell's texture to the view from ``eye`` and fade ``alpha``: (whether it was evaluated
+        or recoloured, seconds of it spent loading the field). A cell drawn in full (alpha 1) is hidden on the
+        shared ground and keeps its texture."""
+        v = self._direction(cell, eye)
         aniso = 16.0 if v[2] * self.anisotropic_from <= 1.0 else 1.0  # footprint elongation 1/v_z ≥ the limit
         if aniso != cell.anisotropy:
             cell.tex.SetMaximumAnisotropicFiltering(aniso)
             cell.anisotropy = aniso
-        if alpha >= 1.0:
-            if cell.last_alpha != 1.0:
-                _set_image(cell.tex, np.full((2, 2, 3), np.rint(self.ground_rgb), np.uint8))
-                cell.last_alpha = 1.0
-            return False
-        same_dir = cell.last_dir is not None and float(v @ cell.last_dir) > math.cos(self.reeval)
-        if same_dir and abs(alpha - cell.last_alpha) < 1e-3 and cell.colours is not None:
-            return False
-        if not same_dir or cell.colours is None:
+        if not self._stale(cell, eye, alpha):
+            return False, 0.0
+        load_s = 0.0
+        if not self._same_dir(cell, v) or cell.colours is None:
             idx, w = interpolation(self.ds, v)
             patch = patch_of(self.ds, v) if len(self.patches) > 1 else 0
             sel = self.patches[patch]
             t_load = time.perf_counter()
             cl, q, top, mean, basis, *files = self._field(cell, patch)
-            self._load_s += time.perf_counter() - t_load
+            load_s += time.perf_counter() - t_load
             loc = np.searchsorted(sel, idx)  # the blended directions' rows in the patch's lumispheres
             if top is not None and self.depth_correct:
                 texel = cell.size / cl.shape[0]
@@ -735,7 +740,7 @@ class SlfView:
                         img = mean[cl, jl] + np.einsum("...k,...kc->...c", q, basis[cl, :, jl])
                         got = cell.images[(patch, int(jl))] = (
                             img.astype(np.float32), march_heights(top, texel, self.ds.dirs[sel[jl]]).astype(np.float32))
-                        self._load_s += time.perf_counter() - t_load
+                        load_s += time.perf_counter() - t_load
                     images.append(got[0])
                     seen.append(got[1])
                 out = depth_corrected_blend(np.stack(images), loc, w, self.ds.dirs[sel], top, texel, v,
@@ -750,7 +755,7 @@ class SlfView:
             rgb = np.rint((1 - alpha) * rgb + alpha * self.ground_rgb).astype(np.uint8)
         _set_image(cell.tex, rgb)
         cell.last_alpha = alpha
-        return True
+        return True, load_s
 
     def draw(self) -> float:
         if self.window is None:
