@@ -28,6 +28,7 @@ from citylod.lod.build.slf import (
 )
 from citylod.lod.kernels.slf import (
     depth_corrected_blend,
+    depth_corrected_colours,
     direction_set,
     evaluate,
     interpolation,
@@ -156,7 +157,7 @@ def _blend_reference(images, idx, w, dirs, top, texel_m, v, tol=1.0):
 
 def test_compiled_march_and_blend_match_the_array_formulation() -> None:
     """The compiled ray march and blend (evaluated per cell at run time) against the whole-array numpy
-    formulation on random building tops: a street grid of blocks of random heights, a tower at a cell's
+    formulation, and the renderer's fused lookup against them, on random building tops: a street grid of blocks of random heights, a tower at a cell's
     edge and one past it, views from straight above to 8° above the horizon."""
     rng = np.random.default_rng(7)
     ds = direction_set(9)
@@ -166,6 +167,7 @@ def test_compiled_march_and_blend_match_the_array_formulation() -> None:
     top[:, :2] = 0.0  # a street along the west edge
     top[0, t - 1] = 80.0  # a tower in the corner
     images = rng.uniform(0, 255, (4, t, t, 3))
+    images32 = rng.uniform(-20, 275, (4, t, t, 3)).astype(np.float32)  # out of range: the clip is tested too
     for az, el in ((0.0, 90.0), (37.0, 61.0), (140.0, 33.0), (260.0, 18.0), (315.0, 8.0)):
         a, e = np.radians(az), np.radians(el)
         v = np.array([np.sin(a) * np.cos(e), np.cos(a) * np.cos(e), np.sin(e)])
@@ -175,6 +177,16 @@ def test_compiled_march_and_blend_match_the_array_formulation() -> None:
         got = depth_corrected_blend(images, idx, w, ds.dirs, top, 1.3, v)
         want = _blend_reference(images, idx, w, ds.dirs, top, 1.3, v)
         assert np.abs(got - want).max() < 1e-9, (az, el)
+        # the renderer's fused lookup: every stored direction's image and march in one array, rows ``idx`` read
+        rows = np.zeros((len(ds), t, t, 3), np.float32)
+        rows[idx] = images32
+        seen = np.zeros((len(ds), t, t), np.float32)
+        seen[idx] = [march_heights(top, 1.3, ds.dirs[j]) for j in idx]
+        fused = depth_corrected_colours(rows, seen, idx, w, ds.dirs, top, 1.3, v)
+        blended = depth_corrected_blend(images32, idx, w, ds.dirs, top, 1.3, v,
+                                        seen_heights=[seen[j] for j in idx])
+        assert fused.dtype == np.uint8
+        assert np.array_equal(fused, np.clip(np.rint(blended), 0, 255).astype(np.uint8)), (az, el)
     assert not march_heights(np.zeros((t, t)), 1.0, np.array([0.0, 0.0, 1.0])).any()
 
 

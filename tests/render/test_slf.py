@@ -65,6 +65,26 @@ def test_field_image_matches_the_geometry(box_slf: Path, az: float, el: float) -
     assert (box_ref & box_img).sum() >= 0.4 * box_ref.sum()  # and in the same place
 
 
+def test_a_view_that_moved_draws_what_a_fresh_view_draws(box_slf: Path) -> None:
+    """Fields re-evaluated as the camera moves update their textures in place: after three views, the fourth
+    is drawn exactly as by a view that opens on it, and differs from the first (the field did change)."""
+    cams = [_camera(2000.0, az, 40.0) for az in (200.0, 230.0, 260.0, 290.0)]
+    with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv:
+        for cam in cams:
+            f = sv.prepare(cam)
+            assert f.evaluations >= 1
+            sv.draw()
+            if cam is cams[0]:
+                first = sv.grab_rgb()
+        moved = sv.grab_rgb()
+    with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv:
+        sv.prepare(cams[-1])
+        sv.draw()
+        fresh = sv.grab_rgb()
+    assert np.array_equal(moved, fresh)
+    assert not np.array_equal(first, fresh)
+
+
 @pytest.mark.parametrize(("az", "el"), [(200.0, 40.0), (75.0, 30.0)])
 def test_depth_correction_draws_the_box_once(box_slf: Path, az: float, el: float) -> None:
     """Nearer than its switching error (τ forced high), the plain blend of four directions draws the box

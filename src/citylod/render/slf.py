@@ -41,7 +41,7 @@ from citylod.io.tiles3d import Tile, open_tileset
 from citylod.lod.build.slf import read_cell_arrays, read_group
 from citylod.lod.kernels.slf import (
     DirectionSet,
-    depth_corrected_blend,
+    depth_corrected_colours,
     direction_set,
     evaluate,
     interpolation,
@@ -138,13 +138,22 @@ def _texture_actor(size_m: float, centre: F64, origin: F64, z: float) -> tuple[A
 
 
 def _set_image(tex: Any, rgb: U8) -> None:
-    """Texture from an image whose row 0 is the north (top) edge; VTK's row 0 is the bottom."""
+    """Texture from an image whose row 0 is the north (top) edge; VTK's row 0 is the bottom. An image of the
+    texture's current size is written into its pixels in place (a cell's field changes every few frames)."""
     h, w, _ = rgb.shape
-    img = _vtk.vtkImageData()
-    img.SetDimensions(w, h, 1)
-    img.GetPointData().SetScalars(_vtk.numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, 3), deep=True,
-                                                    array_type=_vtk.VTK_UNSIGNED_CHAR))
-    tex.SetInputData(img)
+    img = tex.GetInput()
+    scalars = img.GetPointData().GetScalars() if img is not None else None
+    if (scalars is not None and tuple(img.GetDimensions()) == (w, h, 1) and scalars.GetNumberOfComponents() == 3
+            and scalars.GetDataType() == _vtk.VTK_UNSIGNED_CHAR):
+        _vtk.vtk_to_numpy(scalars).reshape(h, w, 3)[:] = rgb[::-1]
+        scalars.Modified()
+        img.Modified()
+    else:
+        img = _vtk.vtkImageData()
+        img.SetDimensions(w, h, 1)
+        img.GetPointData().SetScalars(_vtk.numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, 3), deep=True,
+                                                        array_type=_vtk.VTK_UNSIGNED_CHAR))
+        tex.SetInputData(img)
     tex.Modified()
 
 
@@ -162,7 +171,9 @@ class _Cell:
         self.last_alpha = -1.0
         self.colours: U8 | None = None
         self.fields: dict[int, tuple[Any, ...]] = {}
-        self.images: dict[tuple[int, int], tuple[Any, Any]] = {}  # (patch, direction) -> image, ray march
+        # patch -> the stored directions' images (P, T, T, 3), ray marches (P, T, T), which are filled (P,), and
+        # the building tops as float64 (T, T)
+        self.images: dict[int, tuple[Any, Any, Any, Any]] = {}
         self.files: tuple[str, str] | None = None  # the field files of the patch last drawn
         self.anisotropy = 16.0
 
@@ -302,8 +313,9 @@ class SlfView:
         self.build_slice_s = 0.03
         self.eval_slice_s = 0.05
         if depth_correct:  # load the compiled lookup now, not in the first frame (numba's start: ~0.4 s)
-            depth_corrected_blend(np.zeros((1, 2, 2, 3)), np.zeros(1, np.int64), np.ones(1), self.ds.dirs,
-                                  np.ones((2, 2)), 1.0, self.ds.dirs[0])
+            depth_corrected_colours(np.zeros((1, 2, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32),
+                                    np.zeros(1, np.int64), np.ones(1), self.ds.dirs, np.ones((2, 2)), 1.0,
+                                    self.ds.dirs[0])
 
     def _tile_extras(self) -> dict[str, dict[str, Any]]:
         doc = json.loads((self.folder / "tileset.json").read_text())
@@ -732,20 +744,21 @@ class SlfView:
             loc = np.searchsorted(sel, idx)  # the blended directions' rows in the patch's lumispheres
             if top is not None and self.depth_correct:
                 texel = cell.size / cl.shape[0]
-                images, seen = [], []
-                for jl in loc:  # a stored direction's image and ray march do not depend on the view: kept
-                    got = cell.images.get((patch, int(jl)))
-                    if got is None:
+                got = cell.images.get(patch)
+                if got is None:  # a stored direction's image and ray march do not depend on the view: kept
+                    t_ = cl.shape[0]
+                    got = cell.images[patch] = (np.zeros((len(sel), t_, t_, 3), np.float32),
+                                                np.zeros((len(sel), t_, t_), np.float32),
+                                                np.zeros(len(sel), bool), np.asarray(top, np.float64))
+                images, seen, have, top64 = got
+                for jl in loc:
+                    if not have[jl]:
                         t_load = time.perf_counter()
-                        img = mean[cl, jl] + np.einsum("...k,...kc->...c", q, basis[cl, :, jl])
-                        got = cell.images[(patch, int(jl))] = (
-                            img.astype(np.float32), march_heights(top, texel, self.ds.dirs[sel[jl]]).astype(np.float32))
+                        images[jl] = mean[cl, jl] + np.einsum("...k,...kc->...c", q, basis[cl, :, jl])
+                        seen[jl] = march_heights(top64, texel, self.ds.dirs[sel[jl]])
+                        have[jl] = True
                         load_s += time.perf_counter() - t_load
-                    images.append(got[0])
-                    seen.append(got[1])
-                out = depth_corrected_blend(np.stack(images), loc, w, self.ds.dirs[sel], top, texel, v,
-                                            seen_heights=seen)
-                cell.colours = np.clip(np.rint(out), 0, 255).astype(np.uint8)
+                cell.colours = depth_corrected_colours(images, seen, loc, w, self.ds.dirs[sel], top64, texel, v)
             else:
                 cell.colours = evaluate(cl, q, mean, basis, loc, w)
             cell.files = (files[0], files[1])

@@ -44,11 +44,14 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["DirectionSet", "depth_corrected_blend", "direction_patches", "direction_set", "evaluate", "evaluate_parallax", "interpolation", "march_heights",
+__all__ = ["DirectionSet", "depth_corrected_blend", "depth_corrected_colours", "direction_patches", "direction_set", "evaluate", "evaluate_parallax", "interpolation", "march_heights",
            "parabolic", "patch_of", "rasterise"]
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
+
+#: Run the per-cell lookup's texel rows on numba's threads.
+_PARALLEL = True
 
 
 class DirectionSet:
@@ -353,6 +356,123 @@ def _blend(images, shifts, w, seen, h, tol):  # pragma: no cover - compiled
                 out[r, c, 0] = fb0 / wtot
                 out[r, c, 1] = fb1 / wtot
                 out[r, c, 2] = fb2 / wtot
+    return out
+
+
+def depth_corrected_colours(images: npt.NDArray[np.float32], seen: npt.NDArray[np.float32], loc: I64, w: F64,
+                            dirs: F64, top: F64, texel_m: float, v: npt.ArrayLike,
+                            tolerance_m: float = 1.0) -> npt.NDArray[np.uint8]:
+    """:func:`depth_corrected_blend` rounded to colours (T, T, 3) uint8, in one compiled pass: the run-time
+    lookup of a cell. ``images`` (P, T, T, 3) and ``seen`` (P, T, T) hold the stored directions' images and
+    ray marches of the cell's direction patch (only the rows ``loc`` are read), ``dirs`` (P, 3) their
+    directions, ``top`` (T, T) float64 building tops. The view's ray march and the blend run per texel row
+    on numba's threads; the result equals ``rint(depth_corrected_blend(images[loc], …))`` clipped to 0–255
+    (same arithmetic, per texel)."""
+    vv = np.asarray(v, np.float64)
+    vv = vv / np.linalg.norm(vv)
+    a = vv[:2] / max(vv[2], 1e-6)
+    hmax = float(top.max()) if top.size else 0.0
+    if hmax > 0.0:
+        ds = min(0.5, 0.5 * texel_m / max(float(np.hypot(a[0], a[1])), 1e-9))
+        s = np.arange(ds, hmax + ds, ds)
+    else:
+        s = np.zeros(0)
+    shifts = np.array([(a - dirs[j, :2] / max(dirs[j, 2], 1e-6)) / texel_m for j in loc], np.float64)
+    return _lookup(images, seen, np.asarray(loc, np.int64), np.asarray(w, np.float64), shifts, top, s,
+                   a[0] / texel_m, a[1] / texel_m, float(tolerance_m))
+
+
+@numba.njit(cache=True, nogil=True)
+def _reach_max(top, ax, ay, hmax):  # pragma: no cover - compiled
+    """Per texel, the highest ``top`` of any texel its view ray can reach below ``hmax`` (0 outside the cell):
+    the max over the box of texel indices between the ray's start and its point at ``hmax``. Samples of the
+    march above it cannot hit, so the march may start below it and still return the same height."""
+    t = top.shape[0]
+    dc, dr = hmax * ax, -hmax * ay
+    c0, c1 = int(math.floor(0.5 + min(0.0, dc))) - 1, int(math.floor(0.5 + max(0.0, dc))) + 1
+    r0, r1 = int(math.floor(0.5 + min(0.0, dr))) - 1, int(math.floor(0.5 + max(0.0, dr))) + 1
+    rows = np.zeros((t, t))  # max along each row over the column window
+    for r in range(t):
+        for c in range(t):
+            m = 0.0
+            for cc in range(max(c + c0, 0), min(c + c1, t - 1) + 1):
+                m = max(m, top[r, cc])
+            rows[r, c] = m
+    out = np.zeros((t, t))
+    for r in range(t):
+        for c in range(t):
+            m = 0.0
+            for rr in range(max(r + r0, 0), min(r + r1, t - 1) + 1):
+                m = max(m, rows[rr, c])
+            out[r, c] = m
+    return out
+
+
+@numba.njit(cache=True, nogil=True, parallel=_PARALLEL)
+def _lookup(images, seen, loc, w, shifts, top, s, ax, ay, tol):  # pragma: no cover - compiled
+    """:func:`_march` and :func:`_blend` fused per texel (no intermediate arrays): the same arithmetic, with
+    the march started at the highest sample the ray can meet (:func:`_reach_max`) and each stored
+    direction's bilinear footprint found once for its three channels."""
+    t = top.shape[0]
+    n = loc.shape[0]
+    out = np.empty((t, t, 3), np.uint8)
+    wtot = 0.0
+    for k in range(n):
+        if w[k] > 0.0:
+            wtot += w[k]
+    wtot = max(wtot, 1e-9)
+    reach = _reach_max(top, ax, ay, s[-1] if len(s) else 0.0)
+    for r in numba.prange(t):
+        for c in range(t):
+            hh = 0.0
+            top_k = np.searchsorted(s, reach[r, c] + 1e-6, side="right") - 1
+            for m in range(top_k, -1, -1):
+                ss = s[m]
+                ci = int(math.floor(c + 0.5 + ss * ax))
+                ri = int(math.floor(r + 0.5 - ss * ay))
+                if 0 <= ci < t and 0 <= ri < t and top[ri, ci] >= ss - 1e-6:
+                    hh = ss
+                    break
+            acc0 = acc1 = acc2 = 0.0
+            fb0 = fb1 = fb2 = 0.0
+            wsum = 0.0
+            for k in range(n):
+                wj = w[k]
+                if wj <= 0.0:
+                    continue
+                j = loc[k]
+                rr = r - hh * shifts[k, 1]
+                cc = c + hh * shifts[k, 0]
+                # _sample's bilinear footprint, once for the three channels
+                rq = min(max(rr, 0.0), t - 1.0)
+                cq = min(max(cc, 0.0), t - 1.0)
+                r0 = min(int(math.floor(rq)), t - 2) if t > 1 else 0
+                c0 = min(int(math.floor(cq)), t - 2) if t > 1 else 0
+                fr, fc = rq - r0, cq - c0
+                r1, c1 = min(r0 + 1, t - 1), min(c0 + 1, t - 1)
+                s0 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 0] + fc * images[j, r0, c1, 0])
+                      + fr * ((1 - fc) * images[j, r1, c0, 0] + fc * images[j, r1, c1, 0]))
+                s1 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 1] + fc * images[j, r0, c1, 1])
+                      + fr * ((1 - fc) * images[j, r1, c0, 1] + fc * images[j, r1, c1, 1]))
+                s2 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 2] + fc * images[j, r0, c1, 2])
+                      + fr * ((1 - fc) * images[j, r1, c0, 2] + fc * images[j, r1, c1, 2]))
+                ri = min(max(int(np.rint(rr)), 0), t - 1)
+                ci = min(max(int(np.rint(cc)), 0), t - 1)
+                if abs(seen[j, ri, ci] - hh) <= tol:
+                    acc0 += wj * s0
+                    acc1 += wj * s1
+                    acc2 += wj * s2
+                    wsum += wj
+                fb0 += wj * s0
+                fb1 += wj * s1
+                fb2 += wj * s2
+            if wsum > 1e-9:
+                x0, x1, x2 = acc0 / wsum, acc1 / wsum, acc2 / wsum
+            else:
+                x0, x1, x2 = fb0 / wtot, fb1 / wtot, fb2 / wtot
+            out[r, c, 0] = min(max(np.rint(x0), 0.0), 255.0)
+            out[r, c, 1] = min(max(np.rint(x1), 0.0), 255.0)
+            out[r, c, 2] = min(max(np.rint(x2), 0.0), 255.0)
     return out
 
 
