@@ -27,6 +27,7 @@ def test_bench_slf_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert {f["set"] for f in frames} >= {"overview", "slow orbit"}
     for f in frames:
         assert f["slf_ms"] > 0 and f["geometry_ms"] > 0 and f["geometry_bytes"] > 0
+        assert 0 < f["geometry_triangles"] <= 12  # the box: six faces, two triangles each
         assert f["slf_bytes"] == f["slf_field_bytes"] + f["slf_building_bytes"]
         if f["building_cells"] == 0:  # fields only: the bytes are the drawn cells' files, no city tile
             assert f["slf_building_bytes"] == 0

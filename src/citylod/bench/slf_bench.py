@@ -89,7 +89,7 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
                 t_slf = min(sv.draw() for _ in range(2))
                 img = sv.grab_rgb()
                 mask = sv.field_mask()
-                gv.prepare(cam)
+                gstats = gv.prepare(cam)
                 t_geo = min(gv.draw() for _ in range(2))
                 geo_bytes = gv.file_bytes()
                 geo = gv.grab_rgb()
@@ -106,7 +106,8 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
                 mean1, _ = _err(img, ref, mask)
                 rows.append({"set": name, "frame": k, "slf_ms": 1e3 * (t_slf + f.eval_s), "slf_draw_ms": 1e3 * t_slf,
                              "slf_eval_ms": 1e3 * f.eval_s, "slf_load_ms": 1e3 * f.load_s,
-                             "geometry_ms": 1e3 * t_geo, "slf_bytes": f.bytes_drawn, "geometry_bytes": geo_bytes,
+                             "geometry_ms": 1e3 * t_geo, "geometry_triangles": int(gstats.triangles),
+                             "slf_bytes": f.bytes_drawn, "geometry_bytes": geo_bytes,
                              "slf_field_bytes": f.bytes_fields, "slf_building_bytes": f.bytes_buildings,
                              "field_cells": f.cells, "building_cells": f.geometry_cells, "levels": f.levels,
                              "field_pixels": int(mask.sum()), "slf_mean_err": mean, "slf_p99_err": p99,
@@ -142,6 +143,7 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
             "slf_eval_ms_median": float(np.median([x["slf_eval_ms"] for x in r])),
             "slf_load_ms_median": float(np.median([x["slf_load_ms"] for x in r])),
             "geometry_ms_median": float(np.median([x["geometry_ms"] for x in r])),
+            "geometry_triangles_median": float(np.median([x["geometry_triangles"] for x in r])),
             "speedup": float(np.median([x["geometry_ms"] / x["slf_ms"] for x in r])),
             "slf_bytes_median": float(np.median([x["slf_bytes"] for x in r])),
             "slf_building_bytes_median": float(np.median([x["slf_building_bytes"] for x in r])),
@@ -159,7 +161,7 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
     (out / "slf_report.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
     lines = [f"# Far-field SLF against building geometry (τ = {tau_px} px, texels ≤ {texel_px} px, "
              f"{size[0]}×{size[1]})", "",
-             "| cameras | frames | SLF frame ms (draw + evaluation; loading) | geometry ms | speed-up |"
+             "| cameras | frames | SLF frame ms (draw + evaluation; loading) | geometry ms (triangles) | speed-up |"
              " SLF MB (of it buildings) |"
              " geometry MB | less data | mean err | p99 err | geometry@τ mean err | building cells |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -168,7 +170,8 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
         if s:
             lines.append(f"| {name} | {s['frames']} | {s['slf_ms_median']:.0f} ({s['slf_draw_ms_median']:.0f} + "
                          f"{s['slf_eval_ms_median']:.0f}; {s['slf_load_ms_median']:.0f}) | "
-                         f"{s['geometry_ms_median']:.0f} | {s['speedup']:.1f}× | {s['slf_bytes_median'] / 1e6:.2f} "
+                         f"{s['geometry_ms_median']:.0f} ({s['geometry_triangles_median'] / 1e3:.0f} k) | "
+                         f"{s['speedup']:.1f}× | {s['slf_bytes_median'] / 1e6:.2f} "
                          f"({s['slf_building_bytes_median'] / 1e6:.2f}) | "
                          f"{s['geometry_bytes_median'] / 1e6:.2f} | {s['data_ratio']:.1f}× | {s['slf_mean_err']:.1f} | "
                          f"{s['slf_p99_err']:.0f} | {s['geometry_tau_mean_err']:.1f} | "
