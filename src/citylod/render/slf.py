@@ -846,10 +846,10 @@ class GeometryView:
     plane (a flat quad in the ground colour over the field's extent), for comparison with :class:`SlfView`."""
 
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
-                 city_dir: str | Path | None = None) -> None:
+                 city_dir: str | Path | None = None, cache_bytes: int = 2 << 30) -> None:
         ts, meta = open_slf(slf_dir)
         city = Path(city_dir) if city_dir is not None else Path(ts.folder) / meta["city"]
-        self.r = OffscreenRenderer([city], size=size, tau_px=tau_px)
+        self.r = OffscreenRenderer([city], size=size, tau_px=tau_px, cache_bytes=cache_bytes)
         lo, hi = ts.root.box.bounds()
         origin = self.r.scene.origin
         assert origin is not None
@@ -859,8 +859,17 @@ class GeometryView:
         self.r.renderer.AddActor(actor)
         self.size = self.r.size
 
-    def prepare(self, camera: Camera, *, full_resolution: bool = False) -> Any:
-        return self.r.prepare(camera, full_resolution=full_resolution)
+    def prepare(self, camera: Camera, *, full_resolution: bool = False, tau_px: float | None = None) -> Any:
+        """Select and load the city's tiles for ``camera``: at the view's τ, at ``tau_px``, or at full
+        resolution (every leaf with its original textures)."""
+        layer = self.r.scene.layers[0]
+        saved = layer.tau_px
+        if tau_px is not None:
+            layer.tau_px = tau_px
+        try:
+            return self.r.prepare(camera, full_resolution=full_resolution)
+        finally:
+            layer.tau_px = saved
 
     def file_bytes(self) -> int:
         """Content file bytes of the tiles drawn in the last frame (what a client downloads for it)."""

@@ -238,37 +238,71 @@ def march_heights(top: npt.NDArray[np.floating], texel_m: float, v: npt.ArrayLik
     """Height (m above the ground) of the point each texel's view ray meets, (T, T).
 
     ``top`` (T, T): height of the building tops per texel, row 0 at the north edge; ``v`` (3,): unit view
-    direction towards the viewer. The ray through the ground point of texel ``q`` rises along
-    ``q + s·v_xy/v_z`` at height ``s``; the answer is the largest sampled ``s`` where ``top`` (nearest texel)
-    reaches ``s`` (0 where none: the ground). Steps keep the horizontal advance within half a texel; outside
-    the cell the ground is assumed.
+    direction towards the viewer. The ray through the centre of texel ``q`` rises along ``q + s·v_xy/v_z``
+    at height ``s``; the answer is the largest ``s`` at which the texel column it is in reaches ``s``
+    (``top`` is a field of flat-topped columns, one per texel; outside the cell the ground is assumed), so a
+    ground texel answers its own top. Exact: :func:`_ray_top` walks the columns the ray crosses from the top
+    down.
     """
     vv = np.asarray(v, np.float64)
     a = vv[:2] / max(vv[2], 1e-6)
     hmax = float(top.max()) if top.size else 0.0
     if hmax <= 0.0:
         return np.zeros(top.shape)
-    ds = min(0.5, 0.5 * texel_m / max(float(np.hypot(a[0], a[1])), 1e-9))
-    s = np.arange(ds, hmax + ds, ds)
-    return _march(np.ascontiguousarray(top, np.float64), s, a[0] / texel_m, a[1] / texel_m)
+    return _march(np.ascontiguousarray(top, np.float64), hmax, a[0] / texel_m, a[1] / texel_m)
 
 
 @numba.njit(cache=True, nogil=True)
-def _march(top, s, ax, ay):  # pragma: no cover - compiled
-    """march_heights on the sampled heights ``s`` (ascending); ``ax, ay`` the advance in texels per metre of
-    height. From the top down: the first height that hits is the largest (numba: a 64² cell in well under a
-    millisecond, where the vectorised numpy march took 1.6 ms for every height at every texel)."""
+def _ray_top(top, r, c, ax, ay, smax):  # pragma: no cover - compiled
+    """The largest ``s`` in [0, ``smax``] with ``top[floor(r + ½ − s·ay), floor(c + ½ + s·ax)] ≥ s``: the
+    ray from texel (``r``, ``c``)'s centre, ``ax, ay`` its advance in texels per metre of height.
+
+    A 2D DDA from the top down. In the column it crosses for heights [s_lo, s_hi], the ray is below that
+    column's top somewhere iff top ≥ s_lo, and then highest at min(top, s_hi); columns crossed higher up
+    give larger heights, so the first column met from the top that reaches the ray holds the answer. The
+    walk starts where the ray leaves the cell (or at ``smax``) and crosses at most 2T + 2 columns, where the
+    sampled march it replaces tested every half metre of height."""
+    t = top.shape[0]
+    x0, y0 = c + 0.5, r + 0.5
+    dx, dy = ax, -ay
+    s_hi = smax  # the ray leaves the cell's square at the smallest slab exit
+    if dx > 0.0:
+        s_hi = min(s_hi, (t - x0) / dx)
+    elif dx < 0.0:
+        s_hi = min(s_hi, -x0 / dx)
+    if dy > 0.0:
+        s_hi = min(s_hi, (t - y0) / dy)
+    elif dy < 0.0:
+        s_hi = min(s_hi, -y0 / dy)
+    j = min(max(int(math.floor(x0 + s_hi * dx)), 0), t - 1)
+    i = min(max(int(math.floor(y0 + s_hi * dy)), 0), t - 1)
+    for _ in range(2 * t + 4):
+        sx = (j - x0) / dx if dx > 0.0 else ((j + 1 - x0) / dx if dx < 0.0 else -1.0)
+        sy = (i - y0) / dy if dy > 0.0 else ((i + 1 - y0) / dy if dy < 0.0 else -1.0)
+        s_lo = max(sx, sy, 0.0)
+        h = top[i, j]
+        if s_lo < s_hi and h >= s_lo:  # a column only touched at a corner (length 0) is not entered
+            return min(h, s_hi)
+        if s_lo <= 0.0:
+            break
+        if sx >= sy:
+            j += -1 if dx > 0.0 else 1
+        if sy >= sx:
+            i += -1 if dy > 0.0 else 1
+        if not (0 <= i < t and 0 <= j < t):
+            break
+        s_hi = s_lo
+    return 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _march(top, smax, ax, ay):  # pragma: no cover - compiled
+    """march_heights per texel (:func:`_ray_top`)."""
     t = top.shape[0]
     h = np.zeros(top.shape)
     for r in range(t):
         for c in range(t):
-            for k in range(len(s) - 1, -1, -1):
-                ss = s[k]
-                ci = int(math.floor(c + 0.5 + ss * ax))
-                ri = int(math.floor(r + 0.5 - ss * ay))
-                if 0 <= ci < t and 0 <= ri < t and top[ri, ci] >= ss - 1e-6:
-                    h[r, c] = ss
-                    break
+            h[r, c] = _ray_top(top, r, c, ax, ay, smax)
     return h
 
 
@@ -372,47 +406,15 @@ def depth_corrected_colours(images: npt.NDArray[np.float32], seen: npt.NDArray[n
     vv = vv / np.linalg.norm(vv)
     a = vv[:2] / max(vv[2], 1e-6)
     hmax = float(top.max()) if top.size else 0.0
-    if hmax > 0.0:
-        ds = min(0.5, 0.5 * texel_m / max(float(np.hypot(a[0], a[1])), 1e-9))
-        s = np.arange(ds, hmax + ds, ds)
-    else:
-        s = np.zeros(0)
     shifts = np.array([(a - dirs[j, :2] / max(dirs[j, 2], 1e-6)) / texel_m for j in loc], np.float64)
-    return _lookup(images, seen, np.asarray(loc, np.int64), np.asarray(w, np.float64), shifts, top, s,
+    return _lookup(images, seen, np.asarray(loc, np.int64), np.asarray(w, np.float64), shifts, top, max(hmax, 0.0),
                    a[0] / texel_m, a[1] / texel_m, float(tolerance_m))
 
 
-@numba.njit(cache=True, nogil=True)
-def _reach_max(top, ax, ay, hmax):  # pragma: no cover - compiled
-    """Per texel, the highest ``top`` of any texel its view ray can reach below ``hmax`` (0 outside the cell):
-    the max over the box of texel indices between the ray's start and its point at ``hmax``. Samples of the
-    march above it cannot hit, so the march may start below it and still return the same height."""
-    t = top.shape[0]
-    dc, dr = hmax * ax, -hmax * ay
-    c0, c1 = int(math.floor(0.5 + min(0.0, dc))) - 1, int(math.floor(0.5 + max(0.0, dc))) + 1
-    r0, r1 = int(math.floor(0.5 + min(0.0, dr))) - 1, int(math.floor(0.5 + max(0.0, dr))) + 1
-    rows = np.zeros((t, t))  # max along each row over the column window
-    for r in range(t):
-        for c in range(t):
-            m = 0.0
-            for cc in range(max(c + c0, 0), min(c + c1, t - 1) + 1):
-                m = max(m, top[r, cc])
-            rows[r, c] = m
-    out = np.zeros((t, t))
-    for r in range(t):
-        for c in range(t):
-            m = 0.0
-            for rr in range(max(r + r0, 0), min(r + r1, t - 1) + 1):
-                m = max(m, rows[rr, c])
-            out[r, c] = m
-    return out
-
-
 @numba.njit(cache=True, nogil=True, parallel=_PARALLEL)
-def _lookup(images, seen, loc, w, shifts, top, s, ax, ay, tol):  # pragma: no cover - compiled
+def _lookup(images, seen, loc, w, shifts, top, smax, ax, ay, tol):  # pragma: no cover - compiled
     """:func:`_march` and :func:`_blend` fused per texel (no intermediate arrays): the same arithmetic, with
-    the march started at the highest sample the ray can meet (:func:`_reach_max`) and each stored
-    direction's bilinear footprint found once for its three channels."""
+    each stored direction's bilinear footprint found once for its three channels."""
     t = top.shape[0]
     n = loc.shape[0]
     out = np.empty((t, t, 3), np.uint8)
@@ -421,18 +423,9 @@ def _lookup(images, seen, loc, w, shifts, top, s, ax, ay, tol):  # pragma: no co
         if w[k] > 0.0:
             wtot += w[k]
     wtot = max(wtot, 1e-9)
-    reach = _reach_max(top, ax, ay, s[-1] if len(s) else 0.0)
     for r in numba.prange(t):
         for c in range(t):
-            hh = 0.0
-            top_k = np.searchsorted(s, reach[r, c] + 1e-6, side="right") - 1
-            for m in range(top_k, -1, -1):
-                ss = s[m]
-                ci = int(math.floor(c + 0.5 + ss * ax))
-                ri = int(math.floor(r + 0.5 - ss * ay))
-                if 0 <= ci < t and 0 <= ri < t and top[ri, ci] >= ss - 1e-6:
-                    hh = ss
-                    break
+            hh = _ray_top(top, r, c, ax, ay, smax) if smax > 0.0 else 0.0
             acc0 = acc1 = acc2 = 0.0
             fb0 = fb1 = fb2 = 0.0
             wsum = 0.0
