@@ -1,13 +1,14 @@
 """Budget mode on a real renderer: how often the frame time stays within ±20 % of the target.
 
-``python -m citylod.bench.budget_bench [FRAMES] [FRACTION] [--target-ms MS] [--interleaved] [--plot OUT.png]
+``python -m citylod.bench.budget_bench [FRAMES] [FRACTION] [--target-ms MS] [--alone] [--plot OUT.png]
 [--json OUT]`` writes a synthetic point tileset and flies the default flight off screen: first a fixed-budget
 calibration flight, whose median frame time times FRACTION (default 0.5) is the target (or ``--target-ms``);
-then a fixed-budget renderer (the baseline), one in budget mode
-(:class:`~citylod.render.frame_budget.FrameBudget`) and one with the previous, reactive controller
-(``controller="median"``), each flying the whole flight alone as a user's one window does, each frame's draw
-timed once, as a user sees it. ``--interleaved`` flies the three frame by frame in turns instead, for a loaded
-machine whose load changes by 2× within a minute; each frame is then drawn just after another GL context drew.
+then, interleaved frame by frame (the machine's load changes by 2× within a minute), a fixed-budget renderer
+(the baseline), one in budget mode (:class:`~citylod.render.frame_budget.FrameBudget`) and one with the
+previous, reactive controller (``controller="median"``), each frame's draw timed once, as a user sees it.
+``--alone``: each of the three flies the whole flight by itself, one after the other, as a user's one window
+does (interleaved, each frame is drawn just after another GL context drew; on a quiet machine both give the
+same shares, docs/PERFORMANCE_LOG.md).
 The baseline is also the most detail budget mode may
 draw (the user's τ and point budget), so it tells the frames on which the target is *reachable*: the
 baseline frame (the faster of its two draws) costs at least the band's lower edge (where it does not, the view
@@ -34,7 +35,7 @@ import numpy as np
 
 
 def run(frames: int = 60, fraction: float = 0.5, target_ms: float | None = None, *,
-        interleaved: bool = False) -> dict[str, object]:
+        interleaved: bool = True) -> dict[str, object]:
     from citylod.bench.flight import default_flight
     from citylod.bench.synthetic import make_point_tileset
     from citylod.render.frame_budget import FrameBudget
@@ -54,9 +55,9 @@ def run(frames: int = 60, fraction: float = 0.5, target_ms: float | None = None,
         target = float(target_ms) if target_ms else fraction * statistics.median(calib)
         # Interleaved (for a loaded machine, whose load changes by 2× within a minute), each budget-mode frame
         # is judged against the fixed-budget frame drawn next to it, and the two controllers are compared in
-        # turns on the same frames; but each frame is then drawn just after another GL context drew, which
-        # costs it 1.14–1.23× (docs/PERFORMANCE_LOG.md). By default each renderer flies alone, one after the
-        # other, as a user's single window does.
+        # turns on the same frames; each frame is then drawn just after another GL context drew, which costs
+        # it 1.14–1.23× (docs/PERFORMANCE_LOG.md). ``interleaved=False``: each renderer flies alone, one after
+        # the other, as a user's single window does.
         fixed: list[float] = []
         again: list[float] = []
         fixed_pts: list[int] = []
@@ -176,8 +177,8 @@ def plot(res: dict[str, object], out: str | os.PathLike[str]) -> None:
 
 def main(argv: list[str]) -> None:
     out = target = dump = None
-    interleaved = "--interleaved" in argv
-    argv = [a for a in argv if a != "--interleaved"]
+    interleaved = "--alone" not in argv
+    argv = [a for a in argv if a != "--alone"]
     for flag in ("--plot", "--target-ms", "--json"):
         if flag in argv:
             i = argv.index(flag)
