@@ -332,64 +332,71 @@ def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDA
 
 
 @numba.njit(cache=True, nogil=True)
-def _sample(img, k, rr, cc, ch):  # pragma: no cover - compiled
-    """``img[k]`` channel ``ch`` bilinear at fractional texel centre (``rr``, ``cc``), edges clamped."""
-    t = img.shape[1]
-    r = min(max(rr, 0.0), t - 1.0)
-    c = min(max(cc, 0.0), t - 1.0)
-    r0 = min(int(math.floor(r)), t - 2) if t > 1 else 0
-    c0 = min(int(math.floor(c)), t - 2) if t > 1 else 0
-    fr, fc = r - r0, c - c0
-    r1, c1 = min(r0 + 1, t - 1), min(c0 + 1, t - 1)
-    return ((1 - fr) * ((1 - fc) * img[k, r0, c0, ch] + fc * img[k, r0, c1, ch])
-            + fr * ((1 - fc) * img[k, r1, c0, ch] + fc * img[k, r1, c1, ch]))
+def _blend_texel(images, seen, loc, w, shifts, r, c, hh, tol, wtot):  # pragma: no cover - compiled
+    """The depth-corrected blend at texel (``r``, ``c``) whose view ray meets height ``hh``: the colour
+    (3 floats). ``loc`` the rows of ``images`` (P, T, T, 3) and ``seen`` (P, T, T) blended with weights
+    ``w`` (sum of the positive ones ``wtot``), ``shifts`` (4, 2) each direction's parallax per metre of
+    height in texels (x, y). Each direction is sampled bilinearly at where the viewed point lies in its
+    image (edges clamped); one whose own ray march there is more than ``tol`` off does not see the point."""
+    t = images.shape[1]
+    acc0 = acc1 = acc2 = 0.0
+    fb0 = fb1 = fb2 = 0.0
+    wsum = 0.0
+    for k in range(loc.shape[0]):
+        wj = w[k]
+        if wj <= 0.0:
+            continue
+        j = loc[k]
+        rr = r - hh * shifts[k, 1]
+        cc = c + hh * shifts[k, 0]
+        rq = min(max(rr, 0.0), t - 1.0)
+        cq = min(max(cc, 0.0), t - 1.0)
+        r0 = min(int(math.floor(rq)), t - 2) if t > 1 else 0
+        c0 = min(int(math.floor(cq)), t - 2) if t > 1 else 0
+        fr, fc = rq - r0, cq - c0
+        r1, c1 = min(r0 + 1, t - 1), min(c0 + 1, t - 1)
+        s0 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 0] + fc * images[j, r0, c1, 0])
+              + fr * ((1 - fc) * images[j, r1, c0, 0] + fc * images[j, r1, c1, 0]))
+        s1 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 1] + fc * images[j, r0, c1, 1])
+              + fr * ((1 - fc) * images[j, r1, c0, 1] + fc * images[j, r1, c1, 1]))
+        s2 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 2] + fc * images[j, r0, c1, 2])
+              + fr * ((1 - fc) * images[j, r1, c0, 2] + fc * images[j, r1, c1, 2]))
+        ri = min(max(int(np.rint(rr)), 0), t - 1)
+        ci = min(max(int(np.rint(cc)), 0), t - 1)
+        if abs(seen[j, ri, ci] - hh) <= tol:
+            acc0 += wj * s0
+            acc1 += wj * s1
+            acc2 += wj * s2
+            wsum += wj
+        fb0 += wj * s0
+        fb1 += wj * s1
+        fb2 += wj * s2
+    if wsum > 1e-9:
+        return acc0 / wsum, acc1 / wsum, acc2 / wsum
+    return fb0 / wtot, fb1 / wtot, fb2 / wtot
+
+
+@numba.njit(cache=True, nogil=True)
+def _positive_sum(w):  # pragma: no cover - compiled
+    tot = 0.0
+    for k in range(w.shape[0]):
+        if w[k] > 0.0:
+            tot += w[k]
+    return max(tot, 1e-9)
 
 
 @numba.njit(cache=True, nogil=True)
 def _blend(images, shifts, w, seen, h, tol):  # pragma: no cover - compiled
-    """The per-texel loop of :func:`depth_corrected_blend`: ``shifts`` (4, 2) each stored direction's
-    parallax per metre of height in texels (x, y), ``seen`` (4, T, T) their ray marches, ``h`` (T, T) the
-    view's."""
-    n, t = images.shape[0], images.shape[1]
+    """The per-texel loop of :func:`depth_corrected_blend` (:func:`_blend_texel` over ``images`` (4, T, T, 3)
+    and ``seen`` (4, T, T), the view's ray march ``h`` (T, T))."""
+    t = images.shape[1]
+    loc = np.arange(images.shape[0])
+    wtot = _positive_sum(w)
     out = np.zeros((t, t, 3))
-    wtot = 0.0
-    for k in range(n):
-        if w[k] > 0.0:
-            wtot += w[k]
-    wtot = max(wtot, 1e-9)
     for r in range(t):
         for c in range(t):
-            hh = h[r, c]
-            acc0 = acc1 = acc2 = 0.0
-            fb0 = fb1 = fb2 = 0.0
-            wsum = 0.0
-            for k in range(n):
-                wj = w[k]
-                if wj <= 0.0:
-                    continue
-                rr = r - hh * shifts[k, 1]
-                cc = c + hh * shifts[k, 0]
-                s0 = _sample(images, k, rr, cc, 0)
-                s1 = _sample(images, k, rr, cc, 1)
-                s2 = _sample(images, k, rr, cc, 2)
-                ri = min(max(int(np.rint(rr)), 0), t - 1)
-                ci = min(max(int(np.rint(cc)), 0), t - 1)
-                if abs(seen[k, ri, ci] - hh) <= tol:
-                    acc0 += wj * s0
-                    acc1 += wj * s1
-                    acc2 += wj * s2
-                    wsum += wj
-                fb0 += wj * s0
-                fb1 += wj * s1
-                fb2 += wj * s2
-            if wsum > 1e-9:
-                out[r, c, 0] = acc0 / wsum
-                out[r, c, 1] = acc1 / wsum
-                out[r, c, 2] = acc2 / wsum
-            else:
-                out[r, c, 0] = fb0 / wtot
-                out[r, c, 1] = fb1 / wtot
-                out[r, c, 2] = fb2 / wtot
+            out[r, c, 0], out[r, c, 1], out[r, c, 2] = _blend_texel(images, seen, loc, w, shifts, r, c, h[r, c],
+                                                                    tol, wtot)
     return out
 
 
@@ -413,56 +420,14 @@ def depth_corrected_colours(images: npt.NDArray[np.float32], seen: npt.NDArray[n
 
 @numba.njit(cache=True, nogil=True, parallel=_PARALLEL)
 def _lookup(images, seen, loc, w, shifts, top, smax, ax, ay, tol):  # pragma: no cover - compiled
-    """:func:`_march` and :func:`_blend` fused per texel (no intermediate arrays): the same arithmetic, with
-    each stored direction's bilinear footprint found once for its three channels."""
+    """:func:`_march` and :func:`_blend` fused per texel (no intermediate arrays), rounded to bytes."""
     t = top.shape[0]
-    n = loc.shape[0]
     out = np.empty((t, t, 3), np.uint8)
-    wtot = 0.0
-    for k in range(n):
-        if w[k] > 0.0:
-            wtot += w[k]
-    wtot = max(wtot, 1e-9)
+    wtot = _positive_sum(w)
     for r in numba.prange(t):
         for c in range(t):
             hh = _ray_top(top, r, c, ax, ay, smax) if smax > 0.0 else 0.0
-            acc0 = acc1 = acc2 = 0.0
-            fb0 = fb1 = fb2 = 0.0
-            wsum = 0.0
-            for k in range(n):
-                wj = w[k]
-                if wj <= 0.0:
-                    continue
-                j = loc[k]
-                rr = r - hh * shifts[k, 1]
-                cc = c + hh * shifts[k, 0]
-                # _sample's bilinear footprint, once for the three channels
-                rq = min(max(rr, 0.0), t - 1.0)
-                cq = min(max(cc, 0.0), t - 1.0)
-                r0 = min(int(math.floor(rq)), t - 2) if t > 1 else 0
-                c0 = min(int(math.floor(cq)), t - 2) if t > 1 else 0
-                fr, fc = rq - r0, cq - c0
-                r1, c1 = min(r0 + 1, t - 1), min(c0 + 1, t - 1)
-                s0 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 0] + fc * images[j, r0, c1, 0])
-                      + fr * ((1 - fc) * images[j, r1, c0, 0] + fc * images[j, r1, c1, 0]))
-                s1 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 1] + fc * images[j, r0, c1, 1])
-                      + fr * ((1 - fc) * images[j, r1, c0, 1] + fc * images[j, r1, c1, 1]))
-                s2 = ((1 - fr) * ((1 - fc) * images[j, r0, c0, 2] + fc * images[j, r0, c1, 2])
-                      + fr * ((1 - fc) * images[j, r1, c0, 2] + fc * images[j, r1, c1, 2]))
-                ri = min(max(int(np.rint(rr)), 0), t - 1)
-                ci = min(max(int(np.rint(cc)), 0), t - 1)
-                if abs(seen[j, ri, ci] - hh) <= tol:
-                    acc0 += wj * s0
-                    acc1 += wj * s1
-                    acc2 += wj * s2
-                    wsum += wj
-                fb0 += wj * s0
-                fb1 += wj * s1
-                fb2 += wj * s2
-            if wsum > 1e-9:
-                x0, x1, x2 = acc0 / wsum, acc1 / wsum, acc2 / wsum
-            else:
-                x0, x1, x2 = fb0 / wtot, fb1 / wtot, fb2 / wtot
+            x0, x1, x2 = _blend_texel(images, seen, loc, w, shifts, r, c, hh, tol, wtot)
             out[r, c, 0] = min(max(np.rint(x0), 0.0), 255.0)
             out[r, c, 1] = min(max(np.rint(x1), 0.0), 255.0)
             out[r, c, 2] = min(max(np.rint(x2), 0.0), 255.0)
