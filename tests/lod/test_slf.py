@@ -83,6 +83,24 @@ def test_bake_matches_an_independent_ray_cast(box_city: Path) -> None:
     assert tuple(field[16, 16, zen]) == (200, 50, 50)
 
 
+@pytest.mark.parametrize("corner", [(180.0, 20.0), (-130.0, -130.0), (30.0, 170.0)])
+def test_bake_reads_only_the_triangles_that_can_reach_the_cell(box_city: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               corner: tuple[float, float]) -> None:
+    """Cells east, south-west and north of the box, so far that only the lowest directions (5° elevation: the
+    15 m box sheared by up to 171 m) see it in them: baked from the triangles ``near`` keeps, the field is
+    byte for byte the one baked from all triangles, and the box is in it."""
+    scene = city_triangles(box_city)
+    ds = direction_set(7, min_elevation_deg=5.0)
+    x0, y0 = X0 + corner[0], Y0 + corner[1]
+    kept = scene.near(x0, y0, 40.0, Z0, 11.5)
+    assert 0 < len(kept) < len(scene.tri)  # the ground quad outside the cell is left out
+    field = bake_cell(scene, x0, y0, 40.0, 16, Z0, ds, oversample=2)
+    monkeypatch.setattr(type(scene), "near", lambda self, *a: np.arange(len(self.tri)))
+    every = bake_cell(scene, x0, y0, 40.0, 16, Z0, ds, oversample=2)
+    assert np.array_equal(field, every)
+    assert (np.abs(field.astype(int) - np.array(GROUND_RGB)).max(axis=-1) > 30).any()
+
+
 def test_depth_corrected_blend_draws_the_box_once(box_city: Path) -> None:
     """A view between the stored directions of a coarse set (5 × 5: 21 directions, 25–45° apart): the plain
     blend of four directions draws the 15 m box in four places (mean error 5.5–8.2 of 255); the
@@ -265,6 +283,17 @@ def test_binary_round_trip_and_damage() -> None:
         read_cell(data[:-7], "c.bin")
     with pytest.raises(InputError, match="damaged|holds"):
         read_group(write_group(c)[:-1], "g.bin")
+
+
+def test_build_does_not_depend_on_the_bake_threads(box_city: Path, tmp_path: Path) -> None:
+    """One bake thread or four: the same files, byte for byte."""
+    outs = []
+    for workers in (1, 4):
+        out = tmp_path / f"slf{workers}"
+        build_slf(box_city, out, texel_m=1.0, texels=16, grid=5, oversample=2, clusters=16, workers=workers,
+                  progress=False)
+        outs.append({p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()})
+    assert len(outs[0]) > 10 and outs[0] == outs[1]
 
 
 def test_tileset_round_trip(box_city: Path, tmp_path: Path) -> None:

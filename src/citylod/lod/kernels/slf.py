@@ -162,7 +162,7 @@ def _edge(ax, ay, bx, by, px, py):  # twice the signed area of (a, b, p)
     return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def rasterise(q: F64, z: F64, uv: F64, tex: I64, rgb: npt.NDArray[np.uint8], textures: npt.NDArray[np.uint8],
               zbuf: F64, col: npt.NDArray[np.uint8]) -> int:
     """Draw triangles into ``col`` (H, W, 3) keeping the highest (``zbuf`` (H, W), start it at the ground).
