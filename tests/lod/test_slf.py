@@ -27,6 +27,7 @@ from citylod.lod.build.slf import (
     write_group,
 )
 from citylod.lod.kernels.slf import (
+    box_average,
     depth_corrected_blend,
     depth_corrected_colours,
     direction_set,
@@ -226,6 +227,18 @@ def test_compiled_march_and_blend_match_the_array_formulation() -> None:
         assert fused.dtype == np.uint8
         assert np.array_equal(fused, np.clip(np.rint(blended), 0, 255).astype(np.uint8)), (az, el)
     assert not march_heights(np.zeros((t, t)), 1.0, np.array([0.0, 0.0, 1.0])).any()
+
+
+def test_box_average_is_numpys_area_mean() -> None:
+    """The compiled area average of the atlases against numpy's mean, halves rounded to even included (blocks
+    of two texels 0/1 and 1/2 average to 0.5 and 1.5)."""
+    rng = np.random.default_rng(3)
+    for h, w, side in ((512, 256, 64), (64, 64, 64), (96, 192, 32), (2, 4, 1)):
+        img = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+        want = img.reshape(side, h // side, side, w // side, 3).mean(axis=(1, 3)).round().astype(np.uint8)
+        assert np.array_equal(box_average(img, side), want), (h, w, side)
+    ties = np.array([[[0, 1, 2], [1, 2, 3]]], np.uint8).reshape(1, 2, 3)  # one row, two texels
+    assert box_average(ties, 1).tolist() == [[[0, 2, 2]]]  # 0.5 → 0, 1.5 → 2, 2.5 → 2
 
 
 def test_compression_error_is_bounded_on_low_rank_clusters() -> None:

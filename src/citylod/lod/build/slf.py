@@ -60,7 +60,14 @@ from citylod.core.errors import InputError
 from citylod.core.fileio import publish_dir
 from citylod.io.image import decode_image, encode_image, resize_image
 from citylod.io.tiles3d import MeshData, TileContent, TileSpec, open_tileset, write_content, write_tileset
-from citylod.lod.kernels.slf import DirectionSet, direction_patches, direction_set, interpolation, rasterise
+from citylod.lod.kernels.slf import (
+    DirectionSet,
+    box_average,
+    direction_patches,
+    direction_set,
+    interpolation,
+    rasterise,
+)
 
 __all__ = ["Cpca", "SlfReport", "bake_cell", "bake_heights", "build_slf", "city_triangles", "compress", "parallax_factor",
            "read_cell", "read_cell_arrays", "read_group", "read_heights",
@@ -157,7 +164,7 @@ def _box_resize(img: U8, side: int) -> U8:
     """Area average to ``side``² when the image is a multiple of it, else OpenImageIO's resize."""
     h, w = img.shape[:2]
     if h % side == 0 and w % side == 0:
-        return img.reshape(side, h // side, side, w // side, 3).mean(axis=(1, 3)).round().astype(np.uint8)
+        return box_average(np.ascontiguousarray(img), side)
     return resize_image(img, side, side)
 
 

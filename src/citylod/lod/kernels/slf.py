@@ -44,7 +44,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["DirectionSet", "depth_corrected_blend", "depth_corrected_colours", "direction_patches", "direction_set", "evaluate", "evaluate_parallax", "interpolation", "march_heights",
+__all__ = ["DirectionSet", "box_average", "depth_corrected_blend", "depth_corrected_colours", "direction_patches", "direction_set", "evaluate", "evaluate_parallax", "interpolation", "march_heights",
            "parabolic", "patch_of", "rasterise"]
 
 F64 = npt.NDArray[np.float64]
@@ -217,6 +217,29 @@ def rasterise(q: F64, z: F64, uv: F64, tex: I64, rgb: npt.NDArray[np.uint8], tex
                     col[i, j, 1] = textures[k, tv, tu, 1]
                     col[i, j, 2] = textures[k, tv, tu, 2]
     return written
+
+
+@numba.njit(cache=True, nogil=True)
+def box_average(img: npt.NDArray[np.uint8], side: int) -> npt.NDArray[np.uint8]:  # pragma: no cover - compiled
+    """The area average of ``img`` (H, W, C) uint8 to ``side`` × ``side`` when H and W are multiples of it,
+    rounded half to even: the same bytes as numpy's ``reshape(...).mean(axis=(1, 3)).round()``, whose
+    reduction over two strided axes took 12 ms for a city tile's atlas (compiled: one pass of integer sums)."""
+    h, w, ch = img.shape
+    bh, bw = h // side, w // side
+    acc = np.zeros((side, side, ch), np.uint64)
+    for r in range(h):
+        rr = r // bh
+        for c in range(w):
+            cc = c // bw
+            for k in range(ch):
+                acc[rr, cc, k] += img[r, c, k]
+    out = np.empty((side, side, ch), np.uint8)
+    n = float(bh * bw)
+    for rr in range(side):
+        for cc in range(side):
+            for k in range(ch):
+                out[rr, cc, k] = np.uint8(np.rint(acc[rr, cc, k] / n))
+    return out
 
 
 def evaluate(cluster: npt.NDArray[np.uint8], weights: F64, mean: F64, basis: F64, idx: I64,
