@@ -846,10 +846,10 @@ class GeometryView:
     plane (a flat quad in the ground colour over the field's extent), for comparison with :class:`SlfView`."""
 
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
-                 city_dir: str | Path | None = None, cache_bytes: int = 2 << 30) -> None:
+                 city_dir: str | Path | None = None) -> None:
         ts, meta = open_slf(slf_dir)
         city = Path(city_dir) if city_dir is not None else Path(ts.folder) / meta["city"]
-        self.r = OffscreenRenderer([city], size=size, tau_px=tau_px, cache_bytes=cache_bytes)
+        self.r = OffscreenRenderer([city], size=size, tau_px=tau_px)
         lo, hi = ts.root.box.bounds()
         origin = self.r.scene.origin
         assert origin is not None
