@@ -30,6 +30,7 @@ import statistics
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -67,47 +68,40 @@ def run(frames: int = 60, fraction: float = 0.5, target_ms: float | None = None,
         old: list[float] = []
         budgets: list[int] = []
         steered_again: list[float] = []
-        if interleaved:
-            with OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as base, \
-                    OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as r, \
-                    OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as r_old:
-                mode = FrameBudget(r.scene, target)
-                mode_old = FrameBudget(r_old.scene, target, controller="median")
+        with OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as base, \
+                OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as r, \
+                OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as r_old:
+            mode = FrameBudget(r.scene, target)
+            mode_old = FrameBudget(r_old.scene, target, controller="median")
+
+            def fixed_frame(cam: Any) -> None:
+                fixed_pts.append(base.prepare(cam).points)
+                fixed.append(base.draw() * 1000.0)
+                again.append(base.draw() * 1000.0)  # the same frame once more: the machine's noise alone
+
+            def budget_frame(cam: Any) -> None:
+                pts.append(r.prepare(cam).points)
+                budgets.append(int(r.scene.layers[0].budget.max_points))
+                steered.append(r.draw() * 1000.0)  # measured as the baseline's, not by the mode itself
+                mode.active = False  # the same budget-mode frame again, not fed to the controller: the
+                steered_again.append(r.draw() * 1000.0)  # noise at the target's frame time
+                mode.active = True
+
+            def old_frame(cam: Any) -> None:
+                old_pts.append(r_old.prepare(cam).points)
+                old.append(r_old.draw() * 1000.0)
+
+            steps = (fixed_frame, budget_frame, old_frame)
+            if interleaved:
                 for cam in cams:
-                    fixed_pts.append(base.prepare(cam).points)
-                    fixed.append(base.draw() * 1000.0)
-                    again.append(base.draw() * 1000.0)  # the same frame once more: the machine's noise alone
-                    pts.append(r.prepare(cam).points)
-                    budgets.append(int(r.scene.layers[0].budget.max_points))
-                    steered.append(r.draw() * 1000.0)  # measured as the baseline's, not by the mode itself
-                    mode.active = False  # the same budget-mode frame again, not fed to the controller: the
-                    steered_again.append(r.draw() * 1000.0)  # noise at the target's frame time
-                    mode.active = True
-                    old_pts.append(r_old.prepare(cam).points)
-                    old.append(r_old.draw() * 1000.0)
-                assert len(mode.frame_ms) == len(steered) == len(mode_old.frame_ms)
-                predicted = list(mode.predicted_ms)
-        else:  # each renderer flies the whole flight alone, as in a user's one window
-            with OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as base:
-                for cam in cams:
-                    fixed_pts.append(base.prepare(cam).points)
-                    fixed.append(base.draw() * 1000.0)
-                    again.append(base.draw() * 1000.0)
-            with OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as r:
-                mode = FrameBudget(r.scene, target)
-                for cam in cams:
-                    pts.append(r.prepare(cam).points)
-                    budgets.append(int(r.scene.layers[0].budget.max_points))
-                    steered.append(r.draw() * 1000.0)
-                    mode.active = False
-                    steered_again.append(r.draw() * 1000.0)
-                    mode.active = True
-                predicted = list(mode.predicted_ms)
-            with OffscreenRenderer([tiles], size=(960, 540), tau_px=0.5) as r_old:
-                FrameBudget(r_old.scene, target, controller="median")
-                for cam in cams:
-                    old_pts.append(r_old.prepare(cam).points)
-                    old.append(r_old.draw() * 1000.0)
+                    for step in steps:
+                        step(cam)
+            else:  # each renderer flies the whole flight alone, as in a user's one window
+                for step in steps:
+                    for cam in cams:
+                        step(cam)
+            assert len(mode.frame_ms) == len(steered) == len(mode_old.frame_ms)
+            predicted = list(mode.predicted_ms)
     load.append(os.getloadavg()[0])
 
     def share(ts: list[float], t: float, skip: int = 0) -> float:

@@ -290,6 +290,7 @@ class SlfView:
         self._building_actors: dict[tuple[str, str], list[Any]] = {}  # (city tile, cell) -> actors
         self._used: dict[str, list[Tile]] = {}
         self._file_bytes: dict[str, int] = {}
+        self._textures: dict[int, Any] = {}  # id of a city mesh -> its atlas's texture, shared by cells
         self._ground_rgb_u8 = np.full((2, 2, 3), np.rint(self.ground_rgb), np.uint8)
         self._leaf_cache: dict[str, list[tuple[Any, F64, F64]]] = {}
         self._faces: dict[tuple[str, str], list[tuple[int, npt.NDArray[np.int64]]]] = {}
@@ -531,10 +532,9 @@ class SlfView:
             uv = mesh.uv[used]
             tc = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]).astype(np.float32)  # VTK: origin bottom left
             data.GetPointData().SetTCoords(_vtk.numpy_to_vtk(tc, deep=True))
-            textures = self.__dict__.setdefault("_textures", {})  # one texture per atlas, shared by cells
-            tex = textures.get(id(mesh))
+            tex = self._textures.get(id(mesh))  # one texture per atlas, shared by cells
             if tex is None:
-                tex = textures[id(mesh)] = _vtk.vtkTexture()
+                tex = self._textures[id(mesh)] = _vtk.vtkTexture()
                 tex.InterpolateOn()
                 tex.MipmapOn()
                 tex.EdgeClampOn()
@@ -621,7 +621,7 @@ class SlfView:
                         full.setdefault(t.key, (t, set()))[1].add(key)
                 building_s += time.perf_counter() - tb
             if (self.embedded and frame.eval_s + frame.load_s > self.eval_slice_s
-                    and self._stale(cell, eye, alpha)):
+                    and self._stale(cell, self._direction(cell, eye), alpha)):
                 # Fields are read and evaluated a bounded time a frame in an application's view: a cell not
                 # reached keeps the direction it was evaluated for, or shows the bare ground until its first
                 # evaluation, and the next frames go on.
@@ -684,7 +684,6 @@ class SlfView:
             for actors in [*self._building_actors.values(), *(m[1] for m in self._merged.values())]:
                 for a in actors:
                     a.VisibilityOff()
-        if not on:
             self._ground.VisibilityOff()
 
     def _bytes_drawn(self, show: dict[str, float]) -> tuple[int, int]:
@@ -715,12 +714,12 @@ class SlfView:
         """The cell was last evaluated within ``reeval`` of direction ``v``."""
         return cell.last_dir is not None and float(v @ cell.last_dir) > math.cos(self.reeval)
 
-    def _stale(self, cell: _Cell, eye: F64, alpha: float) -> bool:
-        """Whether :meth:`_update_texture` would evaluate the cell's field or recolour it."""
+    def _stale(self, cell: _Cell, v: F64, alpha: float) -> bool:
+        """Whether :meth:`_update_texture` would evaluate the cell's field for view direction ``v`` or
+        recolour it."""
         if alpha >= 1.0:
             return False
-        return (cell.colours is None or abs(alpha - cell.last_alpha) >= 1e-3
-                or not self._same_dir(cell, self._direction(cell, eye)))
+        return cell.colours is None or abs(alpha - cell.last_alpha) >= 1e-3 or not self._same_dir(cell, v)
 
     def _update_texture(self, cell: _Cell, eye: F64, alpha: float) -> tuple[bool, float]:
         """Bring the cell's texture to the view from ``eye`` and fade ``alpha``: (whether it was evaluated
@@ -731,7 +730,7 @@ class SlfView:
         if aniso != cell.anisotropy:
             cell.tex.SetMaximumAnisotropicFiltering(aniso)
             cell.anisotropy = aniso
-        if not self._stale(cell, eye, alpha):
+        if not self._stale(cell, v, alpha):
             return False, 0.0
         load_s = 0.0
         if not self._same_dir(cell, v) or cell.colours is None:

@@ -50,9 +50,6 @@ __all__ = ["DirectionSet", "box_average", "depth_corrected_blend", "depth_correc
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
-#: Run the per-cell lookup's texel rows on numba's threads.
-_PARALLEL = True
-
 
 class DirectionSet:
     """The stored directions: ``dirs`` (N, 3) unit vectors (towards the viewer), ``grid`` the lattice side,
@@ -329,6 +326,16 @@ def _march(top, smax, ax, ay):  # pragma: no cover - compiled
     return h
 
 
+def _view_shifts(v: npt.ArrayLike, dirs: F64, idx: I64, texel_m: float) -> tuple[F64, F64]:
+    """The unit view direction and, for each blended stored direction ``dirs[idx]``, the parallax between it
+    and the view per metre of height, in texels (x, y): where a point that high lies in that direction's
+    image relative to where the view sees it."""
+    vv = np.asarray(v, np.float64)
+    vv = vv / np.linalg.norm(vv)
+    a = vv[:2] / max(float(vv[2]), 1e-6)
+    return vv, np.array([(a - dirs[j, :2] / max(float(dirs[j, 2]), 1e-6)) / texel_m for j in idx], np.float64)
+
+
 def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDArray[np.floating],
                           texel_m: float, v: npt.ArrayLike, tolerance_m: float = 1.0,
                           seen_heights: list[npt.NDArray[np.floating]] | None = None) -> F64:
@@ -342,14 +349,11 @@ def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDA
     weights stay. ``seen_heights``: the ray marches of the stored directions (``march_heights(top, texel_m,
     dirs[j])`` for each of ``idx``), when the caller keeps them between views. Evaluated at run time for every
     cell drawn whose direction moved, hence compiled (:func:`_blend`)."""
-    vv = np.asarray(v, np.float64)
-    vv = vv / np.linalg.norm(vv)
+    vv, shifts = _view_shifts(v, dirs, idx, texel_m)
     h = march_heights(top, texel_m, vv)
-    a = vv[:2] / max(vv[2], 1e-6)
     w = np.asarray(w, np.float64)
     if seen_heights is None:
         seen_heights = [march_heights(top, texel_m, dirs[j]) for j in idx]
-    shifts = np.array([(a - dirs[j, :2] / max(dirs[j, 2], 1e-6)) / texel_m for j in idx], np.float64)
     return _blend(np.ascontiguousarray(images), shifts, w, np.ascontiguousarray(np.stack(seen_heights)), h,
                   float(tolerance_m))
 
@@ -432,16 +436,14 @@ def depth_corrected_colours(images: npt.NDArray[np.float32], seen: npt.NDArray[n
     directions, ``top`` (T, T) float64 building tops. The view's ray march and the blend run per texel row
     on numba's threads; the result equals ``rint(depth_corrected_blend(images[loc], …))`` clipped to 0–255
     (same arithmetic, per texel)."""
-    vv = np.asarray(v, np.float64)
-    vv = vv / np.linalg.norm(vv)
+    vv, shifts = _view_shifts(v, dirs, loc, texel_m)
     a = vv[:2] / max(vv[2], 1e-6)
     hmax = float(top.max()) if top.size else 0.0
-    shifts = np.array([(a - dirs[j, :2] / max(dirs[j, 2], 1e-6)) / texel_m for j in loc], np.float64)
     return _lookup(images, seen, np.asarray(loc, np.int64), np.asarray(w, np.float64), shifts, top, max(hmax, 0.0),
                    a[0] / texel_m, a[1] / texel_m, float(tolerance_m))
 
 
-@numba.njit(cache=True, nogil=True, parallel=_PARALLEL)
+@numba.njit(cache=True, nogil=True, parallel=True)  # texel rows on numba's threads
 def _lookup(images, seen, loc, w, shifts, top, smax, ax, ay, tol):  # pragma: no cover - compiled
     """:func:`_march` and :func:`_blend` fused per texel (no intermediate arrays), rounded to bytes."""
     t = top.shape[0]
