@@ -134,12 +134,17 @@ def test_buildings_grow_out_of_the_field_without_popping(box_slf: Path) -> None:
 def test_cli_build_slf(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     city = write_box_city(tmp_path / "city")
     assert main(["-q", "build", "slf", str(city), "-o", str(tmp_path / "f"), "--texels", "32", "--texel-m", "2",
-                 "--directions", "5", "--clusters", "16"]) == 0
+                 "--directions", "5", "--clusters", "16", "--workers", "2"]) == 0
     assert "cells" in capsys.readouterr().out
     assert main(["-q", "build", "slf", str(tmp_path / "nothing"), "-o", str(tmp_path / "g")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("citylod: error:") and len(err.strip().splitlines()) == 1
     assert main(["-q", "build", "slf", str(city), "-o", str(tmp_path / "g"), "--texels", "50"]) == 2
+    assert not (tmp_path / "g").exists()
+    capsys.readouterr()
+    assert main(["-q", "build", "slf", str(city), "-o", str(tmp_path / "g"), "--workers", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--workers" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "g").exists()
 
 

@@ -92,6 +92,7 @@ def add_slf_parser(bsub: argparse._SubParsersAction) -> None:
     f.add_argument("--oversample", type=int, default=3, help="samples per texel side (default 3)")
     f.add_argument("--clusters", type=int, default=256, help="clusters per group of four cells (≤ 256)")
     f.add_argument("--components", type=int, default=3, help="eigen-lumispheres per cluster (default 3)")
+    f.add_argument("--workers", type=int, help="threads that bake and compress (default: one per CPU)")
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:
@@ -100,7 +101,7 @@ def run(args: argparse.Namespace, progress: bool) -> int:
 
         print(build_slf(args.city_tiles, args.output, texel_m=args.texel_m, texels=args.texels, grid=args.directions,
                         oversample=args.oversample, clusters=args.clusters, components=args.components,
-                        progress=progress).summary())
+                        workers=args.workers, progress=progress).summary())
         return 0
     if args.kind == "dsm":
         from citylod.lod.build.dsm import build_dsm

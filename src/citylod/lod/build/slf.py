@@ -552,6 +552,8 @@ def build_slf(city_dir: str | PathLike[str], out_dir: str | PathLike[str], *, te
         raise InputError(f"--texels must be a power of two in 8..1024, got {texels}", city_dir)
     if group < 1 or group & (group - 1):
         raise InputError(f"group must be a power of two, got {group}", city_dir)
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers must be at least 1, got {workers}", city_dir)
     if not texel_m > 0 or oversample < 1 or not 1 <= clusters <= 256 or not 1 <= components <= 8:
         raise InputError("texel size must be > 0, oversample ≥ 1, clusters 1..256, components 1..8", city_dir)
     ds = direction_set(grid, min_elevation_deg)
@@ -584,7 +586,7 @@ def build_slf(city_dir: str | PathLike[str], out_dir: str | PathLike[str], *, te
     # The cells of a group bake on threads (the rasteriser releases the GIL), and its direction patches are
     # compressed on them: each piece on its own, in the same order, so the output does not depend on
     # ``workers``.
-    pool = ThreadPoolExecutor(max(1, workers if workers is not None else (os.cpu_count() or 1)))
+    pool = ThreadPoolExecutor(workers if workers is not None else (os.cpu_count() or 1))
     try:
         jobs = [(lv, gi, gj) for lv in range(levels) for gi in range(max(1, 2 ** lv // group))
                 for gj in range(max(1, 2 ** lv // group))]
