@@ -50,6 +50,7 @@ from citylod.lod.kernels.slf import (
 )
 from citylod.render import _vtk
 from citylod.render.gl_context import guard
+from citylod.render.gl_texture import TextureWriter
 from citylod.render.offscreen import OffscreenRenderer, frame_path, save_png
 from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk, view_from_renderer
 
@@ -137,15 +138,20 @@ def _texture_actor(size_m: float, centre: F64, origin: F64, z: float) -> tuple[A
     return actor, tex, data
 
 
-def _set_image(tex: Any, rgb: U8) -> None:
+def _set_image(tex: Any, rgb: U8, writer: TextureWriter | None = None, renderer: Any = None) -> None:
     """Texture from an image whose row 0 is the north (top) edge; VTK's row 0 is the bottom. An image of the
-    texture's current size is written into its pixels in place (a cell's field changes every few frames)."""
+    texture's current size is written into its pixels in place (a cell's field changes every few frames). With
+    ``writer`` (and ``renderer``'s GL context current), the texture and its mip chain are written into GL
+    directly (:mod:`citylod.render.gl_texture`: llvmpipe's own mip generation costs 0.35–0.55 ms a texture);
+    otherwise, or where that cannot be done, VTK uploads the image at its next render."""
     h, w, _ = rgb.shape
     img = tex.GetInput()
     scalars = img.GetPointData().GetScalars() if img is not None else None
     if (scalars is not None and tuple(img.GetDimensions()) == (w, h, 1) and scalars.GetNumberOfComponents() == 3
             and scalars.GetDataType() == _vtk.VTK_UNSIGNED_CHAR):
         _vtk.vtk_to_numpy(scalars).reshape(h, w, 3)[:] = rgb[::-1]
+        if writer is not None and writer.write(tex, rgb, renderer):
+            return
         scalars.Modified()
         img.Modified()
     else:
@@ -154,6 +160,8 @@ def _set_image(tex: Any, rgb: U8) -> None:
         img.GetPointData().SetScalars(_vtk.numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, 3), deep=True,
                                                         array_type=_vtk.VTK_UNSIGNED_CHAR))
         tex.SetInputData(img)
+        if writer is not None and writer.write(tex, rgb, renderer):
+            return
     tex.Modified()
 
 
@@ -306,6 +314,13 @@ class SlfView:
         self._ground.VisibilityOff()
         self._ground_cells: frozenset[str] = frozenset()
         self.renderer.AddActor(self._ground)
+        # Field textures are written into GL with their mip chain while the window's context is current
+        # (``_writing``: inside its render when embedded, inside the context guard in :meth:`prepare`).
+        self._writer = TextureWriter()
+        self._writing = False
+        if self.window is not None:  # the context exists from here on, so that prepare can write into it
+            with self.gl:
+                self.window.Render()
         self._loads: dict[str, Future[list[tuple[Any, F64, F64]]]] = {}
         self._pool: ThreadPoolExecutor | None = None
         self._built_all = True
@@ -558,6 +573,24 @@ class SlfView:
         """Choose, evaluate and show this camera's cells (no drawing). Embedded (``renderer`` given), the
         renderer's own camera is not moved."""
         if self.embedded:
+            return self._prepare(camera)
+        with self.gl, self._gl_writes():
+            return self._prepare(camera)
+
+    @contextlib.contextmanager
+    def _gl_writes(self) -> Any:
+        """Textures may be written into GL in this block (the window's context is current)."""
+        was, self._writing = self._writing, True
+        try:
+            yield
+        finally:
+            self._writing = was
+
+    def _set(self, tex: Any, rgb: U8) -> None:
+        _set_image(tex, rgb, self._writer if self._writing else None, self.renderer)
+
+    def _prepare(self, camera: Camera) -> SlfFrame:
+        if self.embedded:
             w, h = self.renderer.GetSize()
             self.size = (max(int(w), 1), max(int(h), 1))
         view = View(camera, *self.size)
@@ -626,7 +659,7 @@ class SlfView:
                 # reached keeps the direction it was evaluated for, or shows the bare ground until its first
                 # evaluation, and the next frames go on.
                 if cell.colours is None and cell.last_alpha != 1.0:
-                    _set_image(cell.tex, self._ground_rgb_u8)
+                    self._set(cell.tex, self._ground_rgb_u8)
                     cell.last_alpha = 1.0
                 self._built_all = False
                 frame.loading += 1
@@ -667,8 +700,9 @@ class SlfView:
             self._observer = self.renderer.AddObserver(_vtk.vtkCommand.StartEvent, self._on_start)
 
     def _on_start(self, _obj: Any, _event: str) -> None:
-        if self._visible:
-            self.prepare(view_from_renderer(self.renderer, self.origin).camera)
+        if self._visible:  # inside the application window's render: its context is current
+            with self._gl_writes():
+                self.prepare(view_from_renderer(self.renderer, self.origin).camera)
 
     @property
     def visible(self) -> bool:
@@ -765,7 +799,7 @@ class SlfView:
         rgb = cell.colours
         if alpha > 0.0:
             rgb = np.rint((1 - alpha) * rgb + alpha * self.ground_rgb).astype(np.uint8)
-        _set_image(cell.tex, rgb)
+        self._set(cell.tex, rgb)
         cell.last_alpha = alpha
         return True, load_s
 
@@ -787,6 +821,10 @@ class SlfView:
 
     def field_mask(self) -> npt.NDArray[np.bool_]:
         """Pixels of the last prepared frame covered by a cell drawn with its field (a second, flat render)."""
+        with self.gl, self._gl_writes():
+            return self._field_mask()
+
+    def _field_mask(self) -> npt.NDArray[np.bool_]:
         saved = []
         for cell in self.cells.values():
             saved.append((cell, cell.actor.GetVisibility(), cell.last_alpha))
@@ -800,7 +838,7 @@ class SlfView:
         white = np.full((2, 2, 3), 255, np.uint8)
         for cell, vis, alpha in saved:
             if vis and alpha < 1.0:
-                _set_image(cell.tex, white)
+                self._set(cell.tex, white)
             else:
                 cell.actor.VisibilityOff()
         self.draw()
@@ -813,7 +851,7 @@ class SlfView:
             if vis and alpha < 1.0 and cell.colours is not None:
                 rgb = cell.colours if alpha <= 0 else np.rint((1 - alpha) * cell.colours + alpha * self.ground_rgb
                                                               ).astype(np.uint8)
-                _set_image(cell.tex, rgb)
+                self._set(cell.tex, rgb)
         return mask
 
     def close(self) -> None:
