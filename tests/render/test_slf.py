@@ -15,7 +15,8 @@ import pytest
 from citylod.cli import main
 from citylod.core.camera import Camera
 from citylod.lod.build.slf import GROUND_RGB, build_slf
-from citylod.render.gl_texture import TextureWriter, mip_chain
+from citylod.lod.kernels.slf import mip_levels
+from citylod.render.gl_texture import TextureWriter
 from citylod.render.slf import GeometryView, SlfView
 from tests.lod.slf_scene import BOX, X0, Y0, Z0, write_box_city
 
@@ -86,16 +87,23 @@ def test_a_view_that_moved_draws_what_a_fresh_view_draws(box_slf: Path) -> None:
     assert not np.array_equal(first, fresh)
 
 
-def test_mip_chain_levels_are_the_rounded_means_of_the_level_above() -> None:
+def test_mip_levels_are_the_rounded_means_of_the_level_above() -> None:
+    """The packed chain GL is given: level 0 the image bottom row first, each level the mean of 2 × 2 texels
+    of the one above rounded half up (numpy, independently), alpha 255."""
     img = np.random.default_rng(3).integers(0, 256, (16, 16, 3), dtype=np.uint8)
-    chain = mip_chain(img)
-    assert [lv.shape for lv in chain] == [(16 >> k, 16 >> k, 4) for k in range(5)]
-    assert np.array_equal(chain[0][..., :3], img)
+    packed = mip_levels(img)
+    chain, off = [], 0
+    for k in range(5):
+        n = 16 >> k
+        chain.append(packed[off:off + n * n * 4].reshape(n, n, 4))
+        off += n * n * 4
+    assert off == packed.size
+    assert np.array_equal(chain[0][..., :3], img[::-1])
     for above, lv in itertools.pairwise(chain):
         n = lv.shape[0]
         mean = above.astype(np.float64).reshape(n, 2, n, 2, 4).mean(axis=(1, 3))
         assert np.array_equal(lv, np.floor(mean + 0.5).astype(np.uint8))
-    assert (chain[-1][..., 3] == 255).all()
+    assert (packed[3::4] == 255).all()
 
 
 def test_field_textures_are_written_into_gl_as_vtk_would_draw_them(box_slf: Path,

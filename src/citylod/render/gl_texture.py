@@ -5,8 +5,8 @@ moved, every frame of a moving view. Through VTK (``vtkTexture.Modified()``) eac
 ``glTexImage2D`` and a ``glGenerateMipmap``, and on Mesa's llvmpipe the mip generation is a blit per level,
 each a pass of the rasteriser: 0.35–0.55 ms a texture, 8–14 ms for the 25 cells of the whole-city view,
 against 0.01 ms for the upload itself (docs/PERFORMANCE_LOG.md). The chain of a 64² image costs microseconds
-on the CPU, so :class:`TextureWriter` averages it here (2 × 2 boxes, as ``glGenerateMipmap`` of a
-power-of-two texture does) and writes every level into the existing texture with ``glTexSubImage2D``.
+on the CPU, so :class:`TextureWriter` averages it there (2 × 2 boxes, as ``glGenerateMipmap`` of a
+power-of-two texture does; :func:`citylod.lod.kernels.slf.mip_levels`) and writes every level into the existing texture with ``glTexSubImage2D``.
 
 How it stays in step with VTK: a texture is first loaded by VTK (``vtkOpenGLTexture.Load``: allocation, its
 own mip chain, sampler state), and again whenever VTK would reload it (the texture or its image changed
@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["TextureWriter", "mip_chain"]
+from citylod.lod.kernels.slf import mip_levels
+
+__all__ = ["TextureWriter"]
 
 U8 = npt.NDArray[np.uint8]
 
@@ -60,22 +62,6 @@ def _gl() -> Any:
                                             ctypes.c_int, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p]
         _LIB.append(lib)
     return _LIB[0]
-
-
-def mip_chain(rgb: U8) -> list[U8]:
-    """Levels 0 … log2(n) of a square power-of-two image (n, n, 3), as RGBA (alpha 255): each level the mean
-    of 2 × 2 texels of the one above, rounded to nearest (a texture's rows then need no unpack alignment)."""
-    n = rgb.shape[0]
-    level = np.empty((n, n, 4), np.uint8)
-    level[..., :3] = rgb
-    level[..., 3] = 255
-    out = [level]
-    acc = level.astype(np.uint16)
-    while n > 1:
-        n //= 2
-        acc = (acc[0::2, 0::2] + acc[1::2, 0::2] + acc[0::2, 1::2] + acc[1::2, 1::2] + 2) // 4
-        out.append(acc.astype(np.uint8))
-    return out
 
 
 def _int(gl: Any, name: int) -> int:
@@ -127,14 +113,16 @@ class TextureWriter:
                 or _int(gl, _GL_UNPACK_SKIP_ROWS) or _int(gl, _GL_UNPACK_SKIP_PIXELS)):
             self._loaded.pop(key, None)
             return False
-        levels = mip_chain(np.ascontiguousarray(rgb[::-1]))  # GL's row 0 is the bottom
+        levels = mip_levels(np.ascontiguousarray(rgb))  # packed, GL's row order
         while gl.glGetError():  # errors left by others are not this write's
             pass
         to.Activate()
         try:
-            for k, lv in enumerate(levels):
-                gl.glTexSubImage2D(_GL_TEXTURE_2D, k, 0, 0, lv.shape[1], lv.shape[0], _GL_RGBA, _GL_UNSIGNED_BYTE,
-                                   lv.ctypes.data)
+            k, m, ptr = 0, n, levels.ctypes.data
+            while m >= 1:
+                gl.glTexSubImage2D(_GL_TEXTURE_2D, k, 0, 0, m, m, _GL_RGBA, _GL_UNSIGNED_BYTE, ptr)
+                ptr += m * m * 4
+                k, m = k + 1, m // 2
         finally:
             to.Deactivate()
         if gl.glGetError():

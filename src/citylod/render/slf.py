@@ -577,6 +577,12 @@ class SlfView:
         with self.gl, self._gl_writes():
             return self._prepare(camera)
 
+    def invalidate(self) -> None:
+        """Forget the view directions the fields were evaluated for: the next :meth:`prepare` evaluates every
+        cell it shows (as a view arriving from elsewhere does), with nothing left to load."""
+        for cell in self.cells.values():
+            cell.last_dir = None
+
     @contextlib.contextmanager
     def _gl_writes(self) -> Any:
         """Textures may be written into GL in this block (the window's context is current)."""
@@ -773,6 +779,10 @@ class SlfView:
             sel = self.patches[patch]
             t_load = time.perf_counter()
             cl, q, top, mean, basis, *files = self._field(cell, patch)
+            img = cell.tex.GetInput()
+            n = cl.shape[0]
+            if img is None or tuple(img.GetDimensions())[:2] != (n, n):  # GL texture of the field's size
+                self._set(cell.tex, np.zeros((n, n, 3), np.uint8))  # made once, with the loading
             load_s += time.perf_counter() - t_load
             loc = np.searchsorted(sel, idx)  # the blended directions' rows in the patch's lumispheres
             if top is not None and self.depth_correct:

@@ -239,6 +239,42 @@ def box_average(img: npt.NDArray[np.uint8], side: int) -> npt.NDArray[np.uint8]:
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def mip_levels(rgb: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:  # pragma: no cover - compiled
+    """The mip chain of a square power-of-two image ``rgb`` (n, n, 3), row 0 the top, packed as GL takes it:
+    levels n², (n/2)², … 1² one after the other, each RGBA (alpha 255) with row 0 the bottom; each level the
+    mean of 2 × 2 texels of the one above, rounded half up (what ``glGenerateMipmap`` of such a texture
+    computes, to its rounding). Compiled: numpy's version took 0.1 ms a 64² field texture, every frame of a
+    moving view for every cell."""
+    n = rgb.shape[0]
+    total, m = 0, n
+    while m >= 1:
+        total += m * m
+        m //= 2
+    out = np.empty(total * 4, np.uint8)
+    for r in range(n):
+        for c in range(n):
+            o = ((n - 1 - r) * n + c) * 4
+            out[o] = rgb[r, c, 0]
+            out[o + 1] = rgb[r, c, 1]
+            out[o + 2] = rgb[r, c, 2]
+            out[o + 3] = 255
+    above, off, m = 0, n * n * 4, n
+    while m > 1:
+        h = m // 2
+        for r in range(h):
+            for c in range(h):
+                a = above + (2 * r * m + 2 * c) * 4
+                b = a + m * 4
+                o = off + (r * h + c) * 4
+                for k in range(3):
+                    s = np.int32(out[a + k]) + out[a + 4 + k] + out[b + k] + out[b + 4 + k]
+                    out[o + k] = (s + 2) // 4
+                out[o + 3] = 255
+        above, off, m = off, off + h * h * 4, h
+    return out
+
+
 def evaluate(cluster: npt.NDArray[np.uint8], weights: F64, mean: F64, basis: F64, idx: I64,
              w: F64) -> npt.NDArray[np.uint8]:
     """Colours (…, 3) uint8 of texels with ``cluster`` (…) ids and ``weights`` (…, K) for the view blended
