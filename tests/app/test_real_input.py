@@ -701,7 +701,7 @@ def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, wi
     _wait_resolved(qtbot, window)
     assert np.linalg.norm(np.subtract(view.camera().position, cam_before.position)) > 100.0  # it orbited
     assert math.degrees(math.acos(min(1.0, float(before @ cell.last_dir)))) > 5.0  # evaluated again
-    assert far._writer.writes >= 1  # written into the window's GL context directly, with its mip chain
+    assert cell.gpu_patch is not None  # evaluated per pixel by the cell's shader in the window's context
     err, pixels = compare()
     assert pixels > 300 and err < 2.0, (err, pixels)
     window._update_status()

@@ -18,6 +18,7 @@ from citylod.lod.build.slf import GROUND_RGB, build_slf
 from citylod.lod.kernels.slf import mip_levels
 from citylod.render.gl_texture import TextureWriter
 from citylod.render.slf import GeometryView, SlfView
+from citylod.render.slf_gpu import encode_heights
 from tests.lod.slf_scene import BOX, X0, Y0, Z0, write_box_city
 
 SIZE = (320, 240)
@@ -67,11 +68,13 @@ def test_field_image_matches_the_geometry(box_slf: Path, az: float, el: float) -
     assert (box_ref & box_img).sum() >= 0.4 * box_ref.sum()  # and in the same place
 
 
-def test_a_view_that_moved_draws_what_a_fresh_view_draws(box_slf: Path) -> None:
-    """Fields re-evaluated as the camera moves update their textures in place: after three views, the fourth
-    is drawn exactly as by a view that opens on it, and differs from the first (the field did change)."""
+@pytest.mark.parametrize("lookup", ["gpu", "cpu"])
+def test_a_view_that_moved_draws_what_a_fresh_view_draws(box_slf: Path, lookup: str) -> None:
+    """Fields re-evaluated as the camera moves update their textures in place (CPU), or their shader's
+    uniforms (GPU): after three views, the fourth is drawn exactly as by a view that opens on it, and differs
+    from the first (the field did change)."""
     cams = [_camera(2000.0, az, 40.0) for az in (200.0, 230.0, 260.0, 290.0)]
-    with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv:
+    with SlfView(box_slf, size=SIZE, tau_px=8.0, lookup=lookup) as sv:
         for cam in cams:
             f = sv.prepare(cam)
             assert f.evaluations >= 1
@@ -79,7 +82,7 @@ def test_a_view_that_moved_draws_what_a_fresh_view_draws(box_slf: Path) -> None:
             if cam is cams[0]:
                 first = sv.grab_rgb()
         moved = sv.grab_rgb()
-    with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv:
+    with SlfView(box_slf, size=SIZE, tau_px=8.0, lookup=lookup) as sv:
         sv.prepare(cams[-1])
         sv.draw()
         fresh = sv.grab_rgb()
@@ -116,7 +119,7 @@ def test_field_textures_are_written_into_gl_as_vtk_would_draw_them(box_slf: Path
                                                  (3200.0, 230.0, 60.0), (2000.0, 245.0, 35.0))]
 
     def frames() -> tuple[list[np.ndarray], int]:
-        with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv:
+        with SlfView(box_slf, size=SIZE, tau_px=8.0, lookup="cpu") as sv:
             out = []
             for cam in cams:
                 assert sv.prepare(cam).evaluations >= 1
@@ -130,6 +133,39 @@ def test_field_textures_are_written_into_gl_as_vtk_would_draw_them(box_slf: Path
     assert writes >= len(cams) and none == 0
     for a, b in zip(direct, through_vtk, strict=True):
         assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
+
+
+@pytest.mark.parametrize(("dist", "az", "el", "tau"), [(400.0, 200.0, 40.0, 1e6), (400.0, 75.0, 30.0, 1e6),
+                                                      (2000.0, 200.0, 40.0, 8.0), (3000.0, 300.0, 25.0, 8.0)])
+def test_gpu_lookup_draws_what_the_cpu_lookup_draws(box_slf: Path, dist: float, az: float, el: float,
+                                                    tau: float) -> None:
+    """The fragment shader's lookup (per pixel) against the compiled kernel's (per texel, then a filtered
+    texture), magnified up close and minified far away: the two pictures agree over the field's pixels, and
+    the shader's is at least as close to the geometry (it evaluates each pixel's own point of the field)."""
+    cam = _camera(dist, az, el)
+    imgs = {}
+    for lookup in ("cpu", "gpu"):
+        with SlfView(box_slf, size=BIG, tau_px=tau, lookup=lookup) as sv:
+            f = sv.prepare(cam)
+            assert f.cells == 1 and f.geometry_cells == 0
+            sv.draw()
+            imgs[lookup], mask = sv.grab_rgb().astype(int), sv.field_mask()
+            assert (next(iter(sv.cells.values())).gpu_patch is not None) == (lookup == "gpu")
+    with GeometryView(box_slf, size=BIG) as gv:
+        gv.prepare(cam, full_resolution=True)
+        gv.draw()
+        ref = gv.grab_rgb().astype(int)
+    assert mask.sum() > 300
+    err = {k: float(np.abs(v - ref).mean(axis=2)[mask].mean()) for k, v in imgs.items()}
+    assert float(np.abs(imgs["gpu"] - imgs["cpu"]).mean(axis=2)[mask].mean()) <= 1.5
+    assert err["gpu"] <= err["cpu"] + 0.25, err
+
+
+def test_heights_travel_to_the_shader_as_bytes_within_a_millimetre() -> None:
+    h = np.array([[0.0, 0.0004, 1.0, 15.0], [123.4567, 999.999, 16383.99, -3.0]])
+    b = encode_heights(h).astype(np.float64)
+    decoded = (b[..., 0] * 65536 + b[..., 1] * 256 + b[..., 2]) / 1024.0  # what the shader's slfHeight does
+    assert np.abs(decoded - np.clip(h, 0, None)).max() <= 0.5 / 1024 + 1e-12
 
 
 @pytest.mark.parametrize(("az", "el"), [(200.0, 40.0), (75.0, 30.0)])
@@ -291,9 +327,10 @@ def test_a_finer_level_keeps_fading_cells_to_fields(tmp_path: Path) -> None:
 def test_anisotropic_filtering_only_for_oblique_views(box_slf: Path) -> None:
     """A field's texture is filtered anisotropically while a pixel's ground footprint is at least 1.5 times
     elongated (elevation ≤ 41.8° from the cell's centre) and isotropically above; ``anisotropic_from=1`` keeps
-    it everywhere. The GL texture gets the setting (read back from VTK), and the steep picture stays the field's."""
-    with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv, SlfView(box_slf, size=SIZE, tau_px=8.0,
-                                                               anisotropic_from=1.0) as always:
+    it everywhere. The GL texture gets the setting (read back from VTK), and the steep picture stays the field's.
+    (The CPU lookup's texture: the GPU lookup evaluates each pixel and filters nothing.)"""
+    with SlfView(box_slf, size=SIZE, tau_px=8.0, lookup="cpu") as sv, SlfView(
+            box_slf, size=SIZE, tau_px=8.0, anisotropic_from=1.0, lookup="cpu") as always:
         for el, expect in ((30.0, 16.0), (40.0, 16.0), (44.0, 1.0), (70.0, 1.0), (35.0, 16.0)):
             cam = _camera(2000.0, 200.0, el)
             f = sv.prepare(cam)

@@ -3,10 +3,11 @@ draws its building geometry, into one off-screen window each.
 
 :class:`SlfView` walks the far-field quadtree per frame: a cell whose screen-space error
 (``geometricError`` at its distance, docs/DESIGN.md decision 2) is at most τ is drawn as its terrain quad with
-the field evaluated on the CPU for the direction from the cell's centre to the eye (bilinear between the four
-nearest stored directions, depth-corrected with the cell's building tops,
-:func:`citylod.lod.kernels.slf.depth_corrected_blend`; re-evaluated only when that direction moves by more than
-``reeval_deg``). Only the direction patch that holds the four directions is read, on first use. A cell above τ is refined into its children; a finest cell above τ shows
+the field evaluated for the direction from the cell's centre to the eye (bilinear between the four nearest
+stored directions, depth-corrected with the cell's building tops,
+:func:`citylod.lod.kernels.slf.depth_corrected_blend`): per pixel by the quad's fragment shader
+(:mod:`citylod.render.slf_gpu`, the default), or per texel on the CPU into its texture (``lookup="cpu"``);
+updated only when that direction moves by more than ``reeval_deg``. Only the direction patch that holds the four directions is read, on first use. A cell above τ is refined into its children; a finest cell above τ shows
 its buildings (the city tiles the ordinary selection picks at τ, split by object between cells) on the bare
 ground. Around the
 switch the two cross-fade: with ``s = sse / τ`` and ``α = clip((s − ½) / ½, 0, 1)`` the buildings are drawn
@@ -47,11 +48,23 @@ from citylod.lod.kernels.slf import (
     interpolation,
     march_heights,
     patch_of,
+    view_shifts,
 )
 from citylod.render import _vtk
 from citylod.render.gl_context import guard
 from citylod.render.gl_texture import TextureWriter
 from citylod.render.offscreen import OffscreenRenderer, frame_path, save_png
+from citylod.render.slf_gpu import (
+    AtlasLayout,
+    encode_heights,
+    height_texture,
+    install_lookup,
+    rgb_texture,
+    set_fade,
+    set_images,
+    set_lookup,
+    update_texture,
+)
 from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk, view_from_renderer
 
 __all__ = ["GeometryView", "SlfFrame", "SlfView", "is_far_field", "open_slf", "render_far_field_command"]
@@ -184,6 +197,16 @@ class _Cell:
         self.images: dict[int, tuple[Any, Any, Any, Any]] = {}
         self.files: tuple[str, str] | None = None  # the field files of the patch last drawn
         self.anisotropy = 16.0
+        # The lookup on the GPU (render.slf_gpu): per patch the atlases of its stored directions' images and
+        # ray marches (textures and the arrays behind them), the patch the shader reads, the building tops.
+        self.gpu: dict[int, tuple[Any, Any, Any, Any, AtlasLayout]] = {}
+        self.gpu_patch: int | None = None
+        self.top_tex: Any = None
+
+    @property
+    def evaluated(self) -> bool:
+        """A field has been shown (on the CPU: its texture; on the GPU: its lookup's uniforms)."""
+        return self.colours is not None or self.gpu_patch is not None
 
 
 def _load_leaf(leaf: Tile) -> list[tuple[Any, F64, F64]]:
@@ -238,6 +261,11 @@ class SlfView:
         at 1.5 (elevation 42°) by under 0.6 of a mip level. On a software rasteriser the anisotropic filter
         doubles the cost of a field pixel (whole-city overview at 55°: 9.3 against 4.3 ms, colour error
         10.9 against 10.6; at 35° it lowers the error, docs/PERFORMANCE_LOG.md).
+    lookup
+        ``"gpu"`` (default): cells with building tops are evaluated per pixel in the fragment shader
+        (:mod:`citylod.render.slf_gpu`); a frame sets uniforms only. ``"cpu"``: evaluated per texel by the
+        compiled kernel into a texture written each time the cell's direction moves (the path the shader
+        reproduces, and the one for cells without building tops or with ``depth_correct=False``).
     renderer, origin
         Draw into this VTK renderer (an application's view, shifted by ``origin``, the world point at its
         coordinate origin) instead of an off-screen window of its own. :meth:`attach` then updates the far
@@ -248,7 +276,10 @@ class SlfView:
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
                  fields: bool = True, reeval_deg: float = 0.5, city_dir: str | Path | None = None,
                  texel_px: float | None = None, depth_correct: bool = True, anisotropic_from: float = 1.5,
-                 renderer: Any = None, origin: npt.ArrayLike | None = None) -> None:
+                 lookup: str = "gpu", renderer: Any = None, origin: npt.ArrayLike | None = None) -> None:
+        if lookup not in ("gpu", "cpu"):
+            raise ValueError(f"lookup must be 'gpu' or 'cpu', got {lookup!r}")
+        self.lookup = lookup
         self.ts, self.meta = open_slf(slf_dir)
         self.anisotropic_from = float(anisotropic_from)
         self.depth_correct = depth_correct
@@ -328,7 +359,9 @@ class SlfView:
         #: and reading and evaluating fields.
         self.build_slice_s = 0.03
         self.eval_slice_s = 0.05
-        if depth_correct:  # load the compiled lookup now, not in the first frame (numba's start: ~0.4 s)
+        if depth_correct:  # load the compiled kernels now, not in the first frame (numba's start: ~0.4 s)
+            march_heights(np.ones((2, 2)), 1.0, self.ds.dirs[0])
+        if depth_correct and lookup == "cpu":
             depth_corrected_colours(np.zeros((1, 2, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32),
                                     np.zeros(1, np.int64), np.ones(1), self.ds.dirs, np.ones((2, 2)), 1.0,
                                     self.ds.dirs[0])
@@ -664,7 +697,7 @@ class SlfView:
                 # Fields are read and evaluated a bounded time a frame in an application's view: a cell not
                 # reached keeps the direction it was evaluated for, or shows the bare ground until its first
                 # evaluation, and the next frames go on.
-                if cell.colours is None and cell.last_alpha != 1.0:
+                if not cell.evaluated and cell.last_alpha != 1.0:
                     self._set(cell.tex, self._ground_rgb_u8)
                     cell.last_alpha = 1.0
                 self._built_all = False
@@ -759,7 +792,33 @@ class SlfView:
         recolour it."""
         if alpha >= 1.0:
             return False
-        return cell.colours is None or abs(alpha - cell.last_alpha) >= 1e-3 or not self._same_dir(cell, v)
+        return cell.last_dir is None or abs(alpha - cell.last_alpha) >= 1e-3 or not self._same_dir(cell, v)
+
+    def _gpu_patch(self, cell: _Cell, patch: int, got: tuple[Any, Any, Any, Any], filled: list[int]) -> None:
+        """Give the cell's shader the atlases of ``patch`` (made on first use, the directions ``filled`` just
+        reconstructed copied in), installing the shader on the cell's first GPU lookup."""
+        images, seen, have, top64 = got
+        entry = cell.gpu.get(patch)
+        if entry is None:
+            lay = AtlasLayout(images.shape[0], images.shape[1])
+            rgb = np.zeros((*lay.shape, 3), np.uint8)
+            heights = np.zeros((*lay.shape, 3), np.uint8)
+            entry = cell.gpu[patch] = (rgb_texture(rgb), height_texture(heights[..., 0]), rgb, heights, lay)
+            filled = [int(k) for k in np.flatnonzero(have)]
+        img_tex, seen_tex, rgb, heights, lay = entry
+        if filled:
+            for k in filled:
+                ys, xs = lay.tile(k)
+                rgb[ys, xs] = np.clip(np.rint(images[k]), 0, 255)
+                heights[ys, xs] = encode_heights(seen[k])
+            update_texture(img_tex, rgb)
+            update_texture(seen_tex, heights)
+        if cell.top_tex is None:
+            cell.top_tex = height_texture(top64)
+            install_lookup(cell.actor, cell.top_tex, img_tex, seen_tex, lay.t, lay.cols, self.ground_rgb)
+        elif cell.gpu_patch != patch:
+            set_images(cell.actor, img_tex, seen_tex, lay.cols)
+        cell.gpu_patch = patch
 
     def _update_texture(self, cell: _Cell, eye: F64, alpha: float) -> tuple[bool, float]:
         """Bring the cell's texture to the view from ``eye`` and fade ``alpha``: (whether it was evaluated
@@ -767,21 +826,22 @@ class SlfView:
         shared ground and keeps its texture."""
         v = self._direction(cell, eye)
         aniso = 16.0 if v[2] * self.anisotropic_from <= 1.0 else 1.0  # footprint elongation 1/v_z ≥ the limit
-        if aniso != cell.anisotropy:
+        if aniso != cell.anisotropy and cell.gpu_patch is None:
             cell.tex.SetMaximumAnisotropicFiltering(aniso)
             cell.anisotropy = aniso
         if not self._stale(cell, v, alpha):
             return False, 0.0
         load_s = 0.0
-        if not self._same_dir(cell, v) or cell.colours is None:
+        if not self._same_dir(cell, v) or not cell.evaluated:
             idx, w = interpolation(self.ds, v)
             patch = patch_of(self.ds, v) if len(self.patches) > 1 else 0
             sel = self.patches[patch]
             t_load = time.perf_counter()
             cl, q, top, mean, basis, *files = self._field(cell, patch)
+            gpu = self.lookup == "gpu" and top is not None and self.depth_correct
             img = cell.tex.GetInput()
             n = cl.shape[0]
-            if img is None or tuple(img.GetDimensions())[:2] != (n, n):  # GL texture of the field's size
+            if not gpu and (img is None or tuple(img.GetDimensions())[:2] != (n, n)):  # GL texture, field's size
                 self._set(cell.tex, np.zeros((n, n, 3), np.uint8))  # made once, with the loading
             load_s += time.perf_counter() - t_load
             loc = np.searchsorted(sel, idx)  # the blended directions' rows in the patch's lumispheres
@@ -794,18 +854,37 @@ class SlfView:
                                                 np.zeros((len(sel), t_, t_), np.float32),
                                                 np.zeros(len(sel), bool), np.asarray(top, np.float64))
                 images, seen, have, top64 = got
+                filled = []
                 for jl in loc:
                     if not have[jl]:
                         t_load = time.perf_counter()
                         images[jl] = mean[cl, jl] + np.einsum("...k,...kc->...c", q, basis[cl, :, jl])
                         seen[jl] = march_heights(top64, texel, self.ds.dirs[sel[jl]])
                         have[jl] = True
+                        filled.append(int(jl))
                         load_s += time.perf_counter() - t_load
+                if gpu:
+                    t_load = time.perf_counter()
+                    self._gpu_patch(cell, patch, got, filled)
+                    load_s += time.perf_counter() - t_load
+                    vv, shifts = view_shifts(v, self.ds.dirs[sel], loc, texel)
+                    a = vv[:2] / max(float(vv[2]), 1e-6)
+                    set_lookup(cell.actor, loc, w, shifts, (a[0] / texel, a[1] / texel,
+                                                            max(float(top64.max()) if top64.size else 0.0, 0.0)))
+                    set_fade(cell.actor, alpha)
+                    cell.files = (files[0], files[1])
+                    cell.last_dir = v
+                    cell.last_alpha = alpha
+                    return True, load_s
                 cell.colours = depth_corrected_colours(images, seen, loc, w, self.ds.dirs[sel], top64, texel, v)
             else:
                 cell.colours = evaluate(cl, q, mean, basis, loc, w)
             cell.files = (files[0], files[1])
             cell.last_dir = v
+        if cell.gpu_patch is not None:  # the lookup's direction is current: only the fade moved
+            set_fade(cell.actor, alpha)
+            cell.last_alpha = alpha
+            return True, load_s
         rgb = cell.colours
         if alpha > 0.0:
             rgb = np.rint((1 - alpha) * rgb + alpha * self.ground_rgb).astype(np.uint8)
@@ -847,7 +926,9 @@ class SlfView:
             a.VisibilityOff()
         white = np.full((2, 2, 3), 255, np.uint8)
         for cell, vis, alpha in saved:
-            if vis and alpha < 1.0:
+            if vis and alpha < 1.0 and cell.gpu_patch is not None:
+                set_fade(cell.actor, alpha, white=True)
+            elif vis and alpha < 1.0:
                 self._set(cell.tex, white)
             else:
                 cell.actor.VisibilityOff()
@@ -858,7 +939,9 @@ class SlfView:
             a.VisibilityOn()
         for cell, vis, alpha in saved:
             cell.actor.SetVisibility(vis)
-            if vis and alpha < 1.0 and cell.colours is not None:
+            if vis and alpha < 1.0 and cell.gpu_patch is not None:
+                set_fade(cell.actor, alpha)
+            elif vis and alpha < 1.0 and cell.colours is not None:
                 rgb = cell.colours if alpha <= 0 else np.rint((1 - alpha) * cell.colours + alpha * self.ground_rgb
                                                               ).astype(np.uint8)
                 self._set(cell.tex, rgb)

@@ -44,8 +44,22 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["DirectionSet", "box_average", "depth_corrected_blend", "depth_corrected_colours", "direction_patches", "direction_set", "evaluate", "evaluate_parallax", "interpolation", "march_heights",
-           "parabolic", "patch_of", "rasterise"]
+__all__ = [
+    "DirectionSet",
+    "box_average",
+    "depth_corrected_blend",
+    "depth_corrected_colours",
+    "direction_patches",
+    "direction_set",
+    "evaluate",
+    "evaluate_parallax",
+    "interpolation",
+    "march_heights",
+    "parabolic",
+    "patch_of",
+    "rasterise",
+    "view_shifts",
+]
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -362,7 +376,7 @@ def _march(top, smax, ax, ay):  # pragma: no cover - compiled
     return h
 
 
-def _view_shifts(v: npt.ArrayLike, dirs: F64, idx: I64, texel_m: float) -> tuple[F64, F64]:
+def view_shifts(v: npt.ArrayLike, dirs: F64, idx: I64, texel_m: float) -> tuple[F64, F64]:
     """The unit view direction and, for each blended stored direction ``dirs[idx]``, the parallax between it
     and the view per metre of height, in texels (x, y): where a point that high lies in that direction's
     image relative to where the view sees it."""
@@ -385,7 +399,7 @@ def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDA
     weights stay. ``seen_heights``: the ray marches of the stored directions (``march_heights(top, texel_m,
     dirs[j])`` for each of ``idx``), when the caller keeps them between views. Evaluated at run time for every
     cell drawn whose direction moved, hence compiled (:func:`_blend`)."""
-    vv, shifts = _view_shifts(v, dirs, idx, texel_m)
+    vv, shifts = view_shifts(v, dirs, idx, texel_m)
     h = march_heights(top, texel_m, vv)
     w = np.asarray(w, np.float64)
     if seen_heights is None:
@@ -472,7 +486,7 @@ def depth_corrected_colours(images: npt.NDArray[np.float32], seen: npt.NDArray[n
     directions, ``top`` (T, T) float64 building tops. The view's ray march and the blend run per texel row
     on numba's threads; the result equals ``rint(depth_corrected_blend(images[loc], …))`` clipped to 0–255
     (same arithmetic, per texel)."""
-    vv, shifts = _view_shifts(v, dirs, loc, texel_m)
+    vv, shifts = view_shifts(v, dirs, loc, texel_m)
     a = vv[:2] / max(vv[2], 1e-6)
     hmax = float(top.max()) if top.size else 0.0
     return _lookup(images, seen, np.asarray(loc, np.int64), np.asarray(w, np.float64), shifts, top, max(hmax, 0.0),

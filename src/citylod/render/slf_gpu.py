@@ -1,0 +1,238 @@
+"""The far field's depth-corrected lookup evaluated per pixel, in the fragment shader of a cell's quad.
+
+Why: on the CPU (:func:`citylod.lod.kernels.slf.depth_corrected_colours`) a cell whose view direction moved
+costs a ray march and a blend of four directions at each of its texels, then a new texture, every frame of a
+moving view (about 0.45 ms a 64² cell here; docs/PERFORMANCE_LOG.md). Ruiters evaluates the light field on the
+GPU. Here the stored directions' images and ray marches go to the GPU once per cell and direction patch, as
+textures, and a frame only sets each cell's uniforms. The shader then runs the same march and blend
+per fragment, at the fragment's own texture position rather than at texel centres that are then filtered.
+On a GPU that is free. On Mesa's llvmpipe the fragment shader runs in SIMD over the rasteriser's threads:
+8–13 ms for the 25 cells of the whole-city overview, against 16–21 ms for the CPU evaluation, texture writes
+and draw.
+
+The shader is :func:`~citylod.lod.kernels.slf._ray_top` and
+:func:`~citylod.lod.kernels.slf._blend_texel` in GLSL, line for line: the exact column march over the building
+tops (``slfTop``, T × T heights, row 0 the north edge), then for each of the four blended directions a
+bilinear sample of its image at the parallax-shifted position (``slfImages``, the patch's images as tiles of
+an atlas, clamped to the tile's texel centres so no neighbour bleeds in), kept where that direction's own
+march (``slfSeen``, float atlas of the same layout) meets the viewed point within ``slfTol``; where none
+does, the plain weights. Each image is filtered over the pixel's footprint (``textureGrad``: mip-mapped,
+anisotropic), as the CPU path's texture of the evaluated field is; without it the minified far field
+aliases (flicker 7.7–9.3 against 2.4–4.1 on the sample cities, docs/PERFORMANCE_LOG.md). A cross-fade to the
+ground colour (``slfFade``) and a flat white for the field mask (``slfWhite``) are uniforms too.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from citylod.render import _vtk
+
+__all__ = ["AtlasLayout", "encode_heights", "height_texture", "install_lookup", "rgb_texture", "set_lookup"]
+
+_DEC = """
+//VTK::TCoord::Dec
+float slfHeight(sampler2D t, ivec2 p) {  // metres from 24 bits, 1/1024 m a step (height_texture)
+  vec3 b = floor(texelFetch(t, p, 0).rgb * 255.0 + 0.5);
+  return (b.r * 65536.0 + b.g * 256.0 + b.b) / 1024.0;
+}
+float slfTopAt(int i, int j) { return slfHeight(slfTop, ivec2(j, i)); }
+float slfRayTop(float r, float c) {
+  int T = slfT;
+  float t = float(T);
+  float x0 = c + 0.5, y0 = r + 0.5;
+  float dx = slfRay.x, dy = -slfRay.y;
+  float s_hi = slfRay.z;
+  if (s_hi <= 0.0) return 0.0;
+  if (dx > 0.0) s_hi = min(s_hi, (t - x0) / dx); else if (dx < 0.0) s_hi = min(s_hi, -x0 / dx);
+  if (dy > 0.0) s_hi = min(s_hi, (t - y0) / dy); else if (dy < 0.0) s_hi = min(s_hi, -y0 / dy);
+  int j = clamp(int(floor(x0 + s_hi * dx)), 0, T - 1);
+  int i = clamp(int(floor(y0 + s_hi * dy)), 0, T - 1);
+  for (int k = 0; k < 2 * T + 4; ++k) {
+    float sx = dx > 0.0 ? (float(j) - x0) / dx : (dx < 0.0 ? (float(j + 1) - x0) / dx : -1.0);
+    float sy = dy > 0.0 ? (float(i) - y0) / dy : (dy < 0.0 ? (float(i + 1) - y0) / dy : -1.0);
+    float s_lo = max(max(sx, sy), 0.0);
+    float h = slfTopAt(i, j);
+    if (s_lo < s_hi && h >= s_lo) return min(h, s_hi);
+    if (s_lo <= 0.0) break;
+    if (sx >= sy) j += dx > 0.0 ? -1 : 1;
+    if (sy >= sx) i += dy > 0.0 ? -1 : 1;
+    if (i < 0 || i >= T || j < 0 || j >= T) break;
+    s_hi = s_lo;
+  }
+  return 0.0;
+}
+vec3 slfBlend(float r, float c, float hh) {  // _blend_texel at (r, c) whose view ray meets height hh (0..255)
+  float T = float(slfT);
+  vec2 atlas = vec2(textureSize(slfImages, 0));
+  vec3 acc = vec3(0.0);
+  vec3 fb = vec3(0.0);
+  float wsum = 0.0;
+  float wtot = 0.0;
+  for (int k = 0; k < 4; ++k) {
+    float wk = slfW[k];
+    if (wk <= 0.0) continue;
+    wtot += wk;
+    vec2 org = vec2(mod(slfTile[k], float(slfCols)), floor(slfTile[k] / float(slfCols))) * T;
+    float rr = r - hh * slfShiftY[k];
+    float cc = c + hh * slfShiftX[k];
+    vec2 q = clamp(vec2(cc, rr), vec2(0.0), vec2(T - 1.0));
+    vec3 s = textureLod(slfImages, (org + q + 0.5) / atlas, 0.0).rgb * 255.0;
+    ivec2 ri = clamp(ivec2(floor(vec2(cc, rr) + 0.5)), ivec2(0), ivec2(slfT - 1));
+    if (abs(slfHeight(slfSeen, ivec2(org) + ri) - hh) <= slfTol) {
+      acc += wk * s;
+      wsum += wk;
+    }
+    fb += wk * s;
+  }
+  return wsum > 1e-9 ? acc / wsum : fb / max(wtot, 1e-9);
+}
+"""
+
+_IMPL = """
+  {
+  float T = float(slfT);
+  float c = tcoordVCVSOutput.x * T - 0.5;
+  float r = (1.0 - tcoordVCVSOutput.y) * T - 0.5;
+  float hh = slfRayTop(r, c);
+  // A pixel wider than a texel averages the blend at four points of its footprint (a rotated grid): the
+  // lookup of a minified field is otherwise a point sample of it, and aliases.
+  vec2 gx = dFdx(vec2(c, r));
+  vec2 gy = dFdy(vec2(c, r));
+  vec3 col;
+  if (max(length(gx), length(gy)) > 1.0) {
+    col = 0.25 * (slfBlend(r + 0.375 * gx.y + 0.125 * gy.y, c + 0.375 * gx.x + 0.125 * gy.x, hh)
+                  + slfBlend(r - 0.375 * gx.y - 0.125 * gy.y, c - 0.375 * gx.x - 0.125 * gy.x, hh)
+                  + slfBlend(r + 0.125 * gx.y - 0.375 * gy.y, c + 0.125 * gx.x - 0.375 * gy.x, hh)
+                  + slfBlend(r - 0.125 * gx.y + 0.375 * gy.y, c - 0.125 * gx.x + 0.375 * gy.x, hh));
+  } else {
+    col = slfBlend(r, c, hh);
+  }
+  col = mix(col / 255.0, slfGround, slfFade);
+  gl_FragData[0] = slfWhite > 0.5 ? vec4(1.0) : vec4(col, 1.0);
+  }
+"""
+
+
+class AtlasLayout:
+    """Where each of a patch's ``p`` stored directions lies in the atlas: tile ``k`` at column ``k % cols``,
+    row ``k // cols``, each ``t`` × ``t`` texels."""
+
+    def __init__(self, p: int, t: int) -> None:
+        self.p, self.t = int(p), int(t)
+        self.cols = int(math.ceil(math.sqrt(self.p)))
+        self.rows = int(math.ceil(self.p / self.cols))
+
+    def tile(self, k: int) -> tuple[slice, slice]:
+        y, x = divmod(int(k), self.cols)
+        return slice(y * self.t, (y + 1) * self.t), slice(x * self.t, (x + 1) * self.t)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.rows * self.t, self.cols * self.t
+
+
+def _texture(arr: npt.NDArray[Any], interpolate: bool) -> Any:
+    """A texture holding ``arr`` with its row 0 as the texture's row 0 (texelFetch addresses rows as stored)."""
+    h, w = arr.shape[:2]
+    nc = 1 if arr.ndim == 2 else arr.shape[2]
+    img = _vtk.vtkImageData()
+    img.SetDimensions(w, h, 1)
+    img.GetPointData().SetScalars(_vtk.numpy_to_vtk(np.ascontiguousarray(arr).reshape(-1, nc), deep=True))
+    tex = _vtk.vtkTexture()
+    tex.SetInputData(img)
+    tex.SetColorModeToDirectScalars()  # floats as floats (the default maps them through a colour table)
+    tex.SetInterpolate(interpolate)
+    tex.MipmapOff()
+    tex.EdgeClampOn()
+    return tex
+
+
+def rgb_texture(arr: npt.NDArray[np.uint8]) -> Any:
+    """An RGB8 texture, filtered bilinearly (the images' atlas)."""
+    tex = _texture(arr, True)
+    return tex
+
+
+def encode_heights(arr: npt.ArrayLike) -> npt.NDArray[np.uint8]:
+    """Heights (m, ≥ 0) as three bytes a texel, 1/1024 m a step up to 16 km: VTK uploads a float image as
+    normalised 8-bit colours, so heights travel as bytes and the shader (``slfHeight``) decodes them."""
+    q = np.clip(np.rint(np.asarray(arr, np.float64) * 1024.0), 0, 2**24 - 1).astype(np.uint32)
+    return np.stack([(q >> 16) & 255, (q >> 8) & 255, q & 255], axis=-1).astype(np.uint8)
+
+
+def height_texture(arr: npt.ArrayLike) -> Any:
+    """Heights for texelFetch (:func:`encode_heights`), not filtered."""
+    return _texture(encode_heights(arr), False)
+
+
+def update_texture(tex: Any, arr: npt.NDArray[Any]) -> None:
+    """Write ``arr`` (the texture's shape) into ``tex``'s image; VTK uploads it at the next render."""
+    img = tex.GetInput()
+    scalars = img.GetPointData().GetScalars()
+    _vtk.vtk_to_numpy(scalars).reshape(arr.shape)[:] = arr  # (rows, cols, channels) bytes
+    scalars.Modified()
+    img.Modified()
+    tex.Modified()
+
+
+def install_lookup(actor: Any, top: Any, images: Any, seen: Any, t: int, cols: int, ground_rgb: Any) -> None:
+    """Make ``actor`` (a cell's textured quad) draw its field through the lookup shader, with ``top``,
+    ``images`` and ``seen`` textures and a patch atlas of ``cols`` tiles a row of ``t`` texels."""
+    actor.SetTexture(None)
+    prop = actor.GetProperty()
+    prop.SetTexture("slfTop", top)
+    prop.SetTexture("slfImages", images)
+    prop.SetTexture("slfSeen", seen)
+    sp = actor.GetShaderProperty()
+    sp.ClearAllFragmentShaderReplacements()
+    sp.AddFragmentShaderReplacement("//VTK::TCoord::Dec", True, _DEC, False)
+    sp.AddFragmentShaderReplacement("//VTK::TCoord::Impl", True, _IMPL, False)
+    u = sp.GetFragmentCustomUniforms()
+    u.SetUniformi("slfT", int(t))
+    u.SetUniformi("slfCols", int(cols))
+    u.SetUniformf("slfTol", 1.0)
+    u.SetUniformf("slfFade", 0.0)
+    u.SetUniformf("slfWhite", 0.0)
+    u.SetUniform3f("slfGround", [float(x) / 255.0 for x in ground_rgb])
+    for name in ("slfW", "slfTile", "slfShiftX", "slfShiftY"):
+        u.SetUniform4f(name, [0.0, 0.0, 0.0, 0.0])
+    u.SetUniform3f("slfRay", [0.0, 0.0, 0.0])
+
+
+def set_images(actor: Any, images: Any, seen: Any, cols: int) -> None:
+    """Point the lookup at another patch's atlases."""
+    prop = actor.GetProperty()
+    prop.SetTexture("slfImages", images)
+    prop.SetTexture("slfSeen", seen)
+    actor.GetShaderProperty().GetFragmentCustomUniforms().SetUniformi("slfCols", int(cols))
+
+
+def _vec4(x: npt.ArrayLike) -> list[float]:
+    a = np.zeros(4)
+    v = np.asarray(x, np.float64).ravel()[:4]
+    a[:len(v)] = v
+    return [float(y) for y in a]
+
+
+def set_lookup(actor: Any, loc: Any, w: Any, shifts: Any, ray: tuple[float, float, float]) -> None:
+    """The view's uniforms: the blended directions' tiles ``loc`` and weights ``w``, their parallax per metre
+    of height ``shifts`` (n, 2) in texels (x, y), and the view's march (texels per metre of height in x and
+    y, and the highest top)."""
+    u = actor.GetShaderProperty().GetFragmentCustomUniforms()
+    u.SetUniform4f("slfTile", _vec4(loc))
+    u.SetUniform4f("slfW", _vec4(w))
+    sh = np.asarray(shifts, np.float64).reshape(-1, 2)
+    u.SetUniform4f("slfShiftX", _vec4(sh[:, 0]))
+    u.SetUniform4f("slfShiftY", _vec4(sh[:, 1]))
+    u.SetUniform3f("slfRay", [float(ray[0]), float(ray[1]), float(ray[2])])
+
+
+def set_fade(actor: Any, fade: float, white: bool = False) -> None:
+    u = actor.GetShaderProperty().GetFragmentCustomUniforms()
+    u.SetUniformf("slfFade", float(fade))
+    u.SetUniformf("slfWhite", 1.0 if white else 0.0)
