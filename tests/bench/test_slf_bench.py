@@ -13,14 +13,17 @@ from citylod.lod.build.slf import build_slf
 from tests.lod.slf_scene import write_box_city
 
 
-def test_bench_slf_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("lookup", ["gpu", "cpu"])
+def test_bench_slf_command(tmp_path: Path, capsys: pytest.CaptureFixture[str], lookup: str) -> None:
     city = write_box_city(tmp_path / "city")
     slf = tmp_path / "slf"
     build_slf(city, slf, texel_m=0.5, texels=64, grid=7, oversample=2, clusters=32, progress=False)
     out = tmp_path / "report"
-    assert main(["-q", "bench-slf", str(slf), "-o", str(out), "--tau", "8", "--orbit-frames", "3"]) == 0
-    assert "Far-field SLF" in capsys.readouterr().out
+    assert main(["-q", "bench-slf", str(slf), "-o", str(out), "--tau", "8", "--orbit-frames", "3",
+                 "--lookup", lookup]) == 0
+    assert f"lookup on the {lookup.upper()}" in capsys.readouterr().out
     report = json.loads((out / "slf_report.json").read_text())
+    assert report["summary"]["lookup"] == lookup
     for name in ("overview_geometry.png", "overview_slf.png", "overview_difference.png", "slf_report.md"):
         assert (out / name).stat().st_size > 0
     frames = report["frames"]

@@ -27,6 +27,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bf.add_argument("--tau", type=float, default=2.0)
     bf.add_argument("--orbit-frames", type=int, default=12)
     bf.add_argument("--texel-px", type=float, help="also refine fields while a texel covers more pixels than this")
+    bf.add_argument("--lookup", choices=("gpu", "cpu"), default="gpu",
+                    help="evaluate the fields per pixel in the fragment shader (default) or per texel on the CPU")
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:
@@ -34,7 +36,7 @@ def run(args: argparse.Namespace, progress: bool) -> int:
         from citylod.bench.slf_bench import slf_bench
 
         slf_bench(args.slf_dir, args.output, tau_px=args.tau, orbit_frames=args.orbit_frames,
-                  texel_px=args.texel_px, progress=progress)
+                  texel_px=args.texel_px, lookup=args.lookup, progress=progress)
         print((args.output / "slf_report.md").read_text())
         return 0
     if args.command == "bench-suite":
