@@ -161,6 +161,33 @@ def test_gpu_lookup_draws_what_the_cpu_lookup_draws(box_slf: Path, dist: float, 
     assert err["gpu"] <= err["cpu"] + 0.25, err
 
 
+def test_a_shader_that_does_not_build_falls_back_to_the_cpu_lookup(box_slf: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A GL that cannot build the lookup shader (VTK then draws the quad with its atlas, and says so only
+    through the mapper's ErrorEvent) gets the CPU lookup: the same draw call's picture is the CPU lookup's,
+    with one warning, and later frames stay on the CPU."""
+    import citylod.render.slf_gpu as slf_gpu
+
+    monkeypatch.setattr(slf_gpu, "_IMPL", slf_gpu._IMPL.replace("float hh = slfRayTop(r, c);", "float hh = ;"))
+    cams = [_camera(2000.0, 200.0, 40.0), _camera(2000.0, 230.0, 40.0)]
+    with SlfView(box_slf, size=SIZE, tau_px=8.0, lookup="cpu") as ref:
+        want = []
+        for cam in cams:
+            ref.prepare(cam)
+            ref.draw()
+            want.append(ref.grab_rgb())
+    with SlfView(box_slf, size=SIZE, tau_px=8.0) as sv:
+        assert sv.lookup == "gpu"
+        sv.prepare(cams[0])
+        with pytest.warns(RuntimeWarning, match="lookup shader could not be built"):
+            sv.draw()
+        assert sv.lookup == "cpu" and sv.pending() == 0
+        assert np.array_equal(sv.grab_rgb(), want[0])
+        sv.prepare(cams[1])
+        sv.draw()
+        assert np.array_equal(sv.grab_rgb(), want[1])
+
+
 def test_heights_travel_to_the_shader_as_bytes_within_a_millimetre() -> None:
     h = np.array([[0.0, 0.0004, 1.0, 15.0], [123.4567, 999.999, 16383.99, -3.0]])
     b = encode_heights(h).astype(np.float64)

@@ -308,6 +308,7 @@ class SlfView:
         self.origin = np.round(0.5 * (lo + hi)) if origin is None else np.asarray(origin, np.float64)
         self.embedded = renderer is not None
         self._observer: int | None = None
+        self._end_observer = 0
         self._visible = True
         self.last_frame: SlfFrame | None = None
         if renderer is None:
@@ -349,6 +350,12 @@ class SlfView:
         # (``_writing``: inside its render when embedded, inside the context guard in :meth:`prepare`).
         self._writer = TextureWriter()
         self._writing = False
+        self._gpu_failed = False  # a lookup shader failed in the last render: the view goes over to the CPU
+        # A lookup shader was installed since the last render: VTK builds it in the next one and reports a
+        # failure only while its warnings are displayed (citylod keeps them off), so they are on for that render.
+        self._watch = False
+        self._watched: bool | None = None  # the global display setting to restore after a watched render
+        self._last_camera: Camera | None = None
         if self.window is not None:  # the context exists from here on, so that prepare can write into it
             with self.gl:
                 self.window.Render()
@@ -548,12 +555,12 @@ class SlfView:
     def pending(self) -> int:
         """City tiles being read for buildings, plus one while cells wait for their building actors or
         their field's evaluation (embedded only)."""
-        return len(self._loads) + (not self._built_all)
+        return len(self._loads) + (not self._built_all) + self._gpu_failed
 
     def loads_ready(self) -> bool:
         """The next frame would draw more: a city tile has been read since the last frame, or cells wait
         for their building actors or their field's evaluation."""
-        return not self._built_all or any(f.done() for f in self._loads.values())
+        return not self._built_all or self._gpu_failed or any(f.done() for f in self._loads.values())
 
     def _leaf_content(self, leaf: Tile) -> list[tuple[Any, F64, F64]]:
         if not self._leaf_ready(leaf):  # called only for tiles found ready in this frame
@@ -629,6 +636,9 @@ class SlfView:
         _set_image(tex, rgb, self._writer if self._writing else None, self.renderer)
 
     def _prepare(self, camera: Camera) -> SlfFrame:
+        self._last_camera = camera
+        if self._gpu_failed:
+            self._to_cpu()
         if self.embedded:
             w, h = self.renderer.GetSize()
             self.size = (max(int(w), 1), max(int(h), 1))
@@ -737,11 +747,13 @@ class SlfView:
         """Embedded: update the far field from the renderer's camera before each of its renders."""
         if self.embedded and self._observer is None:
             self._observer = self.renderer.AddObserver(_vtk.vtkCommand.StartEvent, self._on_start)
+            self._end_observer = self.renderer.AddObserver(_vtk.vtkCommand.EndEvent, self._watch_off)
 
     def _on_start(self, _obj: Any, _event: str) -> None:
         if self._visible:  # inside the application window's render: its context is current
             with self._gl_writes():
                 self.prepare(view_from_renderer(self.renderer, self.origin).camera)
+            self._watch_on()
 
     @property
     def visible(self) -> bool:
@@ -794,6 +806,46 @@ class SlfView:
             return False
         return cell.last_dir is None or abs(alpha - cell.last_alpha) >= 1e-3 or not self._same_dir(cell, v)
 
+    def _watch_on(self) -> None:
+        if self._watch and self._watched is None:
+            self._watched = bool(_vtk.vtkObject.GetGlobalWarningDisplay())
+            _vtk.vtkObject.GlobalWarningDisplayOn()
+
+    def _watch_off(self, *_args: Any) -> None:
+        if self._watched is not None:
+            _vtk.vtkObject.SetGlobalWarningDisplay(int(self._watched))
+            self._watched = None
+            self._watch = False
+
+    def _shader_failed(self, *_args: Any) -> None:
+        # VTK reports a shader it cannot build as an ErrorEvent of the mapper (and draws the quad with its
+        # first texture, the atlas): the next prepare evaluates on the CPU instead, and an own window's draw
+        # draws again.
+        self._gpu_failed = True
+
+    def _to_cpu(self) -> None:
+        """Every cell back to the CPU lookup (a textured quad), to be evaluated again."""
+        warnings.warn("the far field's lookup shader could not be built here; evaluating on the CPU",
+                      RuntimeWarning, stacklevel=3)
+        self.lookup = "cpu"
+        self._gpu_failed = False
+        for cell in self.cells.values():
+            if cell.top_tex is None:
+                continue
+            prop = cell.actor.GetProperty()
+            for name in ("slfTop", "slfImages", "slfSeen"):
+                prop.RemoveTexture(name)
+            cell.actor.GetShaderProperty().ClearAllFragmentShaderReplacements()
+            cell.actor.SetTexture(cell.tex)
+            cell.gpu.clear()
+            cell.gpu_patch = None
+            cell.top_tex = None
+            cell.last_dir = None
+        if self.depth_correct:  # the compiled lookup loaded now
+            depth_corrected_colours(np.zeros((1, 2, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32),
+                                    np.zeros(1, np.int64), np.ones(1), self.ds.dirs, np.ones((2, 2)), 1.0,
+                                    self.ds.dirs[0])
+
     def _gpu_patch(self, cell: _Cell, patch: int, got: tuple[Any, Any, Any, Any], filled: list[int]) -> None:
         """Give the cell's shader the atlases of ``patch`` (made on first use, the directions ``filled`` just
         reconstructed copied in), installing the shader on the cell's first GPU lookup."""
@@ -816,6 +868,10 @@ class SlfView:
         if cell.top_tex is None:
             cell.top_tex = height_texture(top64)
             install_lookup(cell.actor, cell.top_tex, img_tex, seen_tex, lay.t, lay.cols, self.ground_rgb)
+            mapper = cell.actor.GetMapper()
+            if not mapper.HasObserver(_vtk.vtkCommand.ErrorEvent):
+                mapper.AddObserver(_vtk.vtkCommand.ErrorEvent, self._shader_failed)
+            self._watch = True
         elif cell.gpu_patch != patch:
             set_images(cell.actor, img_tex, seen_tex, lay.cols)
         cell.gpu_patch = patch
@@ -897,8 +953,17 @@ class SlfView:
             raise RuntimeError("an embedded far field is drawn by the application's window")
         t0 = time.perf_counter()
         with self.gl:
-            self.window.Render()
+            self._watch_on()
+            try:
+                self.window.Render()
+            finally:
+                self._watch_off()
             self.window.WaitForCompletion()
+        if self._gpu_failed and self._last_camera is not None:  # drawn with a shader that did not build
+            self.prepare(self._last_camera)
+            with self.gl:
+                self.window.Render()
+                self.window.WaitForCompletion()
         return time.perf_counter() - t0
 
     def grab_rgb(self) -> U8:
@@ -951,6 +1016,7 @@ class SlfView:
         if self.embedded:  # leave the application's renderer as it was
             if self._observer is not None:
                 self.renderer.RemoveObserver(self._observer)
+                self.renderer.RemoveObserver(self._end_observer)
                 self._observer = None
             for cell in self.cells.values():
                 self.renderer.RemoveActor(cell.actor)

@@ -20,6 +20,9 @@ does, the plain weights. Each image is filtered over the pixel's footprint (``te
 anisotropic), as the CPU path's texture of the evaluated field is; without it the minified far field
 aliases (flicker 7.7–9.3 against 2.4–4.1 on the sample cities, docs/PERFORMANCE_LOG.md). A cross-fade to the
 ground colour (``slfFade``) and a flat white for the field mask (``slfWhite``) are uniforms too.
+
+Where a GL cannot build the shader, VTK draws the quad with its atlas and reports it only as an ErrorEvent of
+the mapper; :class:`~citylod.render.slf.SlfView` watches for it and goes over to the CPU lookup, with a warning.
 """
 
 from __future__ import annotations
