@@ -95,8 +95,8 @@ class SlfFrame:
     """What one frame drew: SLF ``cells`` (by level), finest cells with buildings (``geometry_cells``,
     ``fading`` of them between the two), bytes loaded so far, bytes this frame needs (``bytes_drawn``: the
     field files, ``bytes_fields``, plus the city tiles of its buildings, ``bytes_buildings``), seconds
-    evaluating fields for this view (``eval_s``: the view's ray march, the blend, the texture; work every
-    frame of a moving view repeats) and seconds loading them (``load_s``: reading a cell's field for a patch
+    evaluating fields for this view (``eval_s``: the shader's uniforms, or on the CPU the view's ray march, the
+    blend and the texture written into GL; work every frame of a moving view repeats) and seconds loading them (``load_s``: reading a cell's field for a patch
     of directions and reconstructing the stored directions' images and ray marches, kept per cell: work done
     once per cell and patch, like reading a city tile). ``eval_s`` does not include ``load_s``. ``loading``:
     cells drawn as fields because their buildings are still being read (embedded views only)."""
