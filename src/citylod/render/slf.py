@@ -42,12 +42,11 @@ from citylod.io.tiles3d import Tile, open_tileset
 from citylod.lod.build.slf import read_cell_arrays, read_group
 from citylod.lod.kernels.slf import (
     DirectionSet,
+    blend_of,
     depth_corrected_colours,
     direction_set,
     evaluate,
-    interpolation,
     march_heights,
-    patch_of,
     view_shifts,
 )
 from citylod.render import _vtk
@@ -889,8 +888,8 @@ class SlfView:
             return False, 0.0
         load_s = 0.0
         if not self._same_dir(cell, v) or not cell.evaluated:
-            idx, w = interpolation(self.ds, v)
-            patch = patch_of(self.ds, v) if len(self.patches) > 1 else 0
+            idx, w, patch = blend_of(self.ds, v)
+            patch = patch if len(self.patches) > 1 else 0
             sel = self.patches[patch]
             t_load = time.perf_counter()
             cl, q, top, mean, basis, *files = self._field(cell, patch)
@@ -927,7 +926,8 @@ class SlfView:
                     a = vv[:2] / max(float(vv[2]), 1e-6)
                     set_lookup(cell.actor, loc, w, shifts, (a[0] / texel, a[1] / texel,
                                                             max(float(top64.max()) if top64.size else 0.0, 0.0)))
-                    set_fade(cell.actor, alpha)
+                    if alpha != cell.last_alpha:
+                        set_fade(cell.actor, alpha)
                     cell.files = (files[0], files[1])
                     cell.last_dir = v
                     cell.last_alpha = alpha

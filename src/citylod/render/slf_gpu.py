@@ -215,23 +215,20 @@ def set_images(actor: Any, images: Any, seen: Any, cols: int) -> None:
     actor.GetShaderProperty().GetFragmentCustomUniforms().SetUniformi("slfCols", int(cols))
 
 
-def _vec4(x: npt.ArrayLike) -> list[float]:
-    a = np.zeros(4)
-    v = np.asarray(x, np.float64).ravel()[:4]
-    a[:len(v)] = v
-    return [float(y) for y in a]
+def _vec4(x: list[float]) -> list[float]:
+    return [float(v) for v in x[:4]] + [0.0] * (4 - min(len(x), 4))
 
 
 def set_lookup(actor: Any, loc: Any, w: Any, shifts: Any, ray: tuple[float, float, float]) -> None:
     """The view's uniforms: the blended directions' tiles ``loc`` and weights ``w``, their parallax per metre
     of height ``shifts`` (n, 2) in texels (x, y), and the view's march (texels per metre of height in x and
-    y, and the highest top)."""
+    y, and the highest top). Plain lists: this runs for every cell whose direction moved, every frame."""
     u = actor.GetShaderProperty().GetFragmentCustomUniforms()
-    u.SetUniform4f("slfTile", _vec4(loc))
-    u.SetUniform4f("slfW", _vec4(w))
-    sh = np.asarray(shifts, np.float64).reshape(-1, 2)
-    u.SetUniform4f("slfShiftX", _vec4(sh[:, 0]))
-    u.SetUniform4f("slfShiftY", _vec4(sh[:, 1]))
+    u.SetUniform4f("slfTile", _vec4(np.asarray(loc).tolist()))
+    u.SetUniform4f("slfW", _vec4(np.asarray(w).tolist()))
+    sh = np.asarray(shifts, np.float64).reshape(-1, 2).T.tolist()
+    u.SetUniform4f("slfShiftX", _vec4(sh[0]))
+    u.SetUniform4f("slfShiftY", _vec4(sh[1]))
     u.SetUniform3f("slfRay", [float(ray[0]), float(ray[1]), float(ray[2])])
 
 

@@ -46,6 +46,7 @@ import numpy.typing as npt
 
 __all__ = [
     "DirectionSet",
+    "blend_of",
     "box_average",
     "depth_corrected_blend",
     "depth_corrected_colours",
@@ -96,6 +97,8 @@ class DirectionSet:
             d[low, 1] *= math.cos(math.asin(lo)) / h
             d[low, 2] = lo
         self.dirs = d / np.linalg.norm(d, axis=1)[:, None]
+        #: First lattice column (and row) of each direction patch (:func:`direction_patches`).
+        self.patch_starts = sorted({min(2 * k, self.grid - 3) for k in range(self.grid // 2)})
         stored = np.full((grid, grid), -1, np.int64)
         stored[self.cells[:, 1], self.cells[:, 0]] = np.arange(len(self.cells))
         table = stored.copy()
@@ -145,27 +148,40 @@ def direction_patches(ds: DirectionSet) -> list[I64]:
     >>> [len(p) for p in direction_patches(direction_set(5))]
     [8, 8, 8, 8]
     """
-    starts = sorted({min(2 * k, ds.grid - 3) for k in range(ds.grid // 2)})
+    starts = ds.patch_starts
     return [np.array(sorted({int(ds.table[r, c]) for r in range(r0, r0 + 3) for c in range(c0, c0 + 3)}), np.int64)
             for r0 in starts for c0 in starts]
 
 
-def patch_of(ds: DirectionSet, d: npt.ArrayLike) -> int:
-    """Index in :func:`direction_patches` of the patch holding the four directions blended for ``d``."""
-    c0, _ = _lattice(ds, d)
-    starts = sorted({min(2 * k, ds.grid - 3) for k in range(ds.grid // 2)})
+def _patch(ds: DirectionSet, c0: I64) -> int:
+    starts = ds.patch_starts
     col = max(i for i, s in enumerate(starts) if s <= c0[0])
     row = max(i for i, s in enumerate(starts) if s <= c0[1])
     return row * len(starts) + col
 
 
-def interpolation(ds: DirectionSet, d: npt.ArrayLike) -> tuple[I64, F64]:
-    """The four stored directions around ``d`` (3,) (towards the viewer) and their bilinear weights."""
-    c0, f = _lattice(ds, d)
+def _corners(ds: DirectionSet, c0: I64, f: F64) -> tuple[I64, F64]:
     idx = np.array([ds.table[c0[1], c0[0]], ds.table[c0[1], c0[0] + 1], ds.table[c0[1] + 1, c0[0]],
                     ds.table[c0[1] + 1, c0[0] + 1]], np.int64)
     w = np.array([(1 - f[0]) * (1 - f[1]), f[0] * (1 - f[1]), (1 - f[0]) * f[1], f[0] * f[1]])
     return idx, w
+
+
+def patch_of(ds: DirectionSet, d: npt.ArrayLike) -> int:
+    """Index in :func:`direction_patches` of the patch holding the four directions blended for ``d``."""
+    return _patch(ds, _lattice(ds, d)[0])
+
+
+def interpolation(ds: DirectionSet, d: npt.ArrayLike) -> tuple[I64, F64]:
+    """The four stored directions around ``d`` (3,) (towards the viewer) and their bilinear weights."""
+    return _corners(ds, *_lattice(ds, d))
+
+
+def blend_of(ds: DirectionSet, d: npt.ArrayLike) -> tuple[I64, F64, int]:
+    """:func:`interpolation` and :func:`patch_of` of ``d`` from one lattice lookup (per cell and frame)."""
+    c0, f = _lattice(ds, d)
+    idx, w = _corners(ds, c0, f)
+    return idx, w, _patch(ds, c0)
 
 
 @numba.njit(cache=True)
