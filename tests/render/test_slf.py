@@ -188,6 +188,30 @@ def test_a_shader_that_does_not_build_falls_back_to_the_cpu_lookup(box_slf: Path
         assert np.array_equal(sv.grab_rgb(), want[1])
 
 
+def test_the_shader_antialiases_only_where_a_pixel_covers_several_texels(box_slf: Path) -> None:
+    """``antialias`` averages four points of a pixel wider than a texel: up close (texels larger than pixels)
+    the picture is the same with and without it; far away (3.5 texels a pixel) it differs, and it is closer to
+    the aliased lookup rendered at 3 × 3 the pixels and box-filtered (an independent antialiasing)."""
+    near, far = _camera(400.0, 200.0, 40.0), _camera(3000.0, 300.0, 25.0)
+
+    def picture(cam: Camera, antialias: bool, size: tuple[int, int] = BIG) -> tuple[np.ndarray, np.ndarray]:
+        with SlfView(box_slf, size=size, tau_px=1e6, antialias=antialias) as sv:
+            sv.prepare(cam)
+            sv.draw()
+            return sv.grab_rgb().astype(float), sv.field_mask()
+
+    a, _ = picture(near, True)
+    b, _ = picture(near, False)
+    assert np.array_equal(a, b)
+    smooth, mask = picture(far, True)
+    sharp, _ = picture(far, False)
+    big, _ = picture(far, False, (3 * BIG[0], 3 * BIG[1]))
+    ref = big.reshape(BIG[1], 3, BIG[0], 3, 3).mean(axis=(1, 3))
+    assert mask.sum() > 300 and not np.array_equal(smooth, sharp)
+    err = [float(np.abs(x - ref).mean(axis=2)[mask].mean()) for x in (smooth, sharp)]
+    assert err[0] < 0.8 * err[1], err
+
+
 def test_heights_travel_to_the_shader_as_bytes_within_a_millimetre() -> None:
     h = np.array([[0.0, 0.0004, 1.0, 15.0], [123.4567, 999.999, 16383.99, -3.0]])
     b = encode_heights(h).astype(np.float64)

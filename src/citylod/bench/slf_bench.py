@@ -75,13 +75,14 @@ def _orbit(lo: Any, hi: Any, n: int, step_deg: float, dist_ext: float) -> list[C
 
 def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, size: tuple[int, int] = (960, 540),
               orbit_frames: int = 12, texel_px: float | None = None, lookup: str = "gpu",
-              progress: bool = True) -> dict[str, Any]:
+              antialias: bool = True, progress: bool = True) -> dict[str, Any]:
     """Run the comparison; returns (and writes) the report."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     big = (3 * size[0], 3 * size[1])
-    with (SlfView(slf_dir, size=size, tau_px=tau_px, texel_px=texel_px, lookup=lookup) as sv, GeometryView(slf_dir, size=size, tau_px=tau_px) as gv,
+    with (SlfView(slf_dir, size=size, tau_px=tau_px, texel_px=texel_px, lookup=lookup,
+                  antialias=antialias) as sv, GeometryView(slf_dir, size=size, tau_px=tau_px) as gv,
           GeometryView(slf_dir, size=big, tau_px=tau_px) as bv):
         lo, hi = sv.city.root.box.bounds()
         flight = default_flight(lo, hi, n=30)[:10]
@@ -149,7 +150,8 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
             if m.any():
                 fl_s.append(float(np.abs(a.astype(np.int16) - b.astype(np.int16)).mean(axis=2)[m].mean()))
                 fl_g.append(float(np.abs(ga.astype(np.int16) - gb.astype(np.int16)).mean(axis=2)[m].mean()))
-    summary: dict[str, Any] = {"tau_px": tau_px, "texel_px": texel_px, "lookup": lookup, "size": list(size)}
+    summary: dict[str, Any] = {"tau_px": tau_px, "texel_px": texel_px, "lookup": lookup, "antialias": antialias,
+                               "size": list(size)}
     for name in sets:
         r = [x for x in rows if x["set"] == name]
         if not r:
@@ -178,7 +180,7 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
     report = {"summary": summary, "frames": rows}
     (out / "slf_report.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
     lines = [f"# Far-field SLF against building geometry (τ = {tau_px} px, texels ≤ {texel_px} px, "
-             f"{size[0]}×{size[1]}, lookup on the {lookup.upper()})", "",
+             f"{size[0]}×{size[1]}, lookup on the {lookup.upper()}{'' if antialias else ', aliased'})", "",
              "| cameras | frames | SLF frame ms (draw + evaluation; loading) | geometry ms (triangles) | speed-up |"
              " SLF MB (of it buildings) |"
              " geometry MB | less data | mean err | p99 err | geometry@τ mean err | building cells |",
@@ -209,9 +211,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--orbit-frames", type=int, default=12)
     p.add_argument("--texel-px", type=float, help="also refine fields while a texel covers more pixels")
     p.add_argument("--lookup", choices=("gpu", "cpu"), default="gpu")
+    p.add_argument("--no-antialias", action="store_true")
     a = p.parse_args(argv)
     t0 = time.perf_counter()
-    slf_bench(a.slf_dir, a.out_dir, tau_px=a.tau, orbit_frames=a.orbit_frames, texel_px=a.texel_px, lookup=a.lookup)
+    slf_bench(a.slf_dir, a.out_dir, tau_px=a.tau, orbit_frames=a.orbit_frames, texel_px=a.texel_px, lookup=a.lookup,
+              antialias=not a.no_antialias)
     print((a.out_dir / "slf_report.md").read_text())
     print(f"{time.perf_counter() - t0:.0f} s")
     return 0

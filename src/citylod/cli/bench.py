@@ -29,6 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bf.add_argument("--texel-px", type=float, help="also refine fields while a texel covers more pixels than this")
     bf.add_argument("--lookup", choices=("gpu", "cpu"), default="gpu",
                     help="evaluate the fields per pixel in the fragment shader (default) or per texel on the CPU")
+    bf.add_argument("--no-antialias", action="store_true",
+                    help="shader lookup: one point a pixel where a pixel covers several texels (faster, aliased)")
 
 
 def run(args: argparse.Namespace, progress: bool) -> int:
@@ -36,7 +38,7 @@ def run(args: argparse.Namespace, progress: bool) -> int:
         from citylod.bench.slf_bench import slf_bench
 
         slf_bench(args.slf_dir, args.output, tau_px=args.tau, orbit_frames=args.orbit_frames,
-                  texel_px=args.texel_px, lookup=args.lookup, progress=progress)
+                  texel_px=args.texel_px, lookup=args.lookup, antialias=not args.no_antialias, progress=progress)
         print((args.output / "slf_report.md").read_text())
         return 0
     if args.command == "bench-suite":

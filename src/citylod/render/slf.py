@@ -260,6 +260,10 @@ class SlfView:
         at 1.5 (elevation 42°) by under 0.6 of a mip level. On a software rasteriser the anisotropic filter
         doubles the cost of a field pixel (whole-city overview at 55°: 9.3 against 4.3 ms, colour error
         10.9 against 10.6; at 35° it lowers the error, docs/PERFORMANCE_LOG.md).
+    antialias
+        With the GPU lookup, average the field at four points of a pixel wider than a texel (default); False:
+        one point, about twice as fast on a software rasteriser and aliased (flicker on the 8,000-house slow
+        orbit 7.7 against 5.6, the geometry's 9.0; docs/BENCHMARKS.md).
     lookup
         ``"gpu"`` (default): cells with building tops are evaluated per pixel in the fragment shader
         (:mod:`citylod.render.slf_gpu`); a frame sets uniforms only. ``"cpu"``: evaluated per texel by the
@@ -275,10 +279,12 @@ class SlfView:
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
                  fields: bool = True, reeval_deg: float = 0.5, city_dir: str | Path | None = None,
                  texel_px: float | None = None, depth_correct: bool = True, anisotropic_from: float = 1.5,
-                 lookup: str = "gpu", renderer: Any = None, origin: npt.ArrayLike | None = None) -> None:
+                 lookup: str = "gpu", antialias: bool = True, renderer: Any = None,
+                 origin: npt.ArrayLike | None = None) -> None:
         if lookup not in ("gpu", "cpu"):
             raise ValueError(f"lookup must be 'gpu' or 'cpu', got {lookup!r}")
         self.lookup = lookup
+        self.antialias = bool(antialias)
         self.ts, self.meta = open_slf(slf_dir)
         self.anisotropic_from = float(anisotropic_from)
         self.depth_correct = depth_correct
@@ -866,7 +872,8 @@ class SlfView:
             update_texture(seen_tex, heights)
         if cell.top_tex is None:
             cell.top_tex = height_texture(top64)
-            install_lookup(cell.actor, cell.top_tex, img_tex, seen_tex, lay.t, lay.cols, self.ground_rgb)
+            install_lookup(cell.actor, cell.top_tex, img_tex, seen_tex, lay.t, lay.cols, self.ground_rgb,
+                           self.antialias)
             mapper = cell.actor.GetMapper()
             if not mapper.HasObserver(_vtk.vtkCommand.ErrorEvent):
                 mapper.AddObserver(_vtk.vtkCommand.ErrorEvent, self._shader_failed)

@@ -107,7 +107,7 @@ _IMPL = """
   vec2 gx = dFdx(vec2(c, r));
   vec2 gy = dFdy(vec2(c, r));
   vec3 col;
-  if (max(length(gx), length(gy)) > 1.0) {
+  if (slfAntialias > 0.5 && max(length(gx), length(gy)) > 1.0) {
     col = 0.25 * (slfBlend(r + 0.375 * gx.y + 0.125 * gy.y, c + 0.375 * gx.x + 0.125 * gy.x, hh)
                   + slfBlend(r - 0.375 * gx.y - 0.125 * gy.y, c - 0.375 * gx.x - 0.125 * gy.x, hh)
                   + slfBlend(r + 0.125 * gx.y - 0.375 * gy.y, c + 0.125 * gx.x - 0.375 * gy.x, hh)
@@ -183,9 +183,11 @@ def update_texture(tex: Any, arr: npt.NDArray[Any]) -> None:
     tex.Modified()
 
 
-def install_lookup(actor: Any, top: Any, images: Any, seen: Any, t: int, cols: int, ground_rgb: Any) -> None:
+def install_lookup(actor: Any, top: Any, images: Any, seen: Any, t: int, cols: int, ground_rgb: Any,
+                   antialias: bool = True) -> None:
     """Make ``actor`` (a cell's textured quad) draw its field through the lookup shader, with ``top``,
-    ``images`` and ``seen`` textures and a patch atlas of ``cols`` tiles a row of ``t`` texels."""
+    ``images`` and ``seen`` textures and a patch atlas of ``cols`` tiles a row of ``t`` texels; ``antialias``:
+    average four points of a pixel wider than a texel (False: one, faster, aliased)."""
     actor.SetTexture(None)
     prop = actor.GetProperty()
     prop.SetTexture("slfTop", top)
@@ -200,6 +202,7 @@ def install_lookup(actor: Any, top: Any, images: Any, seen: Any, t: int, cols: i
     u.SetUniformi("slfCols", int(cols))
     u.SetUniformf("slfTol", 1.0)
     u.SetUniformf("slfFade", 0.0)
+    u.SetUniformf("slfAntialias", 1.0 if antialias else 0.0)
     u.SetUniformf("slfWhite", 0.0)
     u.SetUniform3f("slfGround", [float(x) / 255.0 for x in ground_rgb])
     for name in ("slfW", "slfTile", "slfShiftX", "slfShiftY"):
