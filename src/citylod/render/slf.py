@@ -262,8 +262,8 @@ class SlfView:
         10.9 against 10.6; at 35° it lowers the error, docs/PERFORMANCE_LOG.md).
     antialias
         With the GPU lookup, average the field at four points of a pixel wider than a texel (default); False:
-        one point, about twice as fast on a software rasteriser and aliased (flicker on the 8,000-house slow
-        orbit 7.7 against 5.6, the geometry's 9.0; docs/BENCHMARKS.md).
+        one point, aliased, and cheaper to draw on a software rasteriser (the 8,000-house overview 8–13 ms
+        against 14–18 ms; flicker on its slow orbit 7.7 against 5.6, the geometry's 9.0; docs/BENCHMARKS.md).
     lookup
         ``"gpu"`` (default): cells with building tops are evaluated per pixel in the fragment shader
         (:mod:`citylod.render.slf_gpu`); a frame sets uniforms only. ``"cpu"``: evaluated per texel by the
