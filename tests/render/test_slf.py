@@ -212,6 +212,31 @@ def test_the_shader_antialiases_only_where_a_pixel_covers_several_texels(box_slf
     assert err[0] < 0.8 * err[1], err
 
 
+@pytest.mark.parametrize("lookup", ["gpu", "cpu"])
+def test_a_small_field_cache_drops_what_is_not_drawn_and_draws_the_same(box_slf: Path, lookup: str) -> None:
+    """With a cache too small for more than the frame's own fields, the views go around the scene (other
+    direction patches), and alternate between the field from far away and the buildings in full up close
+    (the cell hidden, so its patch is dropped too, and a shader's lookup reset): what a frame does not draw
+    is dropped, reloaded when drawn again, and each picture equals an unbounded view's."""
+    cams = [_camera(d, az, el) for az, el in ((200.0, 40.0), (250.0, 30.0), (320.0, 60.0), (200.0, 40.0))
+            for d in (2500.0, 150.0)]
+    with SlfView(box_slf, size=SIZE, tau_px=2.0, lookup=lookup) as big, \
+            SlfView(box_slf, size=SIZE, tau_px=2.0, lookup=lookup, cache_mb=1e-6) as small:
+        full = 0
+        for cam in cams:
+            f = big.prepare(cam)
+            full += f.cells == 0
+            big.draw()
+            small.prepare(cam)
+            small.draw()
+            assert np.array_equal(small.grab_rgb(), big.grab_rgb())
+            shown = {(key, c.patch) for key, c in small.cells.items() if c.actor.GetVisibility()}
+            assert set(small._lru) == shown  # nothing else is kept
+            held = {(key, p) for key, c in small.cells.items() for p in (*c.fields, *c.images, *c.gpu)}
+            assert held <= shown
+        assert full == 4 and len(big._lru) >= 3  # buildings in full half the time; three patches drawn
+
+
 def test_heights_travel_to_the_shader_as_bytes_within_a_millimetre() -> None:
     h = np.array([[0.0, 0.0004, 1.0, 15.0], [123.4567, 999.999, 16383.99, -3.0]])
     b = encode_heights(h).astype(np.float64)

@@ -27,6 +27,7 @@ import json
 import math
 import time
 import warnings
+from collections import OrderedDict
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -201,6 +202,7 @@ class _Cell:
         self.gpu: dict[int, tuple[Any, Any, Any, Any, AtlasLayout]] = {}
         self.gpu_patch: int | None = None
         self.top_tex: Any = None
+        self.patch: int | None = None  # the direction patch last evaluated
 
     @property
     def evaluated(self) -> bool:
@@ -264,6 +266,10 @@ class SlfView:
         With the GPU lookup, average the field at four points of a pixel wider than a texel (default); False:
         one point, aliased, and cheaper to draw on a software rasteriser (the 8,000-house overview 8–13 ms
         against 14–18 ms; flicker on its slow orbit 7.7 against 5.6, the geometry's 9.0; docs/BENCHMARKS.md).
+    cache_mb
+        Memory for the cells' decoded fields (their read arrays, reconstructed directions, ray marches and
+        atlases, 1–2 MB a cell and direction patch), least recently drawn dropped first; what the current
+        frame draws is always kept. Unbounded, one orbit around the 8,000-house city held 1.75 GB.
     lookup
         ``"gpu"`` (default): cells with building tops are evaluated per pixel in the fragment shader
         (:mod:`citylod.render.slf_gpu`); a frame sets uniforms only. ``"cpu"``: evaluated per texel by the
@@ -279,12 +285,15 @@ class SlfView:
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
                  fields: bool = True, reeval_deg: float = 0.5, city_dir: str | Path | None = None,
                  texel_px: float | None = None, depth_correct: bool = True, anisotropic_from: float = 1.5,
-                 lookup: str = "gpu", antialias: bool = True, renderer: Any = None,
+                 lookup: str = "gpu", antialias: bool = True, cache_mb: float = 256.0, renderer: Any = None,
                  origin: npt.ArrayLike | None = None) -> None:
         if lookup not in ("gpu", "cpu"):
             raise ValueError(f"lookup must be 'gpu' or 'cpu', got {lookup!r}")
         self.lookup = lookup
         self.antialias = bool(antialias)
+        self.cache_bytes = int(cache_mb * 2**20)
+        self._lru: OrderedDict[tuple[str, int], int] = OrderedDict()  # (cell, patch) -> bytes, oldest first
+        self._lru_bytes = 0
         self.ts, self.meta = open_slf(slf_dir)
         self.anisotropic_from = float(anisotropic_from)
         self.depth_correct = depth_correct
@@ -674,6 +683,7 @@ class SlfView:
         self._built_all = True
         building_s = 0.0
         full: dict[str, tuple[Tile, set[str]]] = {}  # city tile -> cells whose buildings it draws in full
+        drawn: set[tuple[str, int]] = set()  # (cell, patch) of the fields this frame draws
         for key, alpha in list(show.items()):
             cell = self._cell(self.cell_info[key])
             tiles: list[Tile] = []
@@ -723,7 +733,10 @@ class SlfView:
                 frame.evaluations += evaluated
                 frame.eval_s += time.perf_counter() - t0 - load_s
                 frame.load_s += load_s
+            if alpha < 1.0 and cell.patch is not None:
+                drawn.add(self._touch(cell, cell.patch))
             cell.actor.SetVisibility(alpha < 1.0)  # a cell drawn in full stands on the shared ground
+        self._evict(drawn)
         self._set_ground(frozenset(k for k, a in show.items() if a >= 1.0))
         for tile, cells in full.values():
             for a in self._full_buildings(tile, frozenset(cells)):
@@ -828,6 +841,52 @@ class SlfView:
         # draws again.
         self._gpu_failed = True
 
+    @staticmethod
+    def _reset_gpu(cell: _Cell) -> None:
+        """The cell back to a plain textured quad, its lookup to be installed and evaluated again."""
+        prop = cell.actor.GetProperty()
+        for name in ("slfTop", "slfImages", "slfSeen"):
+            prop.RemoveTexture(name)
+        cell.actor.GetShaderProperty().ClearAllFragmentShaderReplacements()
+        cell.actor.SetTexture(cell.tex)
+        cell.gpu.clear()
+        cell.gpu_patch = None
+        cell.top_tex = None
+        cell.last_dir = None
+
+    def _touch(self, cell: _Cell, patch: int) -> tuple[str, int]:
+        """Mark the cell's ``patch`` data as drawn now; (cell key, patch)."""
+        key = (cell.tile.key, patch)
+        size = 0
+        for part in (cell.fields.get(patch, ())[:3], cell.images.get(patch, ()), cell.gpu.get(patch, ())[2:4]):
+            size += sum(int(a.nbytes) for a in part if isinstance(a, np.ndarray))
+        size += 2 * sum(int(a.nbytes) for a in cell.gpu.get(patch, ())[2:4])  # VTK's copy and the GPU's
+        self._lru_bytes += size - self._lru.pop(key, 0)
+        self._lru[key] = size
+        return key
+
+    def _evict(self, keep: set[tuple[str, int]]) -> None:
+        """Drop the least recently drawn cells' patch data beyond ``cache_bytes``, never what ``keep`` holds.
+        A cell whose lookup reads a dropped patch is reset (it is not drawn this frame)."""
+        total = self._lru_bytes
+        for key in list(self._lru):
+            if total <= self.cache_bytes:
+                break
+            if key in keep:
+                continue
+            total -= self._lru.pop(key)
+            cell = self.cells[key[0]]
+            patch = key[1]
+            cell.fields.pop(patch, None)
+            cell.images.pop(patch, None)
+            cell.gpu.pop(patch, None)
+            if cell.gpu_patch == patch:
+                self._reset_gpu(cell)
+            if cell.patch == patch:
+                cell.patch = None
+                cell.last_dir = None
+        self._lru_bytes = total
+
     def _to_cpu(self) -> None:
         """Every cell back to the CPU lookup (a textured quad), to be evaluated again."""
         warnings.warn("the far field's lookup shader could not be built here; evaluating on the CPU",
@@ -835,17 +894,8 @@ class SlfView:
         self.lookup = "cpu"
         self._gpu_failed = False
         for cell in self.cells.values():
-            if cell.top_tex is None:
-                continue
-            prop = cell.actor.GetProperty()
-            for name in ("slfTop", "slfImages", "slfSeen"):
-                prop.RemoveTexture(name)
-            cell.actor.GetShaderProperty().ClearAllFragmentShaderReplacements()
-            cell.actor.SetTexture(cell.tex)
-            cell.gpu.clear()
-            cell.gpu_patch = None
-            cell.top_tex = None
-            cell.last_dir = None
+            if cell.top_tex is not None:
+                self._reset_gpu(cell)
         if self.depth_correct:  # the compiled lookup loaded now
             depth_corrected_colours(np.zeros((1, 2, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32),
                                     np.zeros(1, np.int64), np.ones(1), self.ds.dirs, np.ones((2, 2)), 1.0,
@@ -937,6 +987,7 @@ class SlfView:
                         set_fade(cell.actor, alpha)
                     cell.files = (files[0], files[1])
                     cell.last_dir = v
+                    cell.patch = patch
                     cell.last_alpha = alpha
                     return True, load_s
                 cell.colours = depth_corrected_colours(images, seen, loc, w, self.ds.dirs[sel], top64, texel, v)
@@ -944,6 +995,7 @@ class SlfView:
                 cell.colours = evaluate(cl, q, mean, basis, loc, w)
             cell.files = (files[0], files[1])
             cell.last_dir = v
+            cell.patch = patch
         if cell.gpu_patch is not None:  # the lookup's direction is current: only the fade moved
             set_fade(cell.actor, alpha)
             cell.last_alpha = alpha
