@@ -702,6 +702,9 @@ def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, wi
     assert np.linalg.norm(np.subtract(view.camera().position, cam_before.position)) > 100.0  # it orbited
     assert math.degrees(math.acos(min(1.0, float(before @ cell.last_dir)))) > 5.0  # evaluated again
     assert cell.gpu_patch is not None  # evaluated per pixel by the cell's shader in the window's context
+    assert far.cache_bytes == (doc.lod.memory_mb << 20) // 4
+    doc.set_memory_budget(64)
+    assert far.cache_bytes == 16 << 20  # a quarter of the memory budget
     err, pixels = compare()
     assert pixels > 300 and err < 2.0, (err, pixels)
     window._update_status()

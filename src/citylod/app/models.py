@@ -67,6 +67,9 @@ COLOR_MODES = ("auto", "rgb", "classification", "elevation", "intensity", "level
 #: How point layers draw their points (:meth:`Document.set_point_shape`).
 POINT_SHAPES = ("square", "round", "splat")
 
+#: A far-field layer keeps its decoded fields within this fraction of the memory budget (1 / FAR_FIELD_SHARE).
+FAR_FIELD_SHARE = 4
+
 #: (key sequence, what it does): the Help → Shortcuts dialog and the actions read this one list.
 SHORTCUTS: tuple[tuple[str, str], ...] = (
     ("Ctrl+O", "Open a tileset, city store, raster, LAS/LAZ or city model"),
@@ -659,7 +662,8 @@ class Document:
         tiles in the scene: picking, queries and the point tools do not see it."""
         from citylod.render.slf import SlfView
 
-        far = SlfView(p, renderer=self.scene.renderer, origin=self.scene.origin, tau_px=self.effective_tau())
+        far = SlfView(p, renderer=self.scene.renderer, origin=self.scene.origin, tau_px=self.effective_tau(),
+                      cache_mb=self.lod.memory_mb / FAR_FIELD_SHARE)
         if self.scene.origin is None:  # the far field's own origin (its actors are made from the first frame)
             self.scene.origin = far.origin
         far.attach()
@@ -1024,10 +1028,14 @@ class Document:
             self.frame_budget = FrameBudget(self.scene, self.lod.target_ms)
 
     def set_memory_budget(self, megabytes: int) -> None:
-        """Byte budget of the tile cache; tiles that no longer fit are released."""
+        """Byte budget of the tile cache; tiles that no longer fit are released. Far-field layers keep their
+        decoded fields within a quarter of it (from their next frame)."""
         self.lod.memory_mb = max(int(megabytes), 16)
         for key in self.scene.cache.set_budget(self.lod.memory_mb << 20):
             self.scene._layer_of(key)._release(key)
+        for e in self.entries:
+            if e.far is not None:
+                e.far.cache_bytes = (self.lod.memory_mb << 20) // FAR_FIELD_SHARE
         self._emit("lod")
 
     def set_frozen(self, on: bool) -> None:
