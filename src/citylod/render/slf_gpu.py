@@ -7,19 +7,22 @@ GPU. Here the stored directions' images and ray marches go to the GPU once per c
 textures, and a frame only sets each cell's uniforms. The shader then runs the same march and blend
 per fragment, at the fragment's own texture position rather than at texel centres that are then filtered.
 On a GPU that is free. On Mesa's llvmpipe the fragment shader runs in SIMD over the rasteriser's threads:
-8–13 ms for the 25 cells of the whole-city overview, against 16–21 ms for the CPU evaluation, texture writes
-and draw.
+whole-city overview 17–18 ms against 21 ms for the CPU evaluation, texture writes and draw; far flight 8–9
+against 11 ms (8,000 houses, docs/BENCHMARKS.md).
 
 The shader is :func:`~citylod.lod.kernels.slf._ray_top` and
-:func:`~citylod.lod.kernels.slf._blend_texel` in GLSL, line for line: the exact column march over the building
-tops (``slfTop``, T × T heights, row 0 the north edge), then for each of the four blended directions a
-bilinear sample of its image at the parallax-shifted position (``slfImages``, the patch's images as tiles of
-an atlas, clamped to the tile's texel centres so no neighbour bleeds in), kept where that direction's own
-march (``slfSeen``, float atlas of the same layout) meets the viewed point within ``slfTol``; where none
-does, the plain weights. Each image is filtered over the pixel's footprint (``textureGrad``: mip-mapped,
-anisotropic), as the CPU path's texture of the evaluated field is; without it the minified far field
-aliases (flicker 7.7–9.3 against 2.4–4.1 on the sample cities, docs/PERFORMANCE_LOG.md). A cross-fade to the
-ground colour (``slfFade``) and a flat white for the field mask (``slfWhite``) are uniforms too.
+:func:`~citylod.lod.kernels.slf._blend_texel` in GLSL. It first runs the exact column march over the building
+tops (``slfTop``, T × T heights, row 0 the north edge). Then, for each of the four blended directions, it takes
+a bilinear sample of that direction's image at the parallax-shifted position (``slfImages``, the patch's
+images as tiles of an atlas, clamped to the tile's texel centres so no neighbour bleeds in). A direction's
+sample counts where its own march (``slfSeen``, heights in an atlas of the same layout) meets the viewed point
+within ``slfTol``; where none does, the plain weights count.
+
+A pixel wider than a texel averages the blend at four points of its footprint (a rotated grid), with the
+directions that see the point decided once, at its centre. The CPU path's texture of the evaluated field is
+mip-mapped for the same reason. A point-sampled minified field aliases: flicker 7.7–9.3 against 5.6–7.1 with
+the four points, on the sample cities (docs/PERFORMANCE_LOG.md). A cross-fade to the ground colour
+(``slfFade``) and a flat white for the field mask (``slfWhite``) are uniforms too.
 
 Where a GL cannot build the shader, VTK draws the quad with its atlas and reports it only as an ErrorEvent of
 the mapper; :class:`~citylod.render.slf.SlfView` watches for it and goes over to the CPU lookup, with a warning.
@@ -69,30 +72,32 @@ float slfRayTop(float r, float c) {
   }
   return 0.0;
 }
-vec3 slfBlend(float r, float c, float hh) {  // _blend_texel at (r, c) whose view ray meets height hh (0..255)
-  float T = float(slfT);
-  vec2 atlas = vec2(textureSize(slfImages, 0));
-  vec3 acc = vec3(0.0);
-  vec3 fb = vec3(0.0);
-  float wsum = 0.0;
-  float wtot = 0.0;
+vec4 slfWeights(float r, float c, float hh) {  // _blend_texel's weights at (r, c): the directions that see hh
+  vec4 seen = vec4(0.0);
+  vec4 plain = vec4(0.0);
   for (int k = 0; k < 4; ++k) {
     float wk = slfW[k];
     if (wk <= 0.0) continue;
-    wtot += wk;
-    vec2 org = vec2(mod(slfTile[k], float(slfCols)), floor(slfTile[k] / float(slfCols))) * T;
-    float rr = r - hh * slfShiftY[k];
-    float cc = c + hh * slfShiftX[k];
-    vec2 q = clamp(vec2(cc, rr), vec2(0.0), vec2(T - 1.0));
-    vec3 s = textureLod(slfImages, (org + q + 0.5) / atlas, 0.0).rgb * 255.0;
-    ivec2 ri = clamp(ivec2(floor(vec2(cc, rr) + 0.5)), ivec2(0), ivec2(slfT - 1));
-    if (abs(slfHeight(slfSeen, ivec2(org) + ri) - hh) <= slfTol) {
-      acc += wk * s;
-      wsum += wk;
-    }
-    fb += wk * s;
+    plain[k] = wk;
+    vec2 org = vec2(mod(slfTile[k], float(slfCols)), floor(slfTile[k] / float(slfCols))) * float(slfT);
+    vec2 p = vec2(c + hh * slfShiftX[k], r - hh * slfShiftY[k]);
+    ivec2 ri = clamp(ivec2(floor(p + 0.5)), ivec2(0), ivec2(slfT - 1));
+    if (abs(slfHeight(slfSeen, ivec2(org) + ri) - hh) <= slfTol) seen[k] = wk;
   }
-  return wsum > 1e-9 ? acc / wsum : fb / max(wtot, 1e-9);
+  float s = seen.x + seen.y + seen.z + seen.w;
+  return s > 1e-9 ? seen / s : plain / max(plain.x + plain.y + plain.z + plain.w, 1e-9);
+}
+vec3 slfBlend(float r, float c, float hh, vec4 ew) {  // the images at (r, c) blended with weights ew (0..255)
+  float T = float(slfT);
+  vec2 atlas = vec2(textureSize(slfImages, 0));
+  vec3 acc = vec3(0.0);
+  for (int k = 0; k < 4; ++k) {
+    if (ew[k] <= 0.0) continue;
+    vec2 org = vec2(mod(slfTile[k], float(slfCols)), floor(slfTile[k] / float(slfCols))) * T;
+    vec2 q = clamp(vec2(c + hh * slfShiftX[k], r - hh * slfShiftY[k]), vec2(0.0), vec2(T - 1.0));
+    acc += ew[k] * textureLod(slfImages, (org + q + 0.5) / atlas, 0.0).rgb * 255.0;
+  }
+  return acc;
 }
 """
 
@@ -106,14 +111,16 @@ _IMPL = """
   // lookup of a minified field is otherwise a point sample of it, and aliases.
   vec2 gx = dFdx(vec2(c, r));
   vec2 gy = dFdy(vec2(c, r));
+  // Which directions see the point is decided once, at the pixel's centre.
+  vec4 ew = slfWeights(r, c, hh);
   vec3 col;
   if (slfAntialias > 0.5 && max(length(gx), length(gy)) > 1.0) {
-    col = 0.25 * (slfBlend(r + 0.375 * gx.y + 0.125 * gy.y, c + 0.375 * gx.x + 0.125 * gy.x, hh)
-                  + slfBlend(r - 0.375 * gx.y - 0.125 * gy.y, c - 0.375 * gx.x - 0.125 * gy.x, hh)
-                  + slfBlend(r + 0.125 * gx.y - 0.375 * gy.y, c + 0.125 * gx.x - 0.375 * gy.x, hh)
-                  + slfBlend(r - 0.125 * gx.y + 0.375 * gy.y, c - 0.125 * gx.x + 0.375 * gy.x, hh));
+    col = 0.25 * (slfBlend(r + 0.375 * gx.y + 0.125 * gy.y, c + 0.375 * gx.x + 0.125 * gy.x, hh, ew)
+                  + slfBlend(r - 0.375 * gx.y - 0.125 * gy.y, c - 0.375 * gx.x - 0.125 * gy.x, hh, ew)
+                  + slfBlend(r + 0.125 * gx.y - 0.375 * gy.y, c + 0.125 * gx.x - 0.375 * gy.x, hh, ew)
+                  + slfBlend(r - 0.125 * gx.y + 0.375 * gy.y, c - 0.125 * gx.x + 0.375 * gy.x, hh, ew));
   } else {
-    col = slfBlend(r, c, hh);
+    col = slfBlend(r, c, hh, ew);
   }
   col = mix(col / 255.0, slfGround, slfFade);
   gl_FragData[0] = slfWhite > 0.5 ? vec4(1.0) : vec4(col, 1.0);
