@@ -38,7 +38,8 @@ import numpy.typing as npt
 
 from citylod.render import _vtk
 
-__all__ = ["AtlasLayout", "encode_heights", "height_texture", "install_lookup", "rgb_texture", "set_lookup"]
+__all__ = ["AtlasLayout", "encode_heights", "height_texture", "install_lookup", "rgb_texture", "set_fade", "set_images",
+           "set_lookup", "update_texture"]
 
 _DEC = """
 //VTK::TCoord::Dec
@@ -155,7 +156,7 @@ def _texture(arr: npt.NDArray[Any], interpolate: bool) -> Any:
     img.GetPointData().SetScalars(_vtk.numpy_to_vtk(np.ascontiguousarray(arr).reshape(-1, nc), deep=True))
     tex = _vtk.vtkTexture()
     tex.SetInputData(img)
-    tex.SetColorModeToDirectScalars()  # floats as floats (the default maps them through a colour table)
+    tex.SetColorModeToDirectScalars()  # the bytes as they are, never through a colour table
     tex.SetInterpolate(interpolate)
     tex.MipmapOff()
     tex.EdgeClampOn()
@@ -164,8 +165,7 @@ def _texture(arr: npt.NDArray[Any], interpolate: bool) -> Any:
 
 def rgb_texture(arr: npt.NDArray[np.uint8]) -> Any:
     """An RGB8 texture, filtered bilinearly (the images' atlas)."""
-    tex = _texture(arr, True)
-    return tex
+    return _texture(arr, True)
 
 
 def encode_heights(arr: npt.ArrayLike) -> npt.NDArray[np.uint8]:
@@ -243,6 +243,8 @@ def set_lookup(actor: Any, loc: Any, w: Any, shifts: Any, ray: tuple[float, floa
 
 
 def set_fade(actor: Any, fade: float, white: bool = False) -> None:
+    """Blend the cell's field towards the ground colour by ``fade`` (0: the field); ``white``: draw it flat
+    white (the field mask of a measurement)."""
     u = actor.GetShaderProperty().GetFragmentCustomUniforms()
     u.SetUniformf("slfFade", float(fade))
     u.SetUniformf("slfWhite", 1.0 if white else 0.0)
