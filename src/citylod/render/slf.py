@@ -63,7 +63,9 @@ from citylod.render.slf_gpu import (
     set_fade,
     set_images,
     set_lookup,
-    update_texture,
+    texels,
+    texels_changed,
+    texture_bytes,
 )
 from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk, view_from_renderer
 
@@ -198,8 +200,8 @@ class _Cell:
         self.files: tuple[str, str] | None = None  # the field files of the patch last drawn
         self.anisotropy = 16.0
         # The lookup on the GPU (render.slf_gpu): per patch the atlases of its stored directions' images and
-        # ray marches (textures and the arrays behind them), the patch the shader reads, the building tops.
-        self.gpu: dict[int, tuple[Any, Any, Any, Any, AtlasLayout]] = {}
+        # ray marches (textures) and their layout, the patch the shader reads, the building tops.
+        self.gpu: dict[int, tuple[Any, Any, AtlasLayout]] = {}
         self.gpu_patch: int | None = None
         self.top_tex: Any = None
         self.patch: int | None = None  # the direction patch last evaluated
@@ -850,6 +852,7 @@ class SlfView:
         cell.actor.GetShaderProperty().ClearAllFragmentShaderReplacements()
         cell.actor.SetTexture(cell.tex)
         cell.gpu.clear()
+        cell.images.clear()  # the shader's directions live only in its atlases
         cell.gpu_patch = None
         cell.top_tex = None
         cell.last_dir = None
@@ -858,9 +861,10 @@ class SlfView:
         """Mark the cell's ``patch`` data as drawn now; (cell key, patch)."""
         key = (cell.tile.key, patch)
         size = 0
-        for part in (cell.fields.get(patch, ())[:3], cell.images.get(patch, ()), cell.gpu.get(patch, ())[2:4]):
+        for part in (cell.fields.get(patch, ())[:3], cell.images.get(patch, ())):
             size += sum(int(a.nbytes) for a in part if isinstance(a, np.ndarray))
-        size += 2 * sum(int(a.nbytes) for a in cell.gpu.get(patch, ())[2:4])  # VTK's copy and the GPU's
+        # The atlases: VTK's image and the GL texture's copy of it.
+        size += 2 * sum(texture_bytes(t) for t in cell.gpu.get(patch, ())[:2])
         self._lru_bytes += size - self._lru.pop(key, 0)
         self._lru[key] = size
         return key
@@ -901,25 +905,25 @@ class SlfView:
                                     np.zeros(1, np.int64), np.ones(1), self.ds.dirs, np.ones((2, 2)), 1.0,
                                     self.ds.dirs[0])
 
-    def _gpu_patch(self, cell: _Cell, patch: int, got: tuple[Any, Any, Any, Any], filled: list[int]) -> None:
-        """Give the cell's shader the atlases of ``patch`` (made on first use, the directions ``filled`` just
-        reconstructed copied in), installing the shader on the cell's first GPU lookup."""
-        images, seen, have, top64 = got
+    def _gpu_patch(self, cell: _Cell, patch: int, p: int, t: int, top64: F64,
+                   filled: list[tuple[int, Any, Any]]) -> None:
+        """Give the cell's shader the atlases of ``patch`` (``p`` directions of ``t`` × ``t`` texels; made on
+        first use) with the directions ``filled`` just reconstructed (index, image, ray march) written into
+        them, installing the shader on the cell's first GPU lookup."""
         entry = cell.gpu.get(patch)
         if entry is None:
-            lay = AtlasLayout(images.shape[0], images.shape[1])
-            rgb = np.zeros((*lay.shape, 3), np.uint8)
-            heights = np.zeros((*lay.shape, 3), np.uint8)
-            entry = cell.gpu[patch] = (rgb_texture(rgb), height_texture(heights[..., 0]), rgb, heights, lay)
-            filled = [int(k) for k in np.flatnonzero(have)]
-        img_tex, seen_tex, rgb, heights, lay = entry
+            lay = AtlasLayout(p, t)
+            entry = cell.gpu[patch] = (rgb_texture(np.zeros((*lay.shape, 3), np.uint8)),
+                                       height_texture(np.zeros(lay.shape)), lay)
+        img_tex, seen_tex, lay = entry
         if filled:
-            for k in filled:
+            rgb, heights = texels(img_tex), texels(seen_tex)
+            for k, image, seen in filled:
                 ys, xs = lay.tile(k)
-                rgb[ys, xs] = np.clip(np.rint(images[k]), 0, 255)
-                heights[ys, xs] = encode_heights(seen[k])
-            update_texture(img_tex, rgb)
-            update_texture(seen_tex, heights)
+                rgb[ys, xs] = np.clip(np.rint(image), 0, 255)
+                heights[ys, xs] = encode_heights(seen)
+            texels_changed(img_tex)
+            texels_changed(seen_tex)
         if cell.top_tex is None:
             cell.top_tex = height_texture(top64)
             install_lookup(cell.actor, cell.top_tex, img_tex, seen_tex, lay.t, lay.cols, self.ground_rgb,
@@ -959,25 +963,29 @@ class SlfView:
             loc = np.searchsorted(sel, idx)  # the blended directions' rows in the patch's lumispheres
             if top is not None and self.depth_correct:
                 texel = cell.size / cl.shape[0]
+                t_ = cl.shape[0]
                 got = cell.images.get(patch)
                 if got is None:  # a stored direction's image and ray march do not depend on the view: kept
-                    t_ = cl.shape[0]
-                    got = cell.images[patch] = (np.zeros((len(sel), t_, t_, 3), np.float32),
-                                                np.zeros((len(sel), t_, t_), np.float32),
+                    # (on the GPU only in the shader's atlases)
+                    got = cell.images[patch] = (None if gpu else np.zeros((len(sel), t_, t_, 3), np.float32),
+                                                None if gpu else np.zeros((len(sel), t_, t_), np.float32),
                                                 np.zeros(len(sel), bool), np.asarray(top, np.float64))
                 images, seen, have, top64 = got
                 filled = []
                 for jl in loc:
                     if not have[jl]:
                         t_load = time.perf_counter()
-                        images[jl] = mean[cl, jl] + np.einsum("...k,...kc->...c", q, basis[cl, :, jl])
-                        seen[jl] = march_heights(top64, texel, self.ds.dirs[sel[jl]])
+                        image = mean[cl, jl] + np.einsum("...k,...kc->...c", q, basis[cl, :, jl])
+                        marched = march_heights(top64, texel, self.ds.dirs[sel[jl]])
+                        if gpu:
+                            filled.append((int(jl), image, marched))
+                        else:
+                            images[jl], seen[jl] = image, marched
                         have[jl] = True
-                        filled.append(int(jl))
                         load_s += time.perf_counter() - t_load
                 if gpu:
                     t_load = time.perf_counter()
-                    self._gpu_patch(cell, patch, got, filled)
+                    self._gpu_patch(cell, patch, len(sel), t_, top64, filled)
                     load_s += time.perf_counter() - t_load
                     vv, shifts = view_shifts(v, self.ds.dirs[sel], loc, texel)
                     a = vv[:2] / max(float(vv[2]), 1e-6)

@@ -39,7 +39,7 @@ import numpy.typing as npt
 from citylod.render import _vtk
 
 __all__ = ["AtlasLayout", "encode_heights", "height_texture", "install_lookup", "rgb_texture", "set_fade", "set_images",
-           "set_lookup", "update_texture"]
+           "set_lookup", "texels", "texels_changed", "texture_bytes"]
 
 _DEC = """
 //VTK::TCoord::Dec
@@ -180,14 +180,27 @@ def height_texture(arr: npt.ArrayLike) -> Any:
     return _texture(encode_heights(arr), False)
 
 
-def update_texture(tex: Any, arr: npt.NDArray[Any]) -> None:
-    """Write ``arr`` (the texture's shape) into ``tex``'s image; VTK uploads it at the next render."""
+def texels(tex: Any) -> npt.NDArray[np.uint8]:
+    """The texture's image as a writable array (rows, columns, channels), VTK's own memory: write into it,
+    then :func:`texels_changed`."""
     img = tex.GetInput()
+    w, h, _ = img.GetDimensions()
     scalars = img.GetPointData().GetScalars()
-    _vtk.vtk_to_numpy(scalars).reshape(arr.shape)[:] = arr  # (rows, cols, channels) bytes
-    scalars.Modified()
+    return _vtk.vtk_to_numpy(scalars).reshape(h, w, scalars.GetNumberOfComponents())
+
+
+def texels_changed(tex: Any) -> None:
+    """VTK uploads the texture's image again at the next render."""
+    img = tex.GetInput()
+    img.GetPointData().GetScalars().Modified()
     img.Modified()
     tex.Modified()
+
+
+def texture_bytes(tex: Any) -> int:
+    """Bytes of the texture's image (VTK's copy; the GL texture holds as many again)."""
+    scalars = tex.GetInput().GetPointData().GetScalars()
+    return int(scalars.GetNumberOfValues()) * int(scalars.GetDataTypeSize())
 
 
 def install_lookup(actor: Any, top: Any, images: Any, seen: Any, t: int, cols: int, ground_rgb: Any,
