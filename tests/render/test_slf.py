@@ -234,6 +234,7 @@ def test_a_small_field_cache_drops_what_is_not_drawn_and_draws_the_same(box_slf:
             assert set(small._lru) == shown  # nothing else is kept
             held = {(key, p) for key, c in small.cells.items() for p in (*c.fields, *c.images, *c.gpu)}
             assert held <= shown
+            assert set(small.groups) == {small.cells[k].fields[p][6] for k, p in shown}
         assert full == 4 and len(big._lru) >= 3  # buildings in full half the time; three patches drawn
 
 
