@@ -85,10 +85,6 @@ class TextureWriter:
             self._ok = bool(gl is not None and gl.glGetString(_GL_RENDERER))  # NULL: no context reachable
         return self._ok
 
-    def forget(self, tex: Any) -> None:
-        """``tex`` will not be written again (its cell is gone)."""
-        self._loaded.pop(id(tex), None)
-
     def write(self, tex: Any, rgb: U8, renderer: Any) -> bool:
         """Put ``rgb`` (n, n, 3), row 0 the top, into ``tex``, whose input image must already hold it (VTK's
         row order, written in place, not marked modified); False where this cannot be done here (the caller

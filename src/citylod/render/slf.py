@@ -49,6 +49,7 @@ from citylod.lod.kernels.slf import (
     evaluate,
     march_heights,
     view_shifts,
+    view_slope,
 )
 from citylod.render import _vtk
 from citylod.render.gl_context import guard
@@ -204,6 +205,7 @@ class _Cell:
         self.gpu: dict[int, tuple[Any, Any, AtlasLayout]] = {}
         self.gpu_patch: int | None = None
         self.top_tex: Any = None
+        self.top_max = 0.0
         self.patch: int | None = None  # the direction patch last evaluated
 
     @property
@@ -385,9 +387,7 @@ class SlfView:
         if depth_correct:  # load the compiled kernels now, not in the first frame (numba's start: ~0.4 s)
             march_heights(np.ones((2, 2)), 1.0, self.ds.dirs[0])
         if depth_correct and lookup == "cpu":
-            depth_corrected_colours(np.zeros((1, 2, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32),
-                                    np.zeros(1, np.int64), np.ones(1), self.ds.dirs, np.ones((2, 2)), 1.0,
-                                    self.ds.dirs[0])
+            self._load_cpu_lookup()
 
     def _tile_extras(self) -> dict[str, dict[str, Any]]:
         doc = json.loads((self.folder / "tileset.json").read_text())
@@ -908,10 +908,14 @@ class SlfView:
         for cell in self.cells.values():
             if cell.top_tex is not None:
                 self._reset_gpu(cell)
-        if self.depth_correct:  # the compiled lookup loaded now
-            depth_corrected_colours(np.zeros((1, 2, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32),
-                                    np.zeros(1, np.int64), np.ones(1), self.ds.dirs, np.ones((2, 2)), 1.0,
-                                    self.ds.dirs[0])
+        if self.depth_correct:
+            self._load_cpu_lookup()
+
+    def _load_cpu_lookup(self) -> None:
+        """Load the compiled CPU lookup now, not in the first frame that needs it (numba's start: ~0.4 s)."""
+        depth_corrected_colours(np.zeros((1, 2, 2, 3), np.float32), np.zeros((1, 2, 2), np.float32),
+                                np.zeros(1, np.int64), np.ones(1), self.ds.dirs, np.ones((2, 2)), 1.0,
+                                self.ds.dirs[0])
 
     def _gpu_patch(self, cell: _Cell, patch: int, p: int, t: int, top64: F64,
                    filled: list[tuple[int, Any, Any]]) -> None:
@@ -934,6 +938,7 @@ class SlfView:
             texels_changed(seen_tex)
         if cell.top_tex is None:
             cell.top_tex = height_texture(top64)
+            cell.top_max = max(float(top64.max()) if top64.size else 0.0, 0.0)  # where the shader's march starts
             install_lookup(cell.actor, cell.top_tex, img_tex, seen_tex, lay.t, lay.cols, self.ground_rgb,
                            self.antialias)
             mapper = cell.actor.GetMapper()
@@ -995,10 +1000,9 @@ class SlfView:
                     t_load = time.perf_counter()
                     self._gpu_patch(cell, patch, len(sel), t_, top64, filled)
                     load_s += time.perf_counter() - t_load
-                    vv, shifts = view_shifts(v, self.ds.dirs[sel], loc, texel)
-                    a = vv[:2] / max(float(vv[2]), 1e-6)
-                    set_lookup(cell.actor, loc, w, shifts, (a[0] / texel, a[1] / texel,
-                                                            max(float(top64.max()) if top64.size else 0.0, 0.0)))
+                    _, shifts = view_shifts(v, self.ds.dirs[sel], loc, texel)
+                    a = view_slope(v) / texel
+                    set_lookup(cell.actor, loc, w, shifts, (a[0], a[1], cell.top_max))
                     if alpha != cell.last_alpha:
                         set_fade(cell.actor, alpha)
                     cell.files = (files[0], files[1])

@@ -60,6 +60,7 @@ __all__ = [
     "patch_of",
     "rasterise",
     "view_shifts",
+    "view_slope",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -320,6 +321,13 @@ def evaluate(cluster: npt.NDArray[np.uint8], weights: F64, mean: F64, basis: F64
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
+def view_slope(v: npt.ArrayLike) -> F64:
+    """The horizontal run (x, y) per metre of height of a ray along ``v`` (3,) (any length, towards the
+    viewer; ``v_z`` floored at 1e-6)."""
+    vv = np.asarray(v, np.float64)
+    return vv[:2] / max(float(vv[2]), 1e-6)
+
+
 def march_heights(top: npt.NDArray[np.floating], texel_m: float, v: npt.ArrayLike) -> F64:
     """Height (m above the ground) of the point each texel's view ray meets, (T, T).
 
@@ -330,8 +338,7 @@ def march_heights(top: npt.NDArray[np.floating], texel_m: float, v: npt.ArrayLik
     ground texel answers its own top. Exact: :func:`_ray_top` walks the columns the ray crosses from the top
     down.
     """
-    vv = np.asarray(v, np.float64)
-    a = vv[:2] / max(vv[2], 1e-6)
+    a = view_slope(v)
     hmax = float(top.max()) if top.size else 0.0
     if hmax <= 0.0:
         return np.zeros(top.shape)
@@ -398,7 +405,7 @@ def view_shifts(v: npt.ArrayLike, dirs: F64, idx: I64, texel_m: float) -> tuple[
     image relative to where the view sees it."""
     vv = np.asarray(v, np.float64)
     vv = vv / np.linalg.norm(vv)
-    a = vv[:2] / max(float(vv[2]), 1e-6)
+    a = view_slope(vv)
     return vv, np.array([(a - dirs[j, :2] / max(float(dirs[j, 2]), 1e-6)) / texel_m for j in idx], np.float64)
 
 
@@ -503,7 +510,7 @@ def depth_corrected_colours(images: npt.NDArray[np.float32], seen: npt.NDArray[n
     on numba's threads; the result equals ``rint(depth_corrected_blend(images[loc], …))`` clipped to 0–255
     (same arithmetic, per texel)."""
     vv, shifts = view_shifts(v, dirs, loc, texel_m)
-    a = vv[:2] / max(vv[2], 1e-6)
+    a = view_slope(vv)
     hmax = float(top.max()) if top.size else 0.0
     return _lookup(images, seen, np.asarray(loc, np.int64), np.asarray(w, np.float64), shifts, top, max(hmax, 0.0),
                    a[0] / texel_m, a[1] / texel_m, float(tolerance_m))
