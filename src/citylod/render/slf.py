@@ -858,14 +858,18 @@ class SlfView:
         cell.last_dir = None
 
     def _touch(self, cell: _Cell, patch: int) -> tuple[str, int]:
-        """Mark the cell's ``patch`` data as drawn now; (cell key, patch)."""
+        """Mark the cell's ``patch`` data as drawn now; (cell key, patch). Its size is counted once, when it
+        enters the cache: a patch's arrays and atlases are made whole on its first evaluation."""
         key = (cell.tile.key, patch)
+        if key in self._lru:
+            self._lru.move_to_end(key)
+            return key
         size = 0
         for part in (cell.fields.get(patch, ())[:3], cell.images.get(patch, ())):
             size += sum(int(a.nbytes) for a in part if isinstance(a, np.ndarray))
         # The atlases: VTK's image and the GL texture's copy of it.
         size += 2 * sum(texture_bytes(t) for t in cell.gpu.get(patch, ())[:2])
-        self._lru_bytes += size - self._lru.pop(key, 0)
+        self._lru_bytes += size
         self._lru[key] = size
         return key
 
@@ -908,6 +912,8 @@ class SlfView:
         for cell in self.cells.values():
             if cell.top_tex is not None:
                 self._reset_gpu(cell)
+                for key in [k for k in self._lru if k[0] == cell.tile.key]:  # counted again on the CPU
+                    self._lru_bytes -= self._lru.pop(key)
         if self.depth_correct:
             self._load_cpu_lookup()
 

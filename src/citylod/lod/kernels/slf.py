@@ -406,7 +406,8 @@ def view_shifts(v: npt.ArrayLike, dirs: F64, idx: I64, texel_m: float) -> tuple[
     vv = np.asarray(v, np.float64)
     vv = vv / np.linalg.norm(vv)
     a = view_slope(vv)
-    return vv, np.array([(a - dirs[j, :2] / max(float(dirs[j, 2]), 1e-6)) / texel_m for j in idx], np.float64)
+    d = np.asarray(dirs, np.float64)[np.asarray(idx, np.int64)]
+    return vv, (a - d[:, :2] / np.maximum(d[:, 2:3], 1e-6)) / texel_m
 
 
 def depth_corrected_blend(images: F64, idx: I64, w: F64, dirs: F64, top: npt.NDArray[np.floating],
