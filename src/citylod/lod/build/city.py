@@ -189,6 +189,22 @@ def _walk(root: _Node) -> list[_Node]:
     return out
 
 
+def _post_order(root: _Node) -> list[_Node]:
+    """Every node after its children, each subtree finished before the next begins: a parent's atlas is made
+    from its children's as soon as they exist, so at most four atlases a level wait (children first by
+    height held every leaf's atlas at once: 22 GB for 32,000 textured houses)."""
+    out: list[_Node] = []
+    stack: list[tuple[_Node, bool]] = [(root, False)]
+    while stack:
+        n, expanded = stack.pop()
+        if expanded or not n.children:
+            out.append(n)
+            continue
+        stack.append((n, True))
+        stack.extend((c, False) for c in reversed(n.children))
+    return out
+
+
 @dataclass
 class _Piece:
     """Triangles of one object (or one merged group, shown as its representative object)."""
@@ -631,8 +647,8 @@ def build_city_tiles(citymodel: str | PathLike[str] | CityModel, out_dir: str | 
     common: dict[int, F64] = {}  # object -> common texture coordinates of its vertices
     atlases: dict[str, npt.NDArray[np.uint8]] = {}
     try:
-        # Children before parents: a parent's error must cover its children's.
-        for n in tqdm(sorted(nodes, key=lambda n: n.height), desc="tiles", unit="tile", disable=not progress):
+        # Children before parents: a parent's error must cover its children's, and its atlas shrinks theirs.
+        for n in tqdm(_post_order(root), desc="tiles", unit="tile", disable=not progress):
             err = 0.0
             atlas = None
             if textured and textures == "original":
