@@ -17,7 +17,7 @@ from citylod.core.camera import Camera
 from citylod.lod.build.slf import GROUND_RGB, build_slf
 from citylod.lod.kernels.slf import mip_levels
 from citylod.render.gl_texture import TextureWriter
-from citylod.render.slf import GeometryView, SlfView
+from citylod.render.slf import TEXEL_PX, GeometryView, SlfView
 from citylod.render.slf_gpu import encode_heights
 from tests.lod.slf_scene import BOX, X0, Y0, Z0, write_box_city
 
@@ -387,7 +387,8 @@ def test_a_finer_level_keeps_fading_cells_to_fields(tmp_path: Path) -> None:
     one, two = tmp_path / "one", tmp_path / "two"
     assert build_slf(city, one, texel_m=1.0, **kw).levels == 1
     assert build_slf(city, two, texel_m=0.5, **kw).levels == 2
-    with SlfView(one, size=SIZE, tau_px=2.0) as sv1, SlfView(two, size=SIZE, tau_px=2.0) as sv2:
+    kv = {"size": SIZE, "tau_px": 2.0, "texel_px": None}  # the switching error alone decides
+    with SlfView(one, **kv) as sv1, SlfView(two, **kv) as sv2:
         fading = []
         for dist in np.geomspace(6000.0, 300.0, 16):
             cam = _camera(float(dist), 200.0, 40.0)
@@ -399,6 +400,33 @@ def test_a_finer_level_keeps_fading_cells_to_fields(tmp_path: Path) -> None:
                 assert f2.geometry_cells == 0 and f2.bytes_buildings == 0 and f2.cells >= 1
                 assert f2.levels == {0: 1}  # the same (root) cell, as a field
         assert len(fading) >= 2  # the fade spans several of these distances
+
+
+def test_fields_refine_while_a_texel_covers_more_than_texel_px_pixels(tmp_path: Path) -> None:
+    """By default (``TEXEL_PX``) a field cell whose texels cover more than 1.5 pixels where the cell is nearest
+    the eye is drawn as its children, even where the switching error would keep it; with ``texel_px=None``
+    the switching error alone decides. The texel's size in pixels is worked out here from the cell's side,
+    the box and the camera's field of view, not by the view's own screen-space error."""
+    city = write_box_city(tmp_path / "city")
+    two = tmp_path / "two"
+    assert build_slf(city, two, texel_m=0.5, texels=64, grid=7, oversample=2, clusters=32, progress=False).levels == 2
+    assert TEXEL_PX == 1.5
+    seen = set()
+    with SlfView(two, size=SIZE, tau_px=2.0) as sv, SlfView(two, size=SIZE, tau_px=2.0, texel_px=None) as sv0:
+        lo, hi = sv.ts.root.box.bounds()
+        texel_m = float(hi[0] - lo[0]) / 64
+        for dist in np.geomspace(6000.0, 300.0, 16):
+            cam = _camera(float(dist), 200.0, 40.0)
+            alone = sv0.prepare(cam)
+            if alone.levels != {0: 1}:
+                continue  # the switching error already refines
+            eye = np.asarray(cam.position)
+            near = float(np.linalg.norm(np.maximum(np.maximum(lo - eye, eye - hi), 0.0)))
+            px = texel_m / (2.0 * near * math.tan(math.radians(cam.fovy_deg) / 2.0)) * SIZE[1]
+            f = sv.prepare(cam)
+            seen.add(px > 1.5)
+            assert f.levels == ({1: 4} if px > 1.5 else {0: 1}), (dist, px, f.levels)
+    assert seen == {True, False}  # both sides of the threshold were flown
 
 
 def test_anisotropic_filtering_only_for_oblique_views(box_slf: Path) -> None:

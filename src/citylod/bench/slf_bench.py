@@ -41,7 +41,7 @@ import numpy.typing as npt
 from citylod.bench.flight import default_flight
 from citylod.core.camera import Camera, overview_camera
 from citylod.render.offscreen import save_png
-from citylod.render.slf import GeometryView, SlfView
+from citylod.render.slf import TEXEL_PX, GeometryView, SlfView
 
 __all__ = ["main", "slf_bench"]
 
@@ -78,9 +78,11 @@ def _orbit(lo: Any, hi: Any, n: int, step_deg: float, dist_ext: float) -> list[C
 
 
 def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, size: tuple[int, int] = (960, 540),
-              orbit_frames: int = 12, texel_px: float | None = None, lookup: str = "gpu",
+              orbit_frames: int = 12, texel_px: float | None = TEXEL_PX, lookup: str = "gpu",
               antialias: bool = True, progress: bool = True) -> dict[str, Any]:
-    """Run the comparison; returns (and writes) the report."""
+    """Run the comparison; returns (and writes) the report. ``texel_px`` None or 0: fields refined by the
+    switching error alone."""
+    texel_px = texel_px or None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
@@ -188,7 +190,8 @@ def slf_bench(slf_dir: str | Path, out_dir: str | Path, *, tau_px: float = 2.0, 
                           "geometry": float(np.mean(fl_g)) if fl_g else float("nan"), "pairs": len(fl_s)}
     report = {"summary": summary, "frames": rows}
     (out / "slf_report.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
-    lines = [f"# Far-field SLF against building geometry (τ = {tau_px} px, texels ≤ {texel_px} px, "
+    lines = [f"# Far-field SLF against building geometry (τ = {tau_px} px, "
+             f"{f'texels ≤ {texel_px:g} px' if texel_px else 'fields by switching error alone'}, "
              f"{size[0]}×{size[1]}, lookup on the {lookup.upper()}{'' if antialias else ', aliased'})", "",
              "| cameras | frames | SLF frame ms (draw + evaluation; loading) | geometry ms (triangles) | speed-up |"
              " SLF MB (of it buildings) |"
@@ -218,7 +221,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("out_dir", type=Path)
     p.add_argument("--tau", type=float, default=2.0)
     p.add_argument("--orbit-frames", type=int, default=12)
-    p.add_argument("--texel-px", type=float, help="also refine fields while a texel covers more pixels")
+    p.add_argument("--texel-px", type=float, default=TEXEL_PX,
+                   help=f"also refine fields while a texel covers more pixels (default {TEXEL_PX}; 0: never)")
     p.add_argument("--lookup", choices=("gpu", "cpu"), default="gpu")
     p.add_argument("--no-antialias", action="store_true")
     a = p.parse_args(argv)

@@ -85,11 +85,11 @@ def add_slf_parser(bsub: argparse._SubParsersAction) -> None:
     f = bsub.add_parser("slf", help="far-field surface light fields over a city tileset (replace distant buildings)")
     f.add_argument("city_tiles", type=Path, help="city tileset (citylod build city)")
     f.add_argument("-o", "--output", type=Path, required=True)
-    f.add_argument("--texel-m", type=float, default=2.0, help="texel size of the finest level in metres (default 2)")
+    f.add_argument("--texel-m", type=float, default=4.0, help="texel size of the finest level in metres (default 4)")
     f.add_argument("--texels", type=int, default=64, help="texels per cell side, a power of two (default 64)")
     f.add_argument("--directions", type=int, default=11,
                    help="side of the parabolic direction lattice (11: 97 directions, 9: 69, 7: 37)")
-    f.add_argument("--oversample", type=int, default=3, help="samples per texel side (default 3)")
+    f.add_argument("--oversample", type=int, default=6, help="samples per texel side (default 6)")
     f.add_argument("--clusters", type=int, default=256, help="clusters per group of four cells (≤ 256)")
     f.add_argument("--components", type=int, default=3, help="eigen-lumispheres per cluster (default 3)")
     f.add_argument("--workers", type=int, help="threads that bake and compress (default: one per CPU)")

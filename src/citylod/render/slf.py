@@ -72,6 +72,12 @@ from citylod.render.tileset_actor import BACKGROUND, camera_to_vtk, view_from_re
 
 __all__ = ["GeometryView", "SlfFrame", "SlfView", "is_far_field", "open_slf", "render_far_field_command"]
 
+#: A field cell is also refined while one of its texels covers more than this many pixels. The switching
+#: error alone leaves the whole-city overview on coarse texels (8,000 houses: colour error 10.5 of 255);
+#: at 1 px the pixels mostly take the shader's four-point branch and cost as much as the geometry. 1.5 is
+#: the measured middle: on 32,000 houses errors 6.2–7.6 with 2.2–5.9× faster frames (docs/BENCHMARKS.md).
+TEXEL_PX = 1.5
+
 U8 = npt.NDArray[np.uint8]
 F64 = npt.NDArray[np.float64]
 
@@ -255,7 +261,7 @@ class SlfView:
         False: never draw a field (every finest cell shows its buildings): the same code path without SLFs.
     texel_px
         Also refine a field cell while its texels cover more than this many pixels (sharper far field for
-        more bytes); None: the switching error alone decides.
+        more bytes; default :data:`TEXEL_PX`); None: the switching error alone decides.
     depth_correct
         Evaluate cells that store building heights with the depth-corrected lookup
         (:func:`~citylod.lod.kernels.slf.depth_corrected_blend`); False: the plain blend of four directions.
@@ -288,7 +294,7 @@ class SlfView:
 
     def __init__(self, slf_dir: str | Path, *, size: tuple[int, int] = (960, 540), tau_px: float = 1.0,
                  fields: bool = True, reeval_deg: float = 0.5, city_dir: str | Path | None = None,
-                 texel_px: float | None = None, depth_correct: bool = True, anisotropic_from: float = 1.5,
+                 texel_px: float | None = TEXEL_PX, depth_correct: bool = True, anisotropic_from: float = 1.5,
                  lookup: str = "gpu", antialias: bool = True, cache_mb: float = 256.0, renderer: Any = None,
                  origin: npt.ArrayLike | None = None) -> None:
         if lookup not in ("gpu", "cpu"):
@@ -307,7 +313,7 @@ class SlfView:
         self.size = (int(size[0]), int(size[1]))
         self.tau_px = float(tau_px)
         self.fields = fields
-        self.texel_px = texel_px
+        self.texel_px = texel_px or None
         self.reeval = math.radians(reeval_deg)
         self.ground_z = float(self.meta["ground_z"])
         self.ground_rgb = np.array(self.meta["ground_rgb"], np.float64)
