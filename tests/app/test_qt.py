@@ -337,6 +337,36 @@ def test_window_screenshot_shows_terrain(qtbot, window, sample, tmp_path) -> Non
 
 
 @needs_display
+def test_the_view_has_most_of_the_window_and_no_button_is_cut(qtbot, qsettings) -> None:
+    """At first start (no saved layout, the default 1400 px wide window), the 3D view takes more than half
+    the window's width (the side columns were 342 and 432 px, leaving it 614), and every button of the shown
+    panels lies wholly inside its dock."""
+    from PySide6.QtCore import QRect
+    from PySide6.QtWidgets import QPushButton
+
+    from citylod.app.qt_main_window import MainWindow
+
+    win = MainWindow(settings_=qsettings, interactive=False)
+    qtbot.addWidget(win)
+    win.show()
+    qtbot.waitExposed(win)
+    qtbot.wait(200)
+    assert win.width() >= 1400
+    assert win.view.width() >= 0.55 * win.width(), (win.view.width(), win.width())
+    shown = 0
+    for dock in win.docks.values():
+        if not dock.isVisible() or dock.visibleRegion().isEmpty():
+            continue  # a tab behind another
+        for b in dock.findChildren(QPushButton):
+            if b.isVisible():
+                r = QRect(b.mapTo(dock, b.rect().topLeft()), b.size())
+                assert dock.rect().contains(r), (dock.windowTitle(), b.text(), r, dock.rect())
+                shown += 1
+    assert shown >= 8
+    win.close()
+
+
+@needs_display
 def test_window_pick_measure_and_camera(qtbot, window, sample, tmp_path) -> None:
     window.open_path(sample["tiles"])
     window.view.set_camera(load_cameras(sample["camera"])[0])

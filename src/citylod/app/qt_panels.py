@@ -26,6 +26,7 @@ from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
     QFormLayout,
+    QGridLayout,
     QHBoxLayout,
     QHeaderView,
     QInputDialog,
@@ -289,16 +290,16 @@ class QueryPanel(QWidget):
         self.results.setHeaderLabels(["object_id", *CityStore.LIST_COLUMNS])
         self.results.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
         self.results.itemSelectionChanged.connect(self._on_results_selected)
-        buttons = QHBoxLayout()
+        buttons = QGridLayout()  # three a row: five in one set the right dock's width at 430 px
         self.buttons: dict[str, QPushButton] = {}
-        for name, fn in (("Highlight", lambda: self.document.highlight(self._targets())),
+        for i, (name, fn) in enumerate((("Highlight", lambda: self.document.highlight(self._targets())),
                          ("Hide", lambda: self.document.hide(self._targets())),
                          ("Isolate", lambda: self.document.isolate(self._targets())),
                          ("Reset", self.document.clear_state),
-                         ("Zoom to", lambda: self.zoom_requested.emit(self._targets()))):
+                         ("Zoom to", lambda: self.zoom_requested.emit(self._targets())))):
             b = QPushButton(name)
             b.clicked.connect(fn)
-            buttons.addWidget(b)
+            buttons.addWidget(b, i // 3, i % 3)
             self.buttons[name] = b
         top = QHBoxLayout()
         top.addWidget(self.kind)
@@ -478,14 +479,14 @@ class MeasurePanel(QWidget):
         self.result.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         lay = QVBoxLayout(self)
         lay.setContentsMargins(4, 4, 4, 4)
-        row = QHBoxLayout()
+        row = QGridLayout()  # two a row, so the dock does not widen the window's side column
         self.buttons: dict[str, QPushButton] = {}
-        for kind, label in (("distance", "Distance"), ("height", "Height"), ("area", "Area"),
-                            ("profile", "Profile")):
+        for i, (kind, label) in enumerate((("distance", "Distance"), ("height", "Height"), ("area", "Area"),
+                                           ("profile", "Profile"))):
             b = QPushButton(label)
             b.setCheckable(True)
             b.clicked.connect(lambda on, k=kind: start(k if on else None))
-            row.addWidget(b)
+            row.addWidget(b, i // 2, i % 2)
             self.buttons[kind] = b
         lay.addLayout(row)
         lay.addWidget(self.result)
