@@ -682,7 +682,10 @@ def _offscreen_far(path: Path, camera, size: tuple[int, int], tau: float):
 def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, window, xin, tmp_path) -> None:
     """A far-field tileset opened in the app is drawn with its light fields, evaluated for the view's
     direction: the app's picture of the field equals an off-screen SlfView's for the same camera, before and
-    after an orbit by a real mouse drag, and the drag re-evaluates the field for the new direction."""
+    after an orbit by a real mouse drag, and the drag re-evaluates the field for the new direction. The field
+    hands over to buildings at twice the view's τ: at the default 1 px, from 1.5 km, the app draws the field
+    where a far field switched at 1 px draws the box."""
+    from citylod.render.slf import FIELD_TAU_SCALE, SlfView
     from tests.app.test_qt import _rgb
 
     far_dir = _box_far_field(tmp_path)
@@ -690,8 +693,14 @@ def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, wi
     doc = window.document
     entry = doc.entries[-1]
     assert entry.kind == "far field" and entry.far is not None and entry.layer is None
-    doc.set_tau(8.0)
     view = window.view
+    view.set_camera(_far_camera(1500.0, 200.0, 40.0))
+    _wait_resolved(qtbot, window)
+    assert doc.effective_tau() == 1.0 and entry.far.tau_px == FIELD_TAU_SCALE * 1.0
+    assert entry.far.last_frame is not None and entry.far.last_frame.geometry_cells == 0
+    with SlfView(far_dir, size=(view.vtk.width(), view.vtk.height()), tau_px=1.0) as at_tau:
+        assert at_tau.prepare(view.camera()).geometry_cells >= 1
+    doc.set_tau(8.0)
     view.set_camera(_far_camera(2000.0, 200.0, 40.0))
     _wait_resolved(qtbot, window)
     far = entry.far
@@ -699,7 +708,7 @@ def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, wi
     def compare() -> tuple[float, int]:
         got = _rgb(view.framebuffer()).astype(int)
         h, w = got.shape[:2]
-        want, mask = _offscreen_far(far_dir, view.camera(), (w, h), 8.0)
+        want, mask = _offscreen_far(far_dir, view.camera(), (w, h), FIELD_TAU_SCALE * 8.0)
         d = np.abs(got - want).mean(axis=2)[mask]
         return float(d.mean()), int(mask.sum())
 

@@ -658,11 +658,13 @@ class Document:
 
     def _open_far_field(self, p: Path) -> LayerEntry:
         """A far-field tileset (``citylod build slf``): its city drawn with the light fields evaluated for
-        the view's direction before every render, buildings where the fields hand over (Ruiters). It has no
-        tiles in the scene: picking, queries and the point tools do not see it."""
-        from citylod.render.slf import SlfView
+        the view's direction before every render, buildings where the fields hand over (Ruiters) at twice the
+        view's τ (``FIELD_TAU_SCALE``). It has no tiles in the scene: picking, queries and the point tools do
+        not see it."""
+        from citylod.render.slf import FIELD_TAU_SCALE, SlfView
 
-        far = SlfView(p, renderer=self.scene.renderer, origin=self.scene.origin, tau_px=self.effective_tau(),
+        far = SlfView(p, renderer=self.scene.renderer, origin=self.scene.origin,
+                      tau_px=FIELD_TAU_SCALE * self.effective_tau(),
                       cache_mb=self.lod.memory_mb / FAR_FIELD_SHARE)
         if self.scene.origin is None:  # the far field's own origin (its actors are made from the first frame)
             self.scene.origin = far.origin
@@ -971,7 +973,9 @@ class Document:
         self.scene.tau_px = tau
         for e in self.entries:
             if e.far is not None:
-                e.far.tau_px = tau
+                from citylod.render.slf import FIELD_TAU_SCALE
+
+                e.far.tau_px = FIELD_TAU_SCALE * tau
             if e.layer is not None:
                 e.layer.tau_px = tau
                 self._apply_budget(e.layer)

@@ -78,6 +78,13 @@ __all__ = ["GeometryView", "SlfFrame", "SlfView", "is_far_field", "open_slf", "r
 #: the measured middle: on 32,000 houses errors 6.2–7.6 with 2.2–5.9× faster frames (docs/BENCHMARKS.md).
 TEXEL_PX = 1.5
 
+#: A view (the app, ``citylod render``) switches its far field from light fields to buildings at this multiple
+#: of its τ. A field cell's ``geometricError`` is an expected displacement of the blend of directions, not a
+#: bound as a DSM tile's is (lod/build/slf.py). At 2 px the fields' mean colour error against the full geometry
+#: is 7.6 / 6.4 / 6.2 of 255 on 32,000 houses (docs/BENCHMARKS.md); at the view's 1 px every cell of an
+#: 8,000-house overview showed its buildings, and the app drew 210 ms frames.
+FIELD_TAU_SCALE = 2.0
+
 U8 = npt.NDArray[np.uint8]
 F64 = npt.NDArray[np.float64]
 
@@ -1199,7 +1206,8 @@ _SCENE_ONLY = ("depth", "city", "highlight", "hide", "flood", "edits", "texture_
 def render_far_field_command(args: Any, progress: bool = True) -> int:
     """``citylod render SLF_DIR -o IMAGE.png --camera CAMERA.json [--tau PX] [--size WxH]``: the city of a
     far-field tileset as :class:`SlfView` draws it (fields evaluated for each camera, buildings where the
-    fields hand over), one PNG per camera. The far-field tileset is the only source."""
+    fields hand over, at :data:`FIELD_TAU_SCALE` times ``--tau``), one PNG per camera. The far-field tileset
+    is the only source."""
     from tqdm import tqdm
 
     from citylod.core.camera import load_cameras
@@ -1220,7 +1228,7 @@ def render_far_field_command(args: Any, progress: bool = True) -> int:
     cameras = load_cameras(args.camera)
     n = len(cameras)
     last = None
-    with SlfView(args.sources[0], size=tuple(args.size), tau_px=args.tau) as sv:
+    with SlfView(args.sources[0], size=tuple(args.size), tau_px=FIELD_TAU_SCALE * args.tau) as sv:
         for i, cam in enumerate(tqdm(cameras, desc="render", unit="frame", disable=not progress or n < 2)):
             last = sv.prepare(cam)
             sv.draw()
