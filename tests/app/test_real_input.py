@@ -571,8 +571,28 @@ def test_picture_picked_building_with_measurement(qtbot, window, xin, sample, tm
     qtbot.waitUntil(lambda: view.measurement is not None and len(view.measurement.points) == 2, timeout=5000)
     assert window.inspector.object_id == tallest
     _wait_resolved(qtbot, window, 60000)
+    # The segment runs from the roof down the wall, inside the house: it is drawn over it all the same.
+    from tests.app.test_qt import _rgb
+
+    rgb = _rgb(view.framebuffer()).astype(int)
+    seen = 0
+    for f in (0.3, 0.5, 0.7):
+        x, y = _on_screen(view, (1 - f) * np.asarray(view.measurement.points[0]) + f * np.asarray(
+            view.measurement.points[1]))
+        patch = rgb[y - 1: y + 2, x - 1: x + 2].reshape(-1, 3)
+        seen += bool(((patch[:, 0] > 200) & (patch[:, 1] > 170) & (patch[:, 2] < 90)).any())
+    assert seen == 3
     out = window.save_screenshot(_picture_dir(tmp_path) / "app_pick_measure.png")
     assert out.is_file()
+
+
+def _on_screen(view, world) -> tuple[int, int]:
+    """Widget pixel (x right, y down) of a world point, through VTK's own projection of the view."""
+    w = np.asarray(world, np.float64) - view.scene.origin
+    view.renderer.SetWorldPoint(*w, 1.0)
+    view.renderer.WorldToDisplay()
+    dx, dy, _ = view.renderer.GetDisplayPoint()
+    return int(round(dx)), int(round(view.vtk.height() - 1 - dy))
 
 
 @pytest.mark.realdata

@@ -461,11 +461,11 @@ class SceneView(QWidget):
             prop.RenderPointsAsSpheresOn()
             prop.LightingOff()
             actor.SetPickable(False)
-            # Drawn over the terrain: a measurement on a roof must not vanish behind the roof edge. The
-            # offsets are this mapper's own (SetResolveCoincidentTopology* is static and would shift
-            # every mapper in the process, off-screen renders included).
-            mapper.SetRelativeCoincidentTopologyLineOffsetParameters(0.0, -66000.0)
-            mapper.SetRelativeCoincidentTopologyPointOffsetParameter(-66000.0)
+            # Drawn over everything, as measuring tools do: a segment from a roof to the ground in front of
+            # its house runs inside the house, and a depth test hid all of it but its ends. Every fragment
+            # of this actor gets the nearest depth (its own shader, no other mapper is touched).
+            actor.GetShaderProperty().AddFragmentShaderReplacement(
+                "//VTK::Depth::Impl", True, "//VTK::Depth::Impl\n  gl_FragDepth = 0.0;\n", False)
             self._measure_actor = actor
             self.renderer.AddActor(actor)
         if self.measurement is not None:
