@@ -245,6 +245,33 @@ def test_two_tilesets_share_one_scene(flat_terrain: Path, tmp_path: Path) -> Non
     assert np.isfinite(frame.depth[: 120 // 2 - 5, 160 // 2 + 5:]).all()
 
 
+def test_edl_shades_the_scene_not_the_view_aids(tmp_path: Path) -> None:
+    """Eye-Dome Lighting darkens the points' depth edges but draws the scale bar and north arrow as without
+    it: the red arrow stays red (through the shading it turned black, being all edge)."""
+    from citylod.render.hud import Hud, set_edl
+
+    pts = make_point_tileset(tmp_path / "pts", levels=2, points_per_tile=3000, extent=256.0, corner=CORNER)
+    cam = Camera((CORNER[0] + 128.0, CORNER[1] - 200.0, 300.0), (CORNER[0] + 128.0, CORNER[1] + 128.0, 0.0),
+                 (0.0, 0.0, 1.0), 45.0)
+    size = (320, 240)
+    pictures = []
+    with OffscreenRenderer([pts], size=size, tau_px=0.5) as r:
+        hud = Hud(r.renderer)
+        for on in (False, True):
+            set_edl(r.renderer, on)
+            r.prepare(cam)
+            hud.update(cam, 1.0, size)
+            r.draw()
+            pictures.append(r.grab_rgb().astype(int))
+        set_edl(r.renderer, False)
+    plain, shaded = pictures
+    arrow = (slice(20, 100), slice(size[0] - 80, size[0]))  # top right (rows from the top)
+    red = [((p[arrow][..., 0] > 150) & (p[arrow][..., 1] < 60) & (p[arrow][..., 2] < 60)).sum() for p in pictures]
+    assert red[0] > 20 and red[1] >= 0.8 * red[0], red
+    assert np.abs(plain[arrow] - shaded[arrow]).mean() < 2.0
+    assert np.abs(plain - shaded).mean() > 2.0  # the points are shaded
+
+
 def test_baked_sun_matches_vtk_per_fragment_lighting(hills: Path) -> None:
     """Untextured surfaces are drawn unlit with the sun baked into triangle colours: the image must equal
     VTK's own per-fragment lighting of the same faceted meshes (the independent computation)."""

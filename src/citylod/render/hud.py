@@ -72,13 +72,22 @@ def box_planes(lo: npt.ArrayLike, hi: npt.ArrayLike, origin: npt.ArrayLike) -> l
 
 
 def set_edl(renderer: Any, on: bool) -> None:
-    """Eye-Dome Lighting on ``renderer`` (a render pass; off restores the default passes)."""
+    """Eye-Dome Lighting on ``renderer`` (a render pass; off restores the default passes). The 2D overlay
+    (scale bar, north arrow, text) is drawn after the shading, not through it: EDL darkens every depth edge,
+    and a thin arrow is all edge (it turned black)."""
     if on:
         basic = _vtk.vtkRenderStepsPass()
+        basic.SetOverlayPass(None)
         edl = _vtk.vtkEDLShading()
         edl.SetDelegatePass(basic)
-        renderer.SetPass(edl)
-        renderer._citylod_edl = (edl, basic)  # keep the passes alive with the renderer
+        overlay = _vtk.vtkOverlayPass()
+        steps = _vtk.vtkRenderPassCollection()
+        steps.AddItem(edl)
+        steps.AddItem(overlay)
+        seq = _vtk.vtkSequencePass()
+        seq.SetPasses(steps)
+        renderer.SetPass(seq)
+        renderer._citylod_edl = (edl, basic, overlay, steps, seq)  # keep the passes alive with the renderer
     else:
         passes = getattr(renderer, "_citylod_edl", None)
         window = renderer.GetRenderWindow()

@@ -30,6 +30,7 @@ from citylod.core.fileio import atomic_write, atomic_write_bytes
 from citylod.render import _vtk
 from citylod.render.depth import zbuffer_to_distance
 from citylod.render.gl_context import guard
+from citylod.render.hud import set_edl
 from citylod.render.tileset_actor import FrameStats, Scene
 
 __all__ = ["OffscreenRenderer", "RenderedFrame", "render_command", "render_images", "save_png"]
@@ -119,10 +120,7 @@ class OffscreenRenderer:
             layer.point_size_px = point_size_px
             layer.point_shape = point_shape
         if edl:
-            basic = _vtk.vtkRenderStepsPass()
-            self._edl = _vtk.vtkEDLShading()
-            self._edl.SetDelegatePass(basic)
-            self.renderer.SetPass(self._edl)
+            set_edl(self.renderer, True)
 
     # -- frames -----------------------------------------------------------------------------------
     def prepare(self, camera: Camera, *, full_resolution: bool = False) -> FrameStats:
