@@ -296,6 +296,11 @@ def test_cli_build_slf(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     assert main(["-q", "build", "slf", str(city), "-o", str(tmp_path / "f"), "--texels", "32", "--texel-m", "2",
                  "--directions", "5", "--clusters", "16", "--workers", "2"]) == 0
     assert "cells" in capsys.readouterr().out
+    assert main(["info", str(tmp_path / "f")]) == 0  # what the far field holds, its field files counted
+    fields = [ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("fields")]
+    stored = sum(f.stat().st_size for f in (tmp_path / "f" / "slf").rglob("*.bin")) / 1e6
+    assert len(fields) == 1 and "21 directions" in fields[0] and "32² texels" in fields[0]
+    assert f"{stored:.1f} MB" in fields[0]
     assert main(["-q", "build", "slf", str(tmp_path / "nothing"), "-o", str(tmp_path / "g")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("citylod: error:") and len(err.strip().splitlines()) == 1
