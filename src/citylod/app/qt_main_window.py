@@ -134,7 +134,7 @@ class MainWindow(QMainWindow):
         self.docks["measure"].raise_()
         self.docks["lod"].raise_()
         # The side columns at their panels' narrowest useful width, so the 3D view gets most of the window
-        # (at 1400 px: 820 px against 614 before the panels' button rows were wrapped).
+        # (at 1400 px: 787 px against 614 before the panels' button rows were wrapped).
         self.resizeDocks([self.docks["layers"], self.docks["attributes"]], [SIDE_PX, SIDE_PX],
                          Qt.Orientation.Horizontal)
         # Permanent widgets on the right, without stretch: the left part stays free for showMessage()

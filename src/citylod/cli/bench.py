@@ -26,7 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bf.add_argument("-o", "--output", type=Path, required=True)
     bf.add_argument("--tau", type=float, default=2.0)
     bf.add_argument("--orbit-frames", type=int, default=12)
-    bf.add_argument("--texel-px", type=float, default=1.5,
+    bf.add_argument("--texel-px", type=float, default=1.5,  # render.slf.TEXEL_PX (not imported here: VTK)
                     help="also refine fields while a texel covers more pixels than this (default 1.5; 0: never)")
     bf.add_argument("--lookup", choices=("gpu", "cpu"), default="gpu",
                     help="evaluate the fields per pixel in the fragment shader (default) or per texel on the CPU")
