@@ -1142,8 +1142,10 @@ class Document:
 
     @property
     def store_alone(self) -> bool:
-        """A city store is open and no tileset: its proxies are what the view draws."""
-        return self.store is not None and not self.scene.layers
+        """A city store is open and nothing else draws the city (no tileset, no far field): its proxies are
+        what the view draws. Beside a far field they would cover its light fields with grey boxes (and cost
+        8,000 solids a frame); they still pick through the depth the far field leaves."""
+        return self.store is not None and not self.scene.layers and not any(e.far for e in self.entries)
 
     # -- profile ------------------------------------------------------------------------------------
     def profile(self, a: npt.ArrayLike, b: npt.ArrayLike, samples: int = 256) -> Any:
