@@ -699,6 +699,59 @@ def _offscreen_far(path: Path, camera, size: tuple[int, int], tau: float):
         return sv.grab_rgb().astype(int), sv.field_mask()
 
 
+def _box_store(tmp_path: Path) -> Path:
+    """The far-field box as a one-building city store (CityJSON → ``build_city``)."""
+    import json
+
+    from citylod.semantics.store import build_city
+    from tests.lod.slf_scene import BOX, X0, Y0, Z0
+
+    lo, hi = BOX
+    corners = [(x, y, z) for z in (lo[2], hi[2]) for x, y in ((lo[0], lo[1]), (hi[0], lo[1]), (hi[0], hi[1]),
+                                                               (lo[0], hi[1]))]
+    verts = [[round((x - X0) * 1000), round((y - Y0) * 1000), round((z - Z0) * 1000)] for x, y, z in corners]
+    shell = [[[0, 3, 2, 1]], [[4, 5, 6, 7]], [[0, 1, 5, 4]], [[1, 2, 6, 5]], [[2, 3, 7, 6]], [[3, 0, 4, 7]]]
+    doc = {"type": "CityJSON", "version": "1.1",
+           "transform": {"scale": [0.001, 0.001, 0.001], "translate": [X0, Y0, Z0]},
+           "metadata": {"referenceSystem": "https://www.opengis.net/def/crs/EPSG/0/32632"},
+           "CityObjects": {"BOX": {"type": "Building", "attributes": {"name": "the box"},
+                                   "geometry": [{"type": "Solid", "lod": "1", "boundaries": [shell]}]}},
+           "vertices": verts}
+    (tmp_path / "box.city.json").write_text(json.dumps(doc))
+    build_city(tmp_path / "box.city.json", tmp_path / "box.gpkg", progress=False)
+    return tmp_path / "box.gpkg"
+
+
+def test_a_click_on_a_far_field_building_selects_it(qtbot, window, xin, tmp_path) -> None:
+    """The far field draws its buildings into the terrain's texture, so the depth under a roof's pixel is the
+    ground behind it. An X click on the box's roof, as the field shows it from 2 km at 40°, selects the box
+    (its store opened beside the field); a click on open ground beside it selects nothing."""
+    from tests.app.test_qt import _rgb
+    from tests.lod.slf_scene import ROOF
+
+    far_dir = _box_far_field(tmp_path)
+    assert window.open_path(far_dir) and window.open_path(_box_store(tmp_path))
+    doc, view = window.document, window.view
+    doc.set_tau(8.0)
+    view.set_camera(_far_camera(2000.0, 200.0, 40.0))
+    _wait_resolved(qtbot, window)
+    far = doc.entries[0].far
+    assert far.last_frame is not None and far.last_frame.geometry_cells == 0  # the box is in the field
+    rgb = _rgb(view.framebuffer()).astype(int)
+    roof = np.all(np.abs(rgb - ROOF) < 40, axis=2)
+    h, w = roof.shape
+    roof[: h // 3], roof[2 * h // 3:], roof[:, : w // 3], roof[:, 2 * w // 3:] = False, False, False, False  # the box
+    assert roof.sum() >= 4  # is in the middle (the north arrow's red is near the roof's)
+    ys, xs = np.nonzero(roof)
+    k = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))  # the roof pixel nearest its middle
+    xin.click(view.vtk, int(xs[k]), int(ys[k]))
+    qtbot.waitUntil(lambda: doc.state.selection == {"BOX"}, timeout=5000)
+    ground = (int(xs[k]) + 60, int(ys[k]))  # 70 m east of the box, on the field's open ground
+    assert not roof[ground[1], ground[0]]
+    xin.click(view.vtk, *ground)
+    qtbot.waitUntil(lambda: not doc.state.selection, timeout=5000)
+
+
 def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, window, xin, sample,  # noqa: F811
                                                                         tmp_path) -> None:
     """A far-field tileset opened in the app is drawn with its light fields, evaluated for the view's

@@ -397,7 +397,9 @@ class SceneView(QWidget):
             oid = None if idx is None else self.document.store.ids[idx]
             self.document.select([] if oid is None else [oid])
         else:
-            oid = self.document.pick(point)
+            eye = (None if point is None or self.scene.origin is None
+                   else np.asarray(self.renderer.GetActiveCamera().GetPosition()) + self.scene.origin)
+            oid = self.document.pick(point, eye=eye)
         self.picked.emit(oid)
 
     # -- measuring --------------------------------------------------------------------------------
