@@ -659,8 +659,9 @@ class Document:
     def _open_far_field(self, p: Path) -> LayerEntry:
         """A far-field tileset (``citylod build slf``): its city drawn with the light fields evaluated for
         the view's direction before every render, buildings where the fields hand over (Ruiters) at twice the
-        view's τ (``FIELD_TAU_SCALE``). It has no tiles in the scene: picking, queries and the point tools do
-        not see it."""
+        view's τ (``FIELD_TAU_SCALE``). It has no tiles in the scene, so the point tools do not see it; with a
+        city store open, a click picks through it along the sight line (:meth:`pick`) and highlights are drawn
+        over it as translucent proxies."""
         from citylod.render.slf import FIELD_TAU_SCALE, SlfView
 
         far = SlfView(p, renderer=self.scene.renderer, origin=self.scene.origin,
