@@ -397,9 +397,8 @@ class SceneView(QWidget):
             oid = None if idx is None else self.document.store.ids[idx]
             self.document.select([] if oid is None else [oid])
         else:
-            eye = (None if point is None or self.scene.origin is None
-                   else np.asarray(self.renderer.GetActiveCamera().GetPosition()) + self.scene.origin)
-            oid = self.document.pick(point, eye=eye)
+            cam = self.camera() if point is not None else None
+            oid = self.document.pick(point, eye=None if cam is None else cam.position)
         self.picked.emit(oid)
 
     # -- measuring --------------------------------------------------------------------------------

@@ -48,8 +48,8 @@ def _describe_tileset(p: Path) -> str:
         f"  bounds   x {lo[0]:.2f} … {hi[0]:.2f}, y {lo[1]:.2f} … {hi[1]:.2f}, z {lo[2]:.2f} … {hi[2]:.2f}",
         f"  tiles    {tiles} on {len(levels)} levels, {nbytes / 1e6:.1f} MB content",
     ]
-    meta = ts.citylod
     if ts.kind == "slf":  # a far field (citylod build slf): its light fields beside the average textures
+        meta = ts.citylod
         fields = Path(ts.folder) / "slf"
         stored = sum(f.stat().st_size for f in fields.rglob("*.bin")) if fields.is_dir() else 0
         lines.append(f"  fields   {meta.get('directions', '?')} directions in {len(meta.get('patches') or [1])} patches, "
