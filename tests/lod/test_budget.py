@@ -8,6 +8,8 @@ The assertion is the issue's: within ±20 % of the target in at least 90 % of th
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -303,3 +305,38 @@ def test_admitted_curve_predicts_what_a_smaller_budget_draws(refine: str) -> Non
                 expect = p
             got = select(root, view, tau_px=0.5, budget=Budget(max_points=max(b, 1)), resident=resident)
             assert got.stats.points == expect, (b, got.stats.points, expect)
+
+
+@pytest.mark.parametrize("one_time_ms", [60.0, 0.0])
+def test_a_first_frame_that_built_its_buffers_is_forgotten(one_time_ms: float) -> None:
+    """A renderer's first draw builds every buffer (uploads, shader compiles: 1.5–2× the same frame drawn
+    again on the budget bench). Fitted as the points' cost, it halves the next budget; the second frame,
+    drawn well under its prediction, shows that, and the third frame's budget goes straight to the target
+    instead of growing by max_growth a frame. Growth is bounded again after that. The control (no one-time
+    cost): the second frame lands as predicted, and the bound holds from the start."""
+    from citylod.lod.runtime.budget import FeedForwardBudgetController
+
+    c = FeedForwardBudgetController(40.0, base_points=1_000_000)
+    curve = [(k * 10_000, 0, k * 10_000) for k in range(1, 101)]  # 1 M points, all new at first
+
+    def cost(pts: int, new: int) -> float:
+        return 3.0 + 1e-4 * pts + 1e-5 * new  # 3 ms + 0.1 µs a point + uploads
+
+    shown, budgets, times = 0, [], []
+    for i in range(8):
+        b = c.plan([(p, t, max(p - shown, 0)) for p, t, _ in curve])
+        pts = max(p for p, _, _ in curve if p <= b)
+        new = max(pts - shown, 0)
+        ms = cost(pts, new) + (one_time_ms if i == 0 else 0.0)
+        c.update(ms, pts, 0, new, pts < curve[-1][0])
+        budgets.append(b)
+        times.append(ms)
+        shown = max(shown, pts)
+    if one_time_ms:
+        assert times[1] < 0.8 * 40.0, times  # the first frame's cost taken for the points'
+        assert abs(times[2] / 40.0 - 1.0) <= 0.2, times  # recovered at once
+        assert budgets[2] > budgets[1] * c.max_growth, budgets
+    else:
+        assert abs(times[1] / 40.0 - 1.0) <= 0.2, times
+    for prev, b in itertools.pairwise(budgets[2:]):
+        assert b <= prev * c.max_growth + 1, budgets  # smooth refinement from then on

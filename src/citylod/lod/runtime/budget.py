@@ -335,6 +335,11 @@ class CostModel:
         self._history.clear()
 
 
+# The second frame of a model whose first frame built its buffers: drawn in under this share of its prediction,
+# the first frame's time held one-time costs (see FeedForwardBudgetController.update).
+_FIRST_FRAME_SLACK = 0.75
+
+
 class FeedForwardBudgetController:
     """Hold a target frame time on point layers by choosing each frame's point budget *before* it is drawn,
     from that frame's candidate tiles and a fitted cost model (Kehl et al.'s controller with a cost model
@@ -394,6 +399,8 @@ class FeedForwardBudgetController:
         self.point_budget = self.base_points
         self.predicted_ms: float | None = None
         self.reachable = True
+        self._first_new = False  # the model's only frame built most of what it drew
+        self._uncap = False  # the next budget is not bounded by the last one's growth
 
     @property
     def tau_px(self) -> float:
@@ -410,7 +417,9 @@ class FeedForwardBudgetController:
             self.reachable = True
             return self.point_budget
         goal = self.target_ms * math.exp(-self.correction)
-        cap = min(float(self.base_points), self.point_budget * self.max_growth)
+        cap = float(self.base_points) if self._uncap else min(float(self.base_points),
+                                                               self.point_budget * self.max_growth)
+        self._uncap = False
         # A view mostly new to the GL (a camera cut) is priced cautiously (CostModel.predict): the last
         # frames' costs are another view's, and on the budget bench the first frame after a cut from a
         # sparse stretch took 1.8× its prediction. The new share is taken over the prefix the last budget
@@ -439,7 +448,19 @@ class FeedForwardBudgetController:
         """Feed the frame just drawn: its time, what it drew (points, triangles, elements new to the GL) and
         whether the budget stopped refinement. A frame where most of what it drew is new (a camera cut)
         restarts the model's speed window (:class:`CostModel`)."""
-        cut = self.model.frames > 0 and new_elements > self.cut_share * (drawn_points + drawn_triangles)
+        mostly_new = new_elements > self.cut_share * (drawn_points + drawn_triangles)
+        cut = self.model.frames > 0 and mostly_new
+        if (self.model.frames == 1 and self._first_new and self.predicted_ms
+                and frame_ms < _FIRST_FRAME_SLACK * self.predicted_ms):
+            # The first frame built its buffers (a renderer's first draw: uploads, shader compiles; on the
+            # budget bench 1.5–2× the same frame drawn again). With one frame that one-time cost is taken for
+            # the points' cost, so this frame's budget came out about half of what the target allows, and the
+            # bounded growth would take five frames to get there. The first frame is forgotten, and the next
+            # budget may go straight to the model's: it was wrong, not a view change.
+            self.model.reset()
+            self._uncap = True
+            cut = False
+        self._first_new = self.model.frames == 0 and mostly_new
         self.model.add(frame_ms, drawn_points, drawn_triangles, new_elements, restart=cut)
         if budget_limited:
             e = math.log(max(frame_ms, 1e-3) / self.target_ms)
@@ -450,6 +471,7 @@ class FeedForwardBudgetController:
         """Forget the model and the corrections (a new scene, or budget mode switched on again)."""
         self.model.reset()
         self.correction = 0.0
+        self._first_new = self._uncap = False
         self.point_budget = self.base_points
         self.predicted_ms = None
         self.reachable = True
