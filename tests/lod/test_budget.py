@@ -307,13 +307,14 @@ def test_admitted_curve_predicts_what_a_smaller_budget_draws(refine: str) -> Non
             assert got.stats.points == expect, (b, got.stats.points, expect)
 
 
-@pytest.mark.parametrize("one_time_ms", [60.0, 0.0])
+@pytest.mark.parametrize("one_time_ms", [60.0, 200.0, 0.0])
 def test_a_first_frame_that_built_its_buffers_is_forgotten(one_time_ms: float) -> None:
-    """A renderer's first draw builds every buffer (uploads, shader compiles: 1.5–2× the same frame drawn
-    again on the budget bench). Fitted as the points' cost, it halves the next budget; the second frame,
-    drawn well under its prediction, shows that, and the third frame's budget goes straight to the target
-    instead of growing by max_growth a frame. Growth is bounded again after that. The control (no one-time
-    cost): the second frame lands as predicted, and the bound holds from the start."""
+    """A renderer's first draw builds every buffer (uploads, shader compiles: 1.1–2× the same frame drawn
+    again on the budget bench). Fitted as the points' cost, that one-time cost shrinks the next budget
+    (the second frame is planned 1.25× over the model to meet part of it); the second frame, drawn well
+    under the model's prediction, shows it, and the third frame's budget goes straight to the target
+    instead of growing by max_growth a frame. Growth is bounded again after that. The control (no
+    one-time cost): the hedged second frame stays within ±20 %, and the bound holds from the start."""
     from citylod.lod.runtime.budget import FeedForwardBudgetController
 
     c = FeedForwardBudgetController(40.0, base_points=1_000_000)
@@ -332,9 +333,9 @@ def test_a_first_frame_that_built_its_buffers_is_forgotten(one_time_ms: float) -
         budgets.append(b)
         times.append(ms)
         shown = max(shown, pts)
+    assert all(abs(t / 40.0 - 1.0) <= 0.2 for t in times[2:]), times  # recovered at once
     if one_time_ms:
         assert times[1] < 0.8 * 40.0, times  # the first frame's cost taken for the points'
-        assert abs(times[2] / 40.0 - 1.0) <= 0.2, times  # recovered at once
         assert budgets[2] > budgets[1] * c.max_growth, budgets
     else:
         assert abs(times[1] / 40.0 - 1.0) <= 0.2, times
