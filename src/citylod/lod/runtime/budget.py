@@ -465,8 +465,9 @@ class FeedForwardBudgetController:
         restarts the model's speed window (:class:`CostModel`)."""
         mostly_new = new_elements > self.cut_share * (drawn_points + drawn_triangles)
         cut = self.model.frames > 0 and mostly_new
-        if (self.model.frames == 1 and self._first_new and self._model_ms
-                and frame_ms < _FIRST_FRAME_SLACK * self._model_ms):
+        forget = bool(self.model.frames == 1 and self._first_new and self._model_ms
+                      and frame_ms < _FIRST_FRAME_SLACK * self._model_ms)
+        if forget:
             # The first frame built its buffers (a renderer's first draw: uploads, shader compiles; on the
             # budget bench 1.1–2.0× the same frame drawn again). With one frame that one-time cost is taken for
             # the points' cost, so this frame's budget came out short of what the target allows, and the
@@ -475,7 +476,7 @@ class FeedForwardBudgetController:
             self.model.reset()
             self._uncap = True
             cut = False
-        self._first_new = self.model.frames == 0 and mostly_new
+        self._first_new = self.model.frames == 0 and mostly_new and not forget  # once per start
         self.model.add(frame_ms, drawn_points, drawn_triangles, new_elements, restart=cut)
         if budget_limited:
             e = math.log(max(frame_ms, 1e-3) / self.target_ms)
