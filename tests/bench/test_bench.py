@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from citylod.bench.flight import default_flight
+from citylod.bench.flight import default_flight, default_flight_legs
 from citylod.bench.synthetic import make_terrain_tileset
 from citylod.core.camera import Camera
 from citylod.io.tiles3d import open_tileset
@@ -53,6 +53,49 @@ def test_default_flight_covers_the_three_legs() -> None:
     heights = np.array([c.position[2] for c in cams])
     assert heights[0] > heights[9]  # the approach descends
     assert np.all(heights[10:20] < 150)  # the low pass stays low
+
+
+@pytest.mark.parametrize("n", [3, 7, 30, 31])
+def test_default_flight_legs_split_its_cameras(n: int) -> None:
+    """The legs cover every camera of the flight once, in order, and the approach descends, the low pass
+    stays low, the orbit keeps its distance from the centre."""
+    legs = default_flight_legs(n)
+    assert [name for name, _ in legs] == ["approach", "low pass", "orbit"]
+    assert [i for _, idx in legs for i in idx] == list(range(n))
+    hi = CORNER + np.array([1000.0, 800.0, 50.0])
+    cams = default_flight(CORNER, hi, n=n)
+    z = np.array([c.position[2] for c in cams])
+    (_, app), (_, low), (_, orb) = legs
+    if len(app) > 1:
+        assert z[app[0]] > z[app[-1]]
+    assert np.all(z[list(low)] < z[app[0]])
+    centre = (CORNER + hi) / 2
+    d = [np.hypot(*(np.asarray(cams[i].position[:2]) - centre[:2])) for i in orb]
+    assert max(d) - min(d) < 1.0
+
+
+def test_report_gives_each_leg_its_speed_up() -> None:
+    """The legs' table: per leg the median frame time of each run and full / LOD, computed here again from
+    the frames."""
+    from citylod.bench.report import BenchResult, FrameRow, _legs_table, _summarise
+
+    rng = np.random.default_rng(3)
+    frames = []
+    for cam in range(9):
+        for tau, scale in ((0.0, 1.0), (1.0, 0.25 if cam < 3 else 0.8)):
+            ms = float(rng.uniform(50, 150)) * scale
+            frames.append(FrameRow(tau, cam, ms, 0.0, 1, int(ms * 1000), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+    rows = [_summarise("full", 0.0, [f for f in frames if f.tau_px == 0.0]),
+            _summarise("tau=1", 1.0, [f for f in frames if f.tau_px == 1.0])]
+    res = BenchResult(rows, frames, Path("."), legs=default_flight_legs(9))
+    table = _legs_table(res)
+    rows = [ln for ln in table if ln.startswith("| approach") or ln.startswith("| low pass") or ln.startswith("| orbit")]
+    assert len(rows) == 3
+    for (name, idx), line in zip(default_flight_legs(9), rows, strict=True):
+        full = np.median([f.frame_ms for f in frames if f.camera in idx and f.tau_px == 0.0])
+        lod = np.median([f.frame_ms for f in frames if f.camera in idx and f.tau_px == 1.0])
+        assert line.startswith(f"| {name} | {len(idx)} | {full:.1f} (")
+        assert f"| {lod:.1f} (" in line and line.endswith(f", {full / lod:.1f}× |")
 
 
 @pytest.mark.render

@@ -15,6 +15,12 @@ import numpy.typing as npt
 from citylod.core.camera import Camera
 
 
+def default_flight_legs(n: int = 30) -> list[tuple[str, range]]:
+    """The legs of :func:`default_flight` with ``n`` cameras, as (name, camera indices)."""
+    k = max(n // 3, 1)
+    return [("approach", range(0, k)), ("low pass", range(k, 2 * k)), ("orbit", range(2 * k, max(n, 2 * k)))]
+
+
 def default_flight(lo: npt.ArrayLike, hi: npt.ArrayLike, n: int = 30, fovy_deg: float = 45.0) -> list[Camera]:
     """About ``n`` cameras (approach, low pass, orbit) over the box ``lo``–``hi`` (data CRS)."""
     lo_a = np.asarray(lo, np.float64)

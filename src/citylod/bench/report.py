@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from citylod.bench.flight import default_flight
+from citylod.bench.flight import default_flight, default_flight_legs
 from citylod.core.camera import Camera, load_cameras, overview_camera
 from citylod.core.errors import CitylodError
 from citylod.core.fileio import atomic_write_bytes
@@ -95,6 +95,8 @@ class BenchResult:
     gl_backend: str | None = None
     #: The same summaries for the overview camera alone (the whole dataset in view), not part of ``rows``.
     overview: list[TauRow] = field(default_factory=list)
+    #: The default flight's legs (name, camera indices); empty for a user's path.
+    legs: list[tuple[str, range]] = field(default_factory=list)
 
     def row(self, tau_px: float | None) -> TauRow:
         """The summary for ``tau_px`` (None for the full-resolution baseline)."""
@@ -215,7 +217,8 @@ def run_bench(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[Camer
     over = [f for f in frames if f.camera < 0]
     overview_rows = [_summarise("full", 0.0, [f for f in over if f.tau_px == 0.0])]
     overview_rows += [_summarise(f"tau={t:g}", t, [f for f in over if f.tau_px == t]) for t in taus]
-    result = BenchResult(rows, frames, out, files, tuple(size), len(cams), _vtk.WINDOW_BACKEND, overview_rows)
+    result = BenchResult(rows, frames, out, files, tuple(size), len(cams), _vtk.WINDOW_BACKEND, overview_rows,
+                         [] if cameras else default_flight_legs(len(cams)))
     _write_csv(out / "frames.csv", [asdict(f) for f in frames])
     _write_csv(out / "report.csv", [asdict(rw) for rw in rows])
     files["frames_csv"], files["csv"] = out / "frames.csv", out / "report.csv"
@@ -296,6 +299,30 @@ def _md_row(r: TauRow) -> str:
             f"| {r.err_near_max_px:.2f} / {r.err_near_p99_px:.2f} | {r.full_only_px} | {r.lod_only_px} |")
 
 
+def _legs_table(res: BenchResult) -> list[str]:
+    """Markdown lines: per leg of the default flight, the median frame time of each run and its speed-up
+    against full resolution, and the median triangles. Where the LOD pays off depends on the leg: far
+    views draw coarse tiles, a low pass draws the leaves near the camera at any τ."""
+    taus = [r.tau_px for r in res.rows if r.label != "full"]
+    lines = ["By leg of the default flight (medians over the leg's cameras; ×: full-resolution frame time over "
+             "the LOD frame's):", "",
+             "| leg | cameras | full ms (triangles) | " + " | ".join(f"τ = {t:g} px ms (triangles), ×" for t in taus) + " |",
+             "|---|---|---|" + "---|" * len(taus)]
+    for name, idx in res.legs:
+        cams = set(idx)
+
+        def med(tau: float, attr: str, cams: set[int] = cams) -> float:
+            return float(np.median([getattr(f, attr) for f in res.frames if f.camera in cams and f.tau_px == tau]))
+
+        if not any(f.camera in cams for f in res.frames):
+            continue
+        full = med(0.0, "frame_ms")
+        cells = [f"{med(t, 'frame_ms'):.1f} ({med(t, 'triangles'):.0f}), {full / med(t, 'frame_ms'):.1f}×"
+                 for t in taus]
+        lines.append(f"| {name} | {len(idx)} | {full:.1f} ({med(0.0, 'triangles'):.0f}) | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _write_md(path: Path, res: BenchResult, sources: list[str]) -> Path:
     w, h = res.size
     lines = [
@@ -318,6 +345,8 @@ def _write_md(path: Path, res: BenchResult, sources: list[str]) -> Path:
     ]
     header = lines[-2:]
     lines += [_md_row(r) for r in res.rows]
+    if res.legs:
+        lines += ["", *_legs_table(res)]
     if res.overview:
         lines += ["", "Overview camera (the whole dataset in view; not part of the flight above):", "", *header]
         lines += [_md_row(r) for r in res.overview]
