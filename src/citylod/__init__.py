@@ -28,6 +28,8 @@ _EXPORTS = {
     "make_sample": "citylod.sample",
     "Camera": "citylod.core.camera",
     "load_cameras": "citylod.core.camera",
+    "framing_camera": "citylod.core.camera",
+    "orbit_cameras": "citylod.core.camera",
     "render_images": "citylod.render.offscreen",
     "add_lod_layer": "citylod.render.pyvista_layer",
 }

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -63,3 +64,50 @@ def test_camera_close_to_its_focal_point_at_ecef_coordinates() -> None:
         assert np.allclose(cam.direction, [0, 0, -1])
     with pytest.raises(ValueError, match="coincide"):
         Camera(tuple(foc), tuple(foc))
+
+
+BOXES = [
+    ((500_000.0, 5_400_000.0, 0.0), (504_000.0, 5_404_000.0, 50.0)),  # a flat city at UTM coordinates
+    ((0.0, 0.0, 0.0), (10.0, 10.0, 300.0)),  # a tower
+    ((-5.0, -5.0, -5.0), (5.0, 5.0, 5.0)),  # a cube
+]
+
+
+@pytest.mark.parametrize("box", BOXES)
+@pytest.mark.parametrize("azimuth, elevation", [(200.0, 40.0), (0.0, 90.0), (77.0, 5.0), (315.0, 60.0)])
+@pytest.mark.parametrize("width, height", [(960, 540), (300, 600)])
+def test_framing_camera_holds_the_box_tightly(box, azimuth, elevation, width, height) -> None:
+    """Every corner is in the frustum (the view's own planes, computed apart from the framing), and 10 %
+    closer some corner would not be: the box fills the frame."""
+    from citylod.core.camera import framing_camera
+
+    lo, hi = np.array(box[0]), np.array(box[1])
+    cam = framing_camera(lo, hi, azimuth_deg=azimuth, elevation_deg=elevation, aspect=width / height)
+    b = Box.from_bounds(lo, hi)
+    assert View(cam, width, height, near=1e-6).box_in_frustum(b) == (False, True)
+    centre = (lo + hi) / 2
+    eye = np.array(cam.position)
+    closer = Camera(tuple(centre + 0.9 * (eye - centre)), cam.focal_point, cam.view_up, cam.fovy_deg)
+    assert not View(closer, width, height, near=1e-6).box_in_frustum(b)[1]
+
+
+def test_built_in_cameras_and_their_errors(tmp_path, monkeypatch) -> None:
+    from citylod.core.camera import built_in_camera, cameras_for
+
+    lo, hi = np.zeros(3), np.array([100.0, 80.0, 20.0])
+    assert built_in_camera(None) == ("overview", 1)
+    assert built_in_camera("orbit") == ("orbit", 36)
+    assert built_in_camera("orbit:5") == ("orbit", 5)
+    orbit = cameras_for("orbit:4", lo, hi)
+    assert len(orbit) == 4 and len({c.position for c in orbit}) == 4
+    # One distance (no zooming in and out), every frame holding the whole box.
+    assert len({round(float(np.linalg.norm(np.subtract(c.position, c.focal_point))), 6) for c in orbit}) == 1
+    for c in cameras_for("orbit:8", lo, hi, aspect=960 / 540):
+        assert View(c, 960, 540, near=1e-6).box_in_frustum(Box.from_bounds(lo, hi)) == (False, True)
+    for bad in ("orbit:0", "overview:2", "orbit:1000001"):
+        with pytest.raises(InputError, match=r"--camera"):
+            built_in_camera(bad)
+    monkeypatch.chdir(tmp_path)  # a camera file called "orbit" wins over the keyword
+    Path("orbit").write_text(json.dumps(orbit[1].to_dict()))
+    assert built_in_camera("orbit") is None
+    assert cameras_for("orbit", lo, hi) == [orbit[1]]

@@ -309,3 +309,35 @@ def test_baked_face_colors_follow_the_tile_rotation() -> None:
         rgb = baked_face_colors(pos, faces, matrix, (1.0, 1.0, 1.0))
         expect = 255.0 * min(1.0, 0.3 + 0.75 * max(0.0, float(normal @ sun)))
         assert abs(int(rgb[0, 0]) - expect) <= 0.51
+
+
+def test_render_without_a_camera_frames_the_data(hills: Path, tmp_path: Path) -> None:
+    """``citylod render TILES -o OUT`` (no ``--camera``) shows all the data filling the frame; ``--camera
+    orbit:3`` writes three frames around it, each with all the data in view."""
+    from citylod.cli import main
+
+    assert main(["render", str(hills), "-o", str(tmp_path / "a.png"), "--size", "320x180",
+                 "--depth", str(tmp_path / "a.npy")]) == 0
+    seen = np.isfinite(np.load(tmp_path / "a.npy"))
+    rows, cols = np.flatnonzero(seen.any(axis=1)), np.flatnonzero(seen.any(axis=0))
+    # Nothing cut at the frame's edges, and the data spans most of its width or height.
+    assert rows[0] > 0 and rows[-1] < 179 and cols[0] > 0 and cols[-1] < 319
+    assert max((rows[-1] - rows[0]) / 180, (cols[-1] - cols[0]) / 320) > 0.6
+    assert main(["render", str(hills), "-o", str(tmp_path / "o.png"), "--size", "160x90", "--camera", "orbit:3",
+                 "--depth", str(tmp_path / "o.npy")]) == 0
+    frames = [np.load(tmp_path / f"o_{i:04d}.npy") for i in range(3)]
+    for d in frames:
+        m = np.isfinite(d)
+        assert m.any() and not (m[0].any() or m[-1].any() or m[:, 0].any() or m[:, -1].any())
+    assert not np.array_equal(np.isfinite(frames[0]), np.isfinite(frames[1]))
+
+
+def test_render_camera_keywords_refuse_bad_counts(hills: Path, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    from citylod.cli import main
+
+    for spec, says in (("orbit:0", "1 to 100000"), ("overview:4", "one camera"), ("nothere.json", "camera file")):
+        assert main(["render", str(hills), "-o", str(tmp_path / "x.png"), "--camera", spec]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and says in err[0], err
+    assert not list(tmp_path.glob("x*.png"))

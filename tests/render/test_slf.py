@@ -348,6 +348,13 @@ def test_cli_render_draws_a_far_field_tileset_with_its_fields(box_slf: Path, tmp
                  "--depth", str(tmp_path / "d.npy")]) == 2
     err = capsys.readouterr().err
     assert "--depth" in err and len(err.strip().splitlines()) == 1 and not bad.exists()
+    # Without --camera: the whole far field in view (the overview), drawn with its fields.
+    over = tmp_path / "over.png"
+    assert main(["-q", "render", str(box_slf), "-o", str(over), "--size", "160x90"]) == 0
+    img = decode_image(over.read_bytes())[..., :3].astype(int)
+    background = img[0, 0]
+    drawn = np.abs(img - background).sum(axis=2) > 30
+    assert drawn.mean() > 0.1 and not (drawn[0].any() or drawn[-1].any() or drawn[:, 0].any() or drawn[:, -1].any())
 
 
 def test_damaged_field_file_is_refused(box_slf: Path, tmp_path: Path) -> None:

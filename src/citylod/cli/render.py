@@ -1,4 +1,4 @@
-"""``citylod render SOURCES -o IMAGE --camera CAMERA``: off-screen renders."""
+"""``citylod render SOURCES -o IMAGE [--camera CAMERA | overview | orbit:N]``: off-screen renders."""
 
 from __future__ import annotations
 
@@ -13,7 +13,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                       "drawn with its light fields)")
     r.add_argument("sources", type=Path, nargs="+")
     r.add_argument("-o", "--output", type=Path, required=True, help="PNG; with a camera path, a frame pattern")
-    r.add_argument("--camera", type=Path, required=True, help="camera JSON (one camera or a path)")
+    r.add_argument("--camera", metavar="CAMERA",
+                   help="camera JSON (one camera or a path), or 'overview' (the default: all the data in view) "
+                        "or 'orbit[:N]' (N frames once around it, 36 by default)")
     r.add_argument("--tau", type=float, default=1.0, help="screen-space error threshold in pixels")
     r.add_argument("--size", type=size, default=(1280, 720))
     r.add_argument("--depth", type=Path, help="write the depth (distance from the eye) as float32 .npy")

@@ -5,13 +5,16 @@ angles in degrees)::
 
     {"position": [x, y, z], "focal_point": [x, y, z], "view_up": [0, 0, 1], "fovy_deg": 45.0}
 
-A camera path is a JSON list of such objects, or ``{"cameras": [...]}``.
+A camera path is a JSON list of such objects, or ``{"cameras": [...]}``. Instead of a file, ``citylod render
+--camera`` also takes ``overview`` (the default: the whole dataset in view, :func:`overview_camera`) or
+``orbit[:N]`` (N cameras around it, :func:`orbit_cameras`); :func:`cameras_for` reads either.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -225,3 +228,94 @@ def overview_camera(lo: npt.ArrayLike, hi: npt.ArrayLike, *, fovy_deg: float = 4
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
     offset = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)]) * dist
     return Camera(tuple(centre + offset), tuple(centre), (0.0, 0.0, 1.0), fovy_deg)  # type: ignore[arg-type]
+
+
+def framing_camera(lo: npt.ArrayLike, hi: npt.ArrayLike, *, fovy_deg: float = 45.0, azimuth_deg: float = 200.0,
+                   elevation_deg: float = 40.0, aspect: float = 1.5, margin: float = 0.05) -> Camera:
+    """A camera looking at the centre of the box ``lo``–``hi`` from ``azimuth_deg`` (clockwise from north)
+    and ``elevation_deg``, as close as it can be with all eight corners in view, ``margin`` of the view's
+    half-size kept free at each side: what a user means by "show all of it".
+
+    :func:`overview_camera` fits the bounding sphere instead, which leaves a flat city small in the frame;
+    the benchmarks keep it (their overview rows are measured from it).
+    """
+    back, dist = _framing(lo, hi, fovy_deg, azimuth_deg, elevation_deg, aspect, margin)
+    centre = (np.asarray(lo, np.float64) + np.asarray(hi, np.float64)) / 2.0
+    return Camera(tuple(centre + back * dist), tuple(centre), (0.0, 0.0, 1.0), fovy_deg)  # type: ignore[arg-type]
+
+
+def _framing(lo: npt.ArrayLike, hi: npt.ArrayLike, fovy_deg: float, azimuth_deg: float, elevation_deg: float,
+             aspect: float, margin: float) -> tuple[F64, float]:
+    """The unit vector from the box's centre to the eye, and the least distance that holds the box.
+
+    Each corner ``p`` (relative to the centre, in the camera's right / up / forward axes) is in view from
+    distance ``D`` when ``|p·right| ≤ tan(h_x)·(D + p·forward)``, and likewise for ``up`` with ``h_y``:
+    ``D`` is the largest of these bounds over the corners (and puts every corner in front of the eye).
+    """
+    lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    centre = (lo_a + hi_a) / 2.0
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    back = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+    # The axes the renderer will use (straight down, view_up is along the view and basis() picks one).
+    right, up, forward = Camera(tuple(centre + back), tuple(centre), (0.0, 0.0, 1.0), fovy_deg).basis()  # type: ignore[arg-type]
+    ty = math.tan(math.radians(fovy_deg) / 2.0) * (1.0 - margin)
+    tx = math.tan(math.radians(fovy_deg) / 2.0) * aspect * (1.0 - margin)
+    corners = np.array([[x, y, z] for x in (lo_a[0], hi_a[0]) for y in (lo_a[1], hi_a[1])
+                        for z in (lo_a[2], hi_a[2])]) - centre
+    pr, pu, pf = corners @ right, corners @ up, corners @ forward
+    dist = float(max(np.max(np.abs(pr) / tx - pf), np.max(np.abs(pu) / ty - pf), np.max(-pf) * 1.001, 1.0))
+    return back, dist
+
+
+def orbit_cameras(lo: npt.ArrayLike, hi: npt.ArrayLike, n: int = 36, *, fovy_deg: float = 45.0,
+                  elevation_deg: float = 40.0, aspect: float = 1.5, margin: float = 0.05) -> list[Camera]:
+    """``n`` cameras once around the box ``lo``–``hi`` (a turntable), starting from the overview's azimuth,
+    all at one distance: the least that holds the whole box from every one of them
+    (:func:`framing_camera`'s, at its largest), so the frames do not zoom in and out."""
+    if n < 1:
+        raise ValueError(f"an orbit needs at least one camera, got {n}")
+    centre = (np.asarray(lo, np.float64) + np.asarray(hi, np.float64)) / 2.0
+    ways = [_framing(lo, hi, fovy_deg, 200.0 + 360.0 * i / n, elevation_deg, aspect, margin) for i in range(n)]
+    dist = max(d for _, d in ways)
+    return [Camera(tuple(centre + back * dist), tuple(centre), (0.0, 0.0, 1.0), fovy_deg)  # type: ignore[arg-type]
+            for back, _ in ways]
+
+
+_BUILT_IN = re.compile(r"(overview|orbit)(?::(\d+))?")
+#: What ``--camera`` takes besides a file, for messages.
+CAMERA_CHOICES = "a camera JSON file, 'overview' or 'orbit[:N]'"
+
+
+def built_in_camera(spec: str | PathLike[str] | None) -> tuple[str, int] | None:
+    """``(kind, n)`` when ``spec`` names built-in cameras (None: the overview), None when it is a file.
+
+    A file of that name wins over the keyword (a camera file called ``overview``). ``orbit`` alone is 36
+    cameras, 10° apart."""
+    if spec is None:
+        return "overview", 1
+    text = str(spec)
+    m = _BUILT_IN.fullmatch(text)
+    if m is None or Path(text).exists():
+        return None
+    kind, count = m.group(1), m.group(2)
+    if kind == "overview":
+        if count is not None:
+            raise InputError(f"--camera {text}: 'overview' is one camera; for several use 'orbit:N'")
+        return kind, 1
+    n = 36 if count is None else int(count)
+    if not 1 <= n <= 100_000:
+        raise InputError(f"--camera {text}: an orbit needs 1 to 100000 cameras")
+    return kind, n
+
+
+def cameras_for(spec: str | PathLike[str] | None, lo: npt.ArrayLike, hi: npt.ArrayLike, *,
+                aspect: float = 1.5) -> list[Camera]:
+    """The cameras ``--camera spec`` asks for over data in the box ``lo``–``hi``: a camera file
+    (:func:`load_cameras`), or the built-in ``overview`` / ``orbit[:N]`` (:func:`built_in_camera`)."""
+    kind = built_in_camera(spec)
+    if kind is None:
+        assert spec is not None
+        return load_cameras(spec)
+    if kind[0] == "overview":
+        return [framing_camera(lo, hi, aspect=aspect)]
+    return orbit_cameras(lo, hi, kind[1], aspect=aspect)

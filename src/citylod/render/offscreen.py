@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from citylod.core.camera import Camera, load_cameras
+from citylod.core.camera import Camera, built_in_camera, cameras_for, load_cameras
 from citylod.core.errors import CitylodError, InputError
 from citylod.core.fileio import atomic_write, atomic_write_bytes
 from citylod.render import _vtk
@@ -271,11 +271,13 @@ def _find_semantic_hook() -> SemanticHook | None:
 
 
 def render_command(args: argparse.Namespace, progress: bool = True) -> int:
-    """``citylod render SOURCES... -o IMAGE.png --camera CAMERA.json [--tau PX] [--size WxH] [--depth D.npy]
-    [--color-by MODE] [--city STORE.gpkg --highlight SQL --hide SQL]``."""
+    """``citylod render SOURCES... -o IMAGE.png [--camera CAMERA.json | overview | orbit:N] [--tau PX]
+    [--size WxH] [--depth D.npy] [--color-by MODE] [--city STORE.gpkg --highlight SQL --hide SQL]``."""
     from tqdm import tqdm
 
-    cameras = load_cameras(args.camera)
+    spec = getattr(args, "camera", None)
+    built_in = built_in_camera(spec)  # the overview or an orbit, made once the data's bounds are known
+    cameras = load_cameras(spec) if built_in is None else []
     tilesets, cities = _tileset_sources(args.sources)
     city = getattr(args, "city", None) or (cities[0] if cities else None)
     highlight, hide = getattr(args, "highlight", None), getattr(args, "hide", None)
@@ -288,12 +290,14 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
     out = Path(args.output)
     if out.suffix.lower() != ".png":
         raise CitylodError(f"output must be a .png file, got {out.name!r}")
-    n = len(cameras)
     budget_mb = getattr(args, "texture_budget", None)
     with OffscreenRenderer(tilesets, size=tuple(args.size), tau_px=args.tau,
                            color_by=getattr(args, "color_by", "auto") or "auto",
                            point_shape="splat" if getattr(args, "splats", False) else "points",
                            texture_budget_bytes=None if budget_mb is None else int(budget_mb * 2**20)) as r:
+        if built_in is not None:
+            cameras = cameras_for(spec, *r.scene.bounds, aspect=r.size[0] / r.size[1])
+        n = len(cameras)
         if hook is not None:
             hook(r.scene, city=city, highlight=highlight, hide=hide)
         water = None

@@ -1204,13 +1204,13 @@ _SCENE_ONLY = ("depth", "city", "highlight", "hide", "flood", "edits", "texture_
 
 
 def render_far_field_command(args: Any, progress: bool = True) -> int:
-    """``citylod render SLF_DIR -o IMAGE.png --camera CAMERA.json [--tau PX] [--size WxH]``: the city of a
+    """``citylod render SLF_DIR -o IMAGE.png [--camera CAMERA.json | overview | orbit:N] [--tau PX] [--size WxH]``: the city of a
     far-field tileset as :class:`SlfView` draws it (fields evaluated for each camera, buildings where the
     fields hand over, at :data:`FIELD_TAU_SCALE` times ``--tau``), one PNG per camera. The far-field tileset
     is the only source."""
     from tqdm import tqdm
 
-    from citylod.core.camera import load_cameras
+    from citylod.core.camera import built_in_camera, cameras_for, load_cameras
 
     if len(args.sources) != 1:
         raise CitylodError("a far-field tileset is rendered alone (it names its own city tileset); "
@@ -1225,10 +1225,14 @@ def render_far_field_command(args: Any, progress: bool = True) -> int:
     out = Path(args.output)
     if out.suffix.lower() != ".png":
         raise CitylodError(f"output must be a .png file, got {out.name!r}")
-    cameras = load_cameras(args.camera)
-    n = len(cameras)
+    spec = getattr(args, "camera", None)
+    built_in = built_in_camera(spec)
+    cameras = load_cameras(spec) if built_in is None else []
     last = None
     with SlfView(args.sources[0], size=tuple(args.size), tau_px=FIELD_TAU_SCALE * args.tau) as sv:
+        if built_in is not None:
+            cameras = cameras_for(spec, *sv.bounds(), aspect=sv.size[0] / sv.size[1])
+        n = len(cameras)
         for i, cam in enumerate(tqdm(cameras, desc="render", unit="frame", disable=not progress or n < 2)):
             last = sv.prepare(cam)
             sv.draw()
