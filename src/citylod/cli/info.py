@@ -111,6 +111,12 @@ def _describe_store(p: Path) -> str:
             lon, lat = pyproj.Transformer.from_crs(store.crs, "EPSG:4326", always_xy=True).transform(
                 (x0 + x1) / 2, (y0 + y1) / 2)
             lines.append(f"  centre   {lat:.5f}° N, {lon:.5f}° E")
+        # What --highlight / --hide and the query panel can ask about.
+        lines.append(f"  columns  {', '.join(store.query_columns())}")
+        names = store.attribute_names()
+        if names:
+            lines.append("  attributes (json_extract(attributes, '$.NAME')): "
+                         + ", ".join(f"{k} ({n})" for k, n in names))
         return "\n".join(lines)
 
 

@@ -350,12 +350,31 @@ class CityStore:
             if time.monotonic() > deadline:
                 raise InputError(f"query {where_sql[:200]!r} ran longer than {self.query_time_limit_s:g} s; "
                                  "stopped", self.path) from exc
-            raise InputError(f"bad query {where_sql[:200]!r}: {exc}", self.path) from exc
+            failed: Exception = exc
         except (sqlite3.Error, ValueError, OverflowError, MemoryError) as exc:
-            raise InputError(f"bad query {where_sql[:200]!r}: {exc}", self.path) from exc
+            failed = exc
         finally:
             self._conn.set_progress_handler(None, 0)
             self._conn.set_authorizer(None)
+        hint = ""
+        if "no such column" in str(failed):  # what the user can write instead
+            hint = (f" (columns: {', '.join(self.query_columns())}; other attributes as "
+                    "json_extract(attributes, '$.NAME'), which `citylod info` lists)")
+        raise InputError(f"bad query {where_sql[:200]!r}: {failed}{hint}", self.path) from failed
+
+    def query_columns(self) -> list[str]:
+        """The columns of ``city_objects`` a query can name (the footprint geometry and the row id aside)."""
+        return [r[1] for r in self._conn.execute("PRAGMA table_info(city_objects)")
+                if r[1] not in ("fid", "footprint")]
+
+    def attribute_names(self, limit: int = 12) -> list[tuple[str, int]]:
+        """The most common keys of the objects' ``attributes`` (JSON), with how many objects have each."""
+        sql = ("SELECT j.key, count(*) FROM city_objects, json_each(city_objects.attributes) AS j "
+               "WHERE json_valid(city_objects.attributes) GROUP BY j.key ORDER BY count(*) DESC, j.key LIMIT ?")
+        try:
+            return [(str(k), int(n)) for k, n in self._conn.execute(sql, (int(limit),))]
+        except sqlite3.Error:  # an SQLite without JSON functions: queries on attributes fail there too
+            return []
 
     #: The columns of ``city_objects`` a result list shows next to the id.
     LIST_COLUMNS = ("type", "name", "function", "measured_height", "storeys", "lod")
