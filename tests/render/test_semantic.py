@@ -292,3 +292,54 @@ def test_highlight_on_a_dsm_reads_as_its_colour(city: SimpleNamespace, tmp_path:
     r, g, bl = np.median(after.rgb[core].astype(float), axis=0)
     assert r >= 215 and g >= 170 and bl <= 40, (r, g, bl)
     overlay.close()
+
+
+def test_a_wall_above_an_abutting_road_is_tinted_whole(tmp_path: Path) -> None:
+    """A road polygon of the city model meets a building at its wall (as BGT's roads meet Delft's houses).
+    The footprint map gives each texel one object, and about half the texels along the wall went to the
+    road, whose height interval holds none of the wall: the highlighted wall came out striped. Expected from
+    geometry alone: every pixel showing the wall between 1 m above the ground and 0.5 m under the roof."""
+    from citylod.bench.synthetic import make_terrain_tileset
+    from citylod.io.city.model import CityModel, CityObject
+    from citylod.semantics.store import build_city
+
+    corner = np.array([500_000.0, 5_400_000.0, 0.0])
+    bx0, by0, bx1, by1, top = 20.3, 30.3, 40.3, 44.3, 10.0  # off the texel grid on purpose
+
+    def box(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.where((x >= bx0) & (x <= bx1) & (y >= by0) & (y <= by1), top, 0.0)
+
+    tiles = make_terrain_tileset(tmp_path / "t", levels=1, n=257, extent=64.0, corner=corner, height_fn=box,
+                                 texture_px=None)
+
+    def ring(xy: list[tuple[float, float]], z: float) -> np.ndarray:
+        return np.array([(x + corner[0], y + corner[1], z) for x, y in xy + [xy[0]]])
+
+    def wall(a: tuple[float, float], b: tuple[float, float]) -> np.ndarray:
+        return np.array([(a[0], a[1], 0.0), (b[0], b[1], 0.0), (b[0], b[1], top), (a[0], a[1], top),
+                         (a[0], a[1], 0.0)]) + corner
+
+    corners_xy = [(bx0, by0), (bx0, by1), (bx1, by1), (bx1, by0)]
+    sides = list(zip(corners_xy[::-1], corners_xy[::-1][1:] + corners_xy[::-1][:1], strict=True))
+    building = CityObject("house", "Building", {}, [[ring(corners_xy, 0.0)], [ring(corners_xy[::-1], top)]]
+                          + [[wall(a, b)] for a, b in sides], 1)
+    road = CityObject("road", "Road", {}, [[ring([(0.0, 10.0), (64.0, 10.0), (64.0, by0), (0.0, by0)], 0.0)]], 1)
+    gpkg = tmp_path / "city.gpkg"
+    build_city(CityModel([building, road], None, "m.gml"), gpkg, crs="EPSG:25832", progress=False)
+    # From the road's side, looking at the south wall.
+    cx = corner[0] + (bx0 + bx1) / 2
+    cam = Camera((cx, corner[1] + by0 - 30.0, 12.0), (cx, corner[1] + by0, 5.0), (0.0, 0.0, 1.0), 45.0)
+    store = CityStore.open(gpkg)
+    with OffscreenRenderer([tiles], size=SIZE) as r:
+        overlay = SemanticOverlay(r.scene, store)  # the default texel size, coarser than these pixels
+        before = r.render(cam, depth=True)
+        overlay.state.highlight(["house"], TINT)
+        after = r.render(cam, depth=True)
+    pts = points_from_distance(before.depth, cam, relative=False)
+    ok = np.isfinite(before.depth)
+    x, y, z = (np.where(ok, pts[..., k], np.nan) for k in range(3))
+    wall = ok & (np.abs(y - (corner[1] + by0)) < 0.3) & (x > corner[0] + bx0 + 0.5) & (x < corner[0] + bx1 - 0.5)
+    wall &= (z > 1.0) & (z < top - 0.5)
+    assert wall.sum() > 2000
+    got = tinted(after.rgb, before.rgb)
+    assert got[wall].mean() > 0.98, got[wall].mean()

@@ -117,13 +117,32 @@ uniform int citylodLutWidth;
 """
 # After the texture is applied (TCoord::Impl follows Light::Impl in VTK's fragment template), so the tint
 # goes over orthophotos and point colours alike.
+#
+# A texel holds one object, the one nearest to its centre. Where a road meets a building, the texels along
+# the wall go to either, about half each, so a wall fragment whose texel's height interval misses it (a wall
+# above the road's texel) takes another object of a neighbouring texel whose interval holds it (not its own
+# texel's object again: above a roof stays untinted): without that, highlighted walls were striped, half
+# tinted (Delft, roads of the city model against its buildings).
 _FS_IMPL = """//VTK::TCoord::Impl
 if (citylodOn != 0) {
   ivec2 clIJ = ivec2(floor(citylodG.xy));
   ivec2 clSize = textureSize(citylodMap, 0);
   if (clIJ.x >= 0 && clIJ.y >= 0 && clIJ.x < clSize.x && clIJ.y < clSize.y) {
     vec4 clM = texelFetch(citylodMap, clIJ, 0);
-    if (clM.r >= 0.0 && citylodG.z >= clM.g && citylodG.z <= clM.b) {
+    bool clHit = clM.r >= 0.0 && citylodG.z >= clM.g && citylodG.z <= clM.b;
+    if (!clHit && clM.r >= 0.0) {
+      for (int dj = -1; dj <= 1; ++dj) {
+        for (int di = -1; di <= 1; ++di) {
+          ivec2 clN = clamp(clIJ + ivec2(di, dj), ivec2(0), clSize - 1);
+          vec4 clT = texelFetch(citylodMap, clN, 0);
+          if (!clHit && clT.r >= 0.0 && abs(clT.r - clM.r) > 0.5 && citylodG.z >= clT.g && citylodG.z <= clT.b) {
+            clM = clT;
+            clHit = true;
+          }
+        }
+      }
+    }
+    if (clHit) {
       int clId = int(clM.r + 0.5);
       vec4 clS = texelFetch(citylodState, ivec2(clId % citylodLutWidth, clId / citylodLutWidth), 0);
       float clA = clS.a * 255.0;
