@@ -30,6 +30,29 @@ def test_info_on_raster_and_tileset(tmp_path, capsys) -> None:
     assert "kind dsm" in out and "EPSG:32632" in out
 
 
+def test_info_gives_a_rasters_heights_and_writes_nothing(tmp_path, capsys, monkeypatch) -> None:
+    """The range of heights (what a flood level is chosen from): exact from the samples, no-data left out;
+    past the size read whole, GDAL's approximate statistics, said so. No .aux.xml appears beside the file."""
+    import citylod.cli.info as info
+
+    z = np.add.outer(np.arange(40.0), np.arange(50.0)).astype(np.float32) + 100.0
+    z[:5, :5] = -9999.0
+    r = tmp_path / "h.tif"
+    with rasterio.open(r, "w", driver="GTiff", width=50, height=40, count=1, dtype="float32", nodata=-9999.0,
+                       crs="EPSG:32632", transform=from_origin(500_000, 5_400_000, 1, 1)) as ds:
+        ds.write(z, 1)
+    valid = z[z > -9999.0]
+    assert main(["info", str(r)]) == 0
+    out = capsys.readouterr().out
+    assert f"heights  {valid.min():.2f} … {valid.max():.2f}" in out and f"{100 * valid.size / z.size:.1f} %" in out
+    assert "x 500000.00 … 500050.00, y 5399960.00 … 5400000.00" in out
+    monkeypatch.setattr(info, "_EXACT_HEIGHTS_SAMPLES", 100)
+    assert main(["info", str(r)]) == 0
+    out = capsys.readouterr().out
+    assert "heights  ≈" in out and "approximate" in out
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["h.tif"]
+
+
 def test_a_closed_pipe_ends_the_command_quietly(tmp_path) -> None:
     """``citylod info X | head``: the reader closes the pipe before the command writes; no traceback."""
     import subprocess

@@ -69,9 +69,42 @@ def _describe_raster(p: Path) -> str:
     from citylod.io.raster import read_info
 
     info = read_info(p)
-    return (f"{p}: raster {info.width}×{info.height} {info.dtype}, crs {info.crs.name}, "
+    head = (f"{p}: raster {info.width}×{info.height} {info.dtype}, crs {info.crs.name}, "
             f"spacing {info.spacing_m:.3f} m{' (geographic, degrees)' if info.geographic else ''}, "
             f"nodata {info.nodata}")
+    return "\n".join([head, *_raster_extent(p)])
+
+
+# Rasters up to this many samples are read whole for their exact height range (64 MB as float32).
+_EXACT_HEIGHTS_SAMPLES = 16_777_216
+
+
+def _raster_extent(p: Path) -> list[str]:
+    """Bounds and the range of heights (what a flood level or a camera is chosen from): exact for rasters
+    up to :data:`_EXACT_HEIGHTS_SAMPLES` samples, else GDAL's approximate statistics (overviews or a
+    subsample), said so."""
+    import numpy as np
+    import rasterio
+
+    # No .aux.xml beside the user's file: GDAL would save the statistics it computes there.
+    with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(p) as ds:
+        b = ds.bounds
+        lines = [f"  bounds   x {b.left:.2f} … {b.right:.2f}, y {b.bottom:.2f} … {b.top:.2f}"]
+        if ds.width * ds.height <= _EXACT_HEIGHTS_SAMPLES:
+            band = ds.read(1, masked=True)
+            valid = band.compressed()
+            valid = valid[np.isfinite(valid)]
+            if valid.size == 0:
+                lines.append("  heights  none (every sample is no-data)")
+            else:
+                lines.append(f"  heights  {float(valid.min()):.2f} … {float(valid.max()):.2f} "
+                             f"(mean {float(valid.mean()):.2f}), {100.0 * valid.size / band.size:.1f} % of the "
+                             "samples valid")
+        else:
+            st = ds.stats(indexes=[1], approx=True)[0] if hasattr(ds, "stats") else ds.statistics(1, approx=True)
+            lines.append(f"  heights  ≈ {st.min:.2f} … {st.max:.2f} (mean {st.mean:.2f}; approximate, from GDAL's "
+                         "statistics of a subsample)")
+    return lines
 
 
 def _describe_las(p: Path) -> str:
