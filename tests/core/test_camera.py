@@ -111,3 +111,27 @@ def test_built_in_cameras_and_their_errors(tmp_path, monkeypatch) -> None:
     Path("orbit").write_text(json.dumps(orbit[1].to_dict()))
     assert built_in_camera("orbit") is None
     assert cameras_for("orbit", lo, hi) == [orbit[1]]
+
+
+def test_framing_a_geocentric_box_looks_down_the_local_vertical() -> None:
+    """Data in ECEF (other tools' tilesets): azimuth and elevation are taken around the local vertical, so
+    the overview looks down on the data at 40° from the south-south-west, not along the Earth's axis."""
+    import pyproj
+
+    from citylod.core.camera import cameras_for, local_up
+
+    ecef = pyproj.CRS("EPSG:4978")
+    to_ecef = pyproj.Transformer.from_crs("EPSG:4979", ecef, always_xy=True)
+    lon, lat = -75.6, 40.0
+    centre = np.array(to_ecef.transform(lon, lat, 10.0))
+    lo, hi = centre - 150.0, centre + 150.0
+    up = local_up(ecef, lo, hi)
+    lam, phi = math.radians(lon), math.radians(lat)
+    normal = np.array([math.cos(phi) * math.cos(lam), math.cos(phi) * math.sin(lam), math.sin(phi)])
+    assert math.degrees(math.acos(float(up @ normal))) < 0.2  # the ellipsoid's normal, to 0.2°
+    cam = cameras_for(None, lo, hi, aspect=1.5, up=up)[0]
+    d = np.subtract(cam.position, cam.focal_point)
+    assert math.degrees(math.asin(float(d @ up) / float(np.linalg.norm(d)))) == pytest.approx(40.0, abs=1e-6)
+    assert np.allclose(cam.view_up, up)
+    assert View(cam, 960, 640, near=1e-3).box_in_frustum(Box.from_bounds(lo, hi)) == (False, True)
+    assert np.allclose(local_up(pyproj.CRS("EPSG:25832"), lo, hi), [0.0, 0.0, 1.0])

@@ -34,3 +34,16 @@ def test_foreign_ecef_tileset_draws(name: str) -> None:
     rows, cols = np.nonzero(drawn)
     # the content lies around the focal point: the drawn pixels straddle the image centre
     assert rows.min() < 64 < rows.max() and cols.min() < 96 < cols.max()
+
+
+def test_foreign_ecef_tileset_renders_without_a_camera(tmp_path) -> None:
+    """``citylod render DIR -o OUT`` on another tool's ECEF tileset: the content framed, nothing cut."""
+    from citylod.cli import main
+
+    d = tmp_path / "d.npy"
+    assert main(["-q", "render", str(DATA / "Batched/BatchedWithoutBatchTable"), "-o", str(tmp_path / "o.png"),
+                 "--size", "192x128", "--depth", str(d)]) == 0
+    seen = np.isfinite(np.load(d))
+    assert seen.mean() > 0.003
+    rows, cols = np.nonzero(seen)
+    assert 0 < rows.min() and rows.max() < 127 and 0 < cols.min() and cols.max() < 191

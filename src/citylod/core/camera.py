@@ -231,21 +231,26 @@ def overview_camera(lo: npt.ArrayLike, hi: npt.ArrayLike, *, fovy_deg: float = 4
 
 
 def framing_camera(lo: npt.ArrayLike, hi: npt.ArrayLike, *, fovy_deg: float = 45.0, azimuth_deg: float = 200.0,
-                   elevation_deg: float = 40.0, aspect: float = 1.5, margin: float = 0.05) -> Camera:
+                   elevation_deg: float = 40.0, aspect: float = 1.5, margin: float = 0.05,
+                   up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> Camera:
     """A camera looking at the centre of the box ``lo``–``hi`` from ``azimuth_deg`` (clockwise from north)
     and ``elevation_deg``, as close as it can be with all eight corners in view, ``margin`` of the view's
     half-size kept free at each side: what a user means by "show all of it".
 
+    ``up``: the local vertical in the data's frame (z for projected CRSs; away from the Earth's centre for
+    geocentric ones, where azimuth and elevation are taken in the local east / north / up frame).
+
     :func:`overview_camera` fits the bounding sphere instead, which leaves a flat city small in the frame;
     the benchmarks keep it (their overview rows are measured from it).
     """
-    back, dist = _framing(lo, hi, fovy_deg, azimuth_deg, elevation_deg, aspect, margin)
+    back, dist = _framing(lo, hi, fovy_deg, azimuth_deg, elevation_deg, aspect, margin, up)
     centre = (np.asarray(lo, np.float64) + np.asarray(hi, np.float64)) / 2.0
-    return Camera(tuple(centre + back * dist), tuple(centre), (0.0, 0.0, 1.0), fovy_deg)  # type: ignore[arg-type]
+    return Camera(tuple(centre + back * dist), tuple(centre), tuple(_unit(np.asarray(up, np.float64))),  # type: ignore[arg-type]
+                  fovy_deg)
 
 
 def _framing(lo: npt.ArrayLike, hi: npt.ArrayLike, fovy_deg: float, azimuth_deg: float, elevation_deg: float,
-             aspect: float, margin: float) -> tuple[F64, float]:
+             aspect: float, margin: float, up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> tuple[F64, float]:
     """The unit vector from the box's centre to the eye, and the least distance that holds the box.
 
     Each corner ``p`` (relative to the centre, in the camera's right / up / forward axes) is in view from
@@ -255,9 +260,13 @@ def _framing(lo: npt.ArrayLike, hi: npt.ArrayLike, fovy_deg: float, azimuth_deg:
     lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     centre = (lo_a + hi_a) / 2.0
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    back = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+    vertical = _unit(np.asarray(up, np.float64))
+    east = np.cross([0.0, 0.0, 1.0], vertical)
+    east = _unit(np.asarray(east, np.float64)) if np.linalg.norm(east) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    north = np.cross(vertical, east)
+    back = (math.sin(az) * math.cos(el)) * east + (math.cos(az) * math.cos(el)) * north + math.sin(el) * vertical
     # The axes the renderer will use (straight down, view_up is along the view and basis() picks one).
-    right, up, forward = Camera(tuple(centre + back), tuple(centre), (0.0, 0.0, 1.0), fovy_deg).basis()  # type: ignore[arg-type]
+    right, up, forward = Camera(tuple(centre + back), tuple(centre), tuple(vertical), fovy_deg).basis()  # type: ignore[arg-type]
     ty = math.tan(math.radians(fovy_deg) / 2.0) * (1.0 - margin)
     tx = math.tan(math.radians(fovy_deg) / 2.0) * aspect * (1.0 - margin)
     corners = np.array([[x, y, z] for x in (lo_a[0], hi_a[0]) for y in (lo_a[1], hi_a[1])
@@ -268,16 +277,18 @@ def _framing(lo: npt.ArrayLike, hi: npt.ArrayLike, fovy_deg: float, azimuth_deg:
 
 
 def orbit_cameras(lo: npt.ArrayLike, hi: npt.ArrayLike, n: int = 36, *, fovy_deg: float = 45.0,
-                  elevation_deg: float = 40.0, aspect: float = 1.5, margin: float = 0.05) -> list[Camera]:
+                  elevation_deg: float = 40.0, aspect: float = 1.5, margin: float = 0.05,
+                  up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> list[Camera]:
     """``n`` cameras once around the box ``lo``–``hi`` (a turntable), starting from the overview's azimuth,
     all at one distance: the least that holds the whole box from every one of them
     (:func:`framing_camera`'s, at its largest), so the frames do not zoom in and out."""
     if n < 1:
         raise ValueError(f"an orbit needs at least one camera, got {n}")
     centre = (np.asarray(lo, np.float64) + np.asarray(hi, np.float64)) / 2.0
-    ways = [_framing(lo, hi, fovy_deg, 200.0 + 360.0 * i / n, elevation_deg, aspect, margin) for i in range(n)]
+    ways = [_framing(lo, hi, fovy_deg, 200.0 + 360.0 * i / n, elevation_deg, aspect, margin, up) for i in range(n)]
     dist = max(d for _, d in ways)
-    return [Camera(tuple(centre + back * dist), tuple(centre), (0.0, 0.0, 1.0), fovy_deg)  # type: ignore[arg-type]
+    vertical = tuple(_unit(np.asarray(up, np.float64)))
+    return [Camera(tuple(centre + back * dist), tuple(centre), vertical, fovy_deg)  # type: ignore[arg-type]
             for back, _ in ways]
 
 
@@ -309,13 +320,25 @@ def built_in_camera(spec: str | PathLike[str] | None) -> tuple[str, int] | None:
 
 
 def cameras_for(spec: str | PathLike[str] | None, lo: npt.ArrayLike, hi: npt.ArrayLike, *,
-                aspect: float = 1.5) -> list[Camera]:
+                aspect: float = 1.5, up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> list[Camera]:
     """The cameras ``--camera spec`` asks for over data in the box ``lo``–``hi``: a camera file
-    (:func:`load_cameras`), or the built-in ``overview`` / ``orbit[:N]`` (:func:`built_in_camera`)."""
+    (:func:`load_cameras`), or the built-in ``overview`` / ``orbit[:N]`` (:func:`built_in_camera`) around
+    the local vertical ``up``."""
     kind = built_in_camera(spec)
     if kind is None:
         assert spec is not None
         return load_cameras(spec)
     if kind[0] == "overview":
-        return [framing_camera(lo, hi, aspect=aspect)]
-    return orbit_cameras(lo, hi, kind[1], aspect=aspect)
+        return [framing_camera(lo, hi, aspect=aspect, up=up)]
+    return orbit_cameras(lo, hi, kind[1], aspect=aspect, up=up)
+
+
+def local_up(crs: Any, lo: npt.ArrayLike, hi: npt.ArrayLike) -> F64:
+    """The vertical at the centre of the box ``lo``–``hi`` in ``crs`` (a pyproj CRS or None): z, but for a
+    geocentric (ECEF) frame the direction away from the Earth's centre, within 0.2° of the ellipsoid's
+    normal (ample for placing a camera)."""
+    if crs is not None and getattr(crs, "is_geocentric", False):
+        c = (np.asarray(lo, np.float64) + np.asarray(hi, np.float64)) / 2.0
+        if np.linalg.norm(c) > 1e6:
+            return _unit(c)
+    return np.array([0.0, 0.0, 1.0])

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from citylod.core.camera import Camera, built_in_camera, cameras_for, load_cameras
+from citylod.core.camera import Camera, built_in_camera, cameras_for, load_cameras, local_up
 from citylod.core.errors import CitylodError, InputError
 from citylod.core.fileio import atomic_write, atomic_write_bytes
 from citylod.render import _vtk
@@ -296,7 +296,8 @@ def render_command(args: argparse.Namespace, progress: bool = True) -> int:
                            point_shape="splat" if getattr(args, "splats", False) else "points",
                            texture_budget_bytes=None if budget_mb is None else int(budget_mb * 2**20)) as r:
         if built_in is not None:
-            cameras = cameras_for(spec, *r.scene.bounds, aspect=r.size[0] / r.size[1])
+            lo, hi = r.scene.bounds
+            cameras = cameras_for(spec, lo, hi, aspect=r.size[0] / r.size[1], up=local_up(r.scene.crs, lo, hi))
         n = len(cameras)
         if hook is not None:
             hook(r.scene, city=city, highlight=highlight, hide=hide)
