@@ -277,3 +277,14 @@ def test_cityjson_errors(tmp_path: Path) -> None:
     p.write_text(json.dumps(doc))
     m = read_city_model(p)
     assert any(w.startswith("R:") and "outside" in w for w in m.warnings)
+
+
+def test_a_file_that_is_no_city_model_says_so(tmp_path: Path) -> None:
+    """A raster or point cloud given as a city model: one line saying what was expected, not an XML parser's."""
+    from citylod.io.city.read import read_city_model
+
+    p = tmp_path / "dsm.tif"
+    p.write_bytes(b"II*\x00" + bytes(100))
+    with pytest.raises(InputError, match="not a city model: CityGML") as info:
+        read_city_model(p)
+    assert "dsm.tif" in str(info.value)

@@ -90,19 +90,21 @@ def _raster_extent(p: Path) -> list[str]:
     with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(p) as ds:
         b = ds.bounds
         lines = [f"  bounds   x {b.left:.2f} … {b.right:.2f}, y {b.bottom:.2f} … {b.top:.2f}"]
+        # An image (an orthophoto: bytes, several bands) has values, not heights.
+        what = "heights " if ds.count == 1 and ds.dtypes[0] != "uint8" else "band 1  "
         if ds.width * ds.height <= _EXACT_HEIGHTS_SAMPLES:
             band = ds.read(1, masked=True)
             valid = band.compressed()
             valid = valid[np.isfinite(valid)]
             if valid.size == 0:
-                lines.append("  heights  none (every sample is no-data)")
+                lines.append(f"  {what} none (every sample is no-data)")
             else:
-                lines.append(f"  heights  {float(valid.min()):.2f} … {float(valid.max()):.2f} "
+                lines.append(f"  {what} {float(valid.min()):.2f} … {float(valid.max()):.2f} "
                              f"(mean {float(valid.mean()):.2f}), {100.0 * valid.size / band.size:.1f} % of the "
                              "samples valid")
         else:
             st = ds.stats(indexes=[1], approx=True)[0] if hasattr(ds, "stats") else ds.statistics(1, approx=True)
-            lines.append(f"  heights  ≈ {st.min:.2f} … {st.max:.2f} (mean {st.mean:.2f}; approximate, from GDAL's "
+            lines.append(f"  {what} ≈ {st.min:.2f} … {st.max:.2f} (mean {st.mean:.2f}; approximate, from GDAL's "
                          "statistics of a subsample)")
     return lines
 

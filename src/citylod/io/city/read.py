@@ -24,6 +24,8 @@ def read_city_model(path: str | PathLike[str], *, lod: int = 2) -> CityModel:
         from citylod.io.city.cityjson import read_cityjson
 
         return read_cityjson(p, lod=lod)
+    if not head.startswith((b"<", b"\xff\xfe", b"\xfe\xff")):  # a raster, a point cloud, a glb (UTF-16 XML passes)
+        raise InputError("not a city model: CityGML (XML), CityJSON or CityJSONSeq expected", p)
     from citylod.io.city.citygml import read_citygml
 
     return read_citygml(p, lod=lod)
