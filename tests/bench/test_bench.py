@@ -162,3 +162,30 @@ def test_coinciding_points_of_the_figure_get_one_label() -> None:
     assert groups == {(0.01, 61_000.0): [0.5, 1.0, 2.0, 4.0], (3.2, 61_000.0): [8.0]}
     assert _coinciding(rows, [0.01, 0.02, 0.04, 0.08, 0.16], ys) == {
         (x, y): [t] for x, y, t in zip([0.01, 0.02, 0.04, 0.08, 0.16], ys, (0.5, 1.0, 2.0, 4.0, 8.0), strict=True)}
+
+
+def test_default_flight_over_ecef_data_flies_around_its_vertical() -> None:
+    """Another tool's ECEF tileset: the default flight and the overview camera are placed in the east /
+    north / up frame of the data (z-up data keep their cameras exactly)."""
+    import pyproj
+
+    from citylod.core.camera import View, in_local_frame, local_up, overview_camera
+    from citylod.core.geometry import Box
+
+    lo, hi = np.array([500_000.0, 5_400_000.0, 0.0]), np.array([501_000.0, 5_401_000.0, 40.0])
+    assert in_local_frame(default_flight, lo, hi, [0.0, 0.0, 1.0]) == default_flight(lo, hi)
+    to_ecef = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    c = np.array(to_ecef.transform(4.37, 52.0, 0.0))
+    elo, ehi = c - 400.0, c + 400.0
+    up = local_up(pyproj.CRS("EPSG:4978"), elo, ehi)
+    cams = in_local_frame(default_flight, elo, ehi, up)
+    assert len(cams) == 30 and all(np.allclose(cam.view_up, up) for cam in cams)
+    centre = (elo + ehi) / 2
+    heights = [float(np.subtract(cam.position, centre) @ up) for cam in cams]
+    assert min(heights) > 0  # every camera above the data's middle
+    orbit = default_flight_legs(30)[2][1]
+    assert np.ptp([heights[i] for i in orbit]) < 1e-6  # the orbit at one height over the local ground
+    over = in_local_frame(lambda a, b: [overview_camera(a, b)], elo, ehi, up)[0]
+    d = np.subtract(over.position, over.focal_point)
+    assert math.degrees(math.asin(float(d @ up) / float(np.linalg.norm(d)))) == pytest.approx(40.0, abs=1e-6)
+    assert View(over, 960, 640, near=1e-3).box_in_frustum(Box.from_bounds(elo, ehi))[1]

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from citylod.bench.flight import default_flight, default_flight_legs
-from citylod.core.camera import Camera, load_cameras, overview_camera
+from citylod.core.camera import Camera, in_local_frame, load_cameras, local_up, overview_camera
 from citylod.core.errors import CitylodError
 from citylod.core.fileio import atomic_write_bytes
 from citylod.render import _vtk
@@ -168,13 +168,15 @@ def run_bench(sources: Sequence[str | os.PathLike[str]], cameras: Sequence[Camer
     files: dict[str, Path] = {}
     with OffscreenRenderer(sources, size=size, tau_px=taus[0], cache_bytes=cache_bytes) as r:
         scene = r.scene
-        cams = list(cameras) if cameras else default_flight(*scene.bounds)
+        lo, hi = scene.bounds
+        up = local_up(scene.crs, lo, hi)  # another tool's ECEF tileset: flown around its own vertical
+        cams = list(cameras) if cameras else in_local_frame(default_flight, lo, hi, up)
         rep = len(cams) // 2 if representative is None else representative
         rep_tau = min(taus, key=lambda t: abs(t - 1.0))
         bar = tqdm(total=(len(cams) + 1) * (len(taus) + 1), desc="bench", unit="frame", disable=not progress)
         # The flight, then the overview camera (the whole dataset in view; camera -1 in frames.csv), whose
         # triangle counts show whether frames are output-sensitive: summarised apart from the flight.
-        overview = overview_camera(*scene.bounds, aspect=size[0] / size[1])
+        overview = in_local_frame(lambda a, b: [overview_camera(a, b, aspect=size[0] / size[1])], lo, hi, up)[0]
         for ci, cam in [*enumerate(cams), (-1, overview)]:
             # Baseline: every leaf drawn, same window, same camera.
             st = r.prepare(cam, full_resolution=True)

@@ -342,3 +342,26 @@ def local_up(crs: Any, lo: npt.ArrayLike, hi: npt.ArrayLike) -> F64:
         if np.linalg.norm(c) > 1e6:
             return _unit(c)
     return np.array([0.0, 0.0, 1.0])
+
+
+def in_local_frame(make: Any, lo: npt.ArrayLike, hi: npt.ArrayLike, up: npt.ArrayLike) -> list[Camera]:
+    """Cameras that ``make(lo', hi')`` places over a z-up box, for data whose vertical is ``up``: the box is
+    taken into the east / north / up frame at its centre (its bounds there), ``make`` runs on those, and
+    its cameras come back into the data's frame. For z-up data, ``make(lo, hi)`` itself."""
+    vertical = _unit(np.asarray(up, np.float64))
+    if np.allclose(vertical, [0.0, 0.0, 1.0]):
+        return list(make(lo, hi))
+    lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    centre = (lo_a + hi_a) / 2.0
+    east = np.cross([0.0, 0.0, 1.0], vertical)
+    east = _unit(np.asarray(east, np.float64)) if np.linalg.norm(east) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    rot = np.column_stack([east, np.cross(vertical, east), vertical])  # local -> data
+    corners = np.array([[x, y, z] for x in (lo_a[0], hi_a[0]) for y in (lo_a[1], hi_a[1])
+                        for z in (lo_a[2], hi_a[2])]) - centre
+    local = corners @ rot
+    out = []
+    for cam in make(local.min(axis=0), local.max(axis=0)):
+        out.append(Camera(tuple(centre + rot @ np.asarray(cam.position)),  # type: ignore[arg-type]
+                          tuple(centre + rot @ np.asarray(cam.focal_point)),  # type: ignore[arg-type]
+                          tuple(rot @ np.asarray(cam.view_up, np.float64)), cam.fovy_deg))  # type: ignore[arg-type]
+    return out
