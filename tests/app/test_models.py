@@ -141,3 +141,32 @@ def test_parse_tqdm_progress() -> None:
     assert parse_progress("tiles:  40%|####      | 4/10\rtiles:  70%|#######   | 7/10") == ("tiles", 70)
     assert parse_progress("no progress here") is None
     assert parse_progress(" 100%|##########| 3/3") == ("", 100)
+
+
+def test_document_up_and_home_camera_follow_ecef_data() -> None:
+    """Another tool's geocentric tileset opened in the app: the home view looks down the local vertical
+    (40° from south-south-west, like a projected dataset's), and that vertical is the turntable's axis."""
+    from citylod.app.models import Document
+    from tests.paths import ROOT
+
+    doc = Document(workers=1)
+    try:
+        assert np.allclose(doc.up(), [0.0, 0.0, 1.0])  # nothing open
+        doc.open(ROOT / "tests" / "data" / "3dtiles" / "Batched" / "BatchedWithoutBatchTable")
+        lo, hi = doc.bounds()
+        centre = (lo + hi) / 2
+        up = doc.up()
+        assert float(up @ (centre / np.linalg.norm(centre))) == pytest.approx(1.0)
+        cam = doc.home_camera(aspect=1.5)
+        d = np.subtract(cam.position, cam.focal_point)
+        assert np.allclose(cam.view_up, up)
+        assert math.degrees(math.asin(float(d @ up) / float(np.linalg.norm(d)))) == pytest.approx(40.0, abs=1e-6)
+        # North: square to the vertical, towards the pole (the sample lies in the northern hemisphere), and
+        # up on screen when looking north-north-east from the home view.
+        from citylod.render.hud import north_on_screen
+
+        north = doc.north()
+        assert abs(float(north @ up)) < 1e-9 and north[2] > 0
+        assert north_on_screen(cam, north)[1] > 0.8
+    finally:
+        doc.close()

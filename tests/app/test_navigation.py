@@ -91,3 +91,39 @@ def test_hud_maths() -> None:
     planes = box_planes((0, 0, 0), (10, 20, 30), (5, 5, 5))
     inside = np.array([0.0, 0.0, 0.0])  # (5, 5, 5) shifted by the origin
     assert all((inside - p) @ n > 0 for p, n in planes)
+
+
+@pytest.mark.parametrize("up", [(0.0, 0.0, 1.0), (0.6, -0.3, 0.74), (0.0, 1.0, 0.0)])
+def test_orbit_turns_about_the_given_vertical(up: tuple[float, float, float]) -> None:
+    """The turntable about the data's vertical (the local up of ECEF data): view up is that vertical, the
+    eye's height along it is kept by an azimuth step, the right vector stays level, and it never passes
+    the zenith. For z it is the world-z turntable exactly."""
+    u = np.asarray(up) / np.linalg.norm(up)
+    focal = np.array([10.0, 20.0, 30.0])
+    side = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+    cam = Camera(tuple(focal + 50.0 * side / np.linalg.norm(side) + 20.0 * u), tuple(focal), tuple(u))
+    out = orbit(cam, 77.0, 0.0, up)
+    assert np.allclose(out.view_up, u)
+    assert np.subtract(out.position, focal) @ u == pytest.approx(20.0)
+    assert np.linalg.norm(np.subtract(out.position, focal)) == pytest.approx(np.linalg.norm(np.subtract(cam.position, focal)))
+    assert abs(out.basis()[0] @ u) < 1e-9  # no roll
+    top = orbit(cam, 0.0, 200.0, up)
+    elevation = math.degrees(math.asin(np.subtract(top.position, focal) @ u / np.linalg.norm(np.subtract(top.position, focal))))
+    assert elevation == pytest.approx(89.0)
+    back = orbit(orbit(orbit(orbit(cam, 90.0, 0.0, up), 90.0, 0.0, up), 90.0, 0.0, up), 90.0, 0.0, up)
+    assert np.allclose(back.position, cam.position)
+    turned = look(cam, 30.0, 0.0, up)
+    assert turned.position == cam.position and np.allclose(turned.view_up, u)
+    assert np.subtract(turned.focal_point, cam.position) @ u == pytest.approx(np.subtract(focal, cam.position) @ u)
+    if np.allclose(u, [0, 0, 1]):
+        assert orbit(cam, 33.0, 12.0, up) == orbit(cam, 33.0, 12.0)
+
+
+def test_navigator_turns_about_the_data_vertical() -> None:
+    up = np.array([0.6, -0.3, 0.74]) / np.linalg.norm([0.6, -0.3, 0.74])
+    cams: list[Camera] = [Camera((50.0, 0.0, 0.0), (0.0, 0.0, 0.0), tuple(up))]
+    nav = Navigator(lambda: cams[-1], cams.append, get_up=lambda: up)
+    nav.press("left", 100, 100)
+    assert nav.move(160, 100, 600)
+    assert np.allclose(cams[-1].view_up, up)
+    assert np.asarray(cams[-1].position) @ up == pytest.approx(np.asarray(cams[0].position) @ up)

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from citylod.core.camera import Camera, overview_camera
+from citylod.core.camera import Camera, in_local_frame, local_north, local_up, overview_camera
 from citylod.core.errors import CitylodError, InputError
 
 __all__ = [
@@ -113,20 +113,22 @@ _FLY = {"forward": (0, 0, 1), "backward": (0, 0, -1), "left": (-1, 0, 0), "right
         "up": (0, 1, 0), "down": (0, -1, 0)}
 
 
-def fly(camera: Camera, direction: str, step: float) -> Camera:
+def fly(camera: Camera, direction: str, step: float, up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> Camera:
     """The camera moved by ``step`` along ``direction`` (forward, backward, left, right, up, down).
 
-    Forward moves along the view direction, up/down along the world z axis, left/right horizontally; the
-    focal point moves with the eye so the view direction is kept.
+    Forward moves along the view direction, up/down along the vertical ``up`` (world z; the local vertical
+    of geocentric data), left/right horizontally; the focal point moves with the eye so the view direction
+    is kept.
     """
     if direction not in _FLY:
         raise ValueError(f"direction must be one of {', '.join(_FLY)}, got {direction!r}")
     right, _up, fwd = camera.basis()
     r, u, f = _FLY[direction]
-    horiz = np.array([right[0], right[1], 0.0])
+    vertical = np.asarray(up, np.float64) / np.linalg.norm(up)
+    horiz = right - (right @ vertical) * vertical
     n = np.linalg.norm(horiz)
     horiz = horiz / n if n > 1e-9 else right
-    move = (r * horiz + u * np.array([0.0, 0.0, 1.0]) + f * fwd) * float(step)
+    move = (r * horiz + u * vertical + f * fwd) * float(step)
     return Camera(tuple(np.add(camera.position, move)), tuple(np.add(camera.focal_point, move)),  # type: ignore[arg-type]
                   camera.view_up, camera.fovy_deg)
 
@@ -762,9 +764,24 @@ class Document:
             return None
         return np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
 
+    def up(self) -> npt.NDArray[np.float64]:
+        """The data's vertical: z, or for a geocentric scene (other tools' ECEF tilesets) the direction away
+        from the Earth's centre at the data (:func:`citylod.core.camera.local_up`)."""
+        b = self.bounds()
+        crs = self.scene.crs if self.scene.layers else None
+        return np.array([0.0, 0.0, 1.0]) if b is None else local_up(crs, *b)
+
+    def north(self) -> npt.NDArray[np.float64]:
+        """The data's north for the view's arrow: +y, or the local north of a geocentric scene."""
+        b = self.bounds()
+        crs = self.scene.crs if self.scene.layers else None
+        return np.array([0.0, 1.0, 0.0]) if b is None else local_north(crs, *b)
+
     def home_camera(self, aspect: float = 1.5) -> Camera | None:
         b = self.bounds()
-        return None if b is None else overview_camera(*b, aspect=aspect)
+        if b is None:
+            return None
+        return in_local_frame(lambda lo, hi: [overview_camera(lo, hi, aspect=aspect)], *b, self.up())[0]
 
     # -- layer display ----------------------------------------------------------------------------
     def entry(self, index: int) -> LayerEntry:

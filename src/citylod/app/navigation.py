@@ -6,7 +6,8 @@ camera about the vertical axis through the focal point and tilts it up and down,
 mouse on press so an application never sees the release; the view therefore handles the mouse itself and
 calls :class:`Navigator`, which calls these functions.
 
-* :func:`orbit` — turntable about world z; :func:`look` — the same about the eye (fly mode);
+* :func:`orbit` — turntable about the vertical (world z, or the local vertical of geocentric data);
+  :func:`look` — the same about the eye (fly mode);
 * :func:`pan` — the point under the cursor follows the cursor; :func:`dolly` — towards the focal point
   or towards a picked point;
 * :class:`Navigator` — mouse press / move / release / wheel to camera changes, click detection, wheel
@@ -43,17 +44,29 @@ def _cartesian(r: float, az: float, el: float) -> npt.NDArray[np.float64]:
     return r * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
 
 
-def _turn(v: npt.NDArray[np.float64], d_az_deg: float, d_el_deg: float) -> npt.NDArray[np.float64]:
-    """``v`` turned by d_az about world z and tilted by d_el towards +z, the tilt clamped below ±89°."""
-    r, az, el = _spherical(v)
+def _frame(up: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """(3, 3) columns east, north, up of the local frame whose vertical is ``up`` (world x, y, z for z)."""
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    e = np.cross(_Z, u)
+    e = e / np.linalg.norm(e) if np.linalg.norm(e) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    return np.column_stack([e, np.cross(u, e), u])
+
+
+def _turn(v: npt.NDArray[np.float64], d_az_deg: float, d_el_deg: float,
+          up: npt.ArrayLike = _Z) -> npt.NDArray[np.float64]:
+    """``v`` turned by d_az about ``up`` and tilted by d_el towards it, the tilt clamped below ±89°."""
+    rot = _frame(up)
+    r, az, el = _spherical(rot.T @ v)
     lim = math.radians(_MAX_ELEVATION_DEG)
     el = min(max(el + math.radians(d_el_deg), -lim), lim)
-    return _cartesian(r, az + math.radians(d_az_deg), el)
+    return rot @ _cartesian(r, az + math.radians(d_az_deg), el)
 
 
-def orbit(camera: Camera, d_azimuth_deg: float, d_elevation_deg: float) -> Camera:
+def orbit(camera: Camera, d_azimuth_deg: float, d_elevation_deg: float, up: npt.ArrayLike = _Z) -> Camera:
     """Turntable orbit: the eye turns about the vertical axis through the focal point by ``d_azimuth_deg``
-    and rises by ``d_elevation_deg``; view up stays world z, so the horizon never rolls.
+    and rises by ``d_elevation_deg``; view up stays the vertical ``up`` (world z; the local vertical of
+    geocentric data), so the horizon never rolls.
 
     The elevation is clamped to ±89°: at the zenith the view direction would be parallel to view up.
 
@@ -64,15 +77,22 @@ def orbit(camera: Camera, d_azimuth_deg: float, d_elevation_deg: float) -> Camer
     ([10.0, 0.0, 0.0], (0.0, 0.0, 1.0))
     """
     f = np.asarray(camera.focal_point, np.float64)
-    eye = f + _turn(np.subtract(camera.position, f), d_azimuth_deg, d_elevation_deg)
-    return Camera(tuple(eye), camera.focal_point, (0.0, 0.0, 1.0), camera.fovy_deg)  # type: ignore[arg-type]
+    eye = f + _turn(np.subtract(camera.position, f), d_azimuth_deg, d_elevation_deg, up)
+    return Camera(tuple(eye), camera.focal_point, _vertical(up), camera.fovy_deg)  # type: ignore[arg-type]
 
 
-def look(camera: Camera, d_yaw_deg: float, d_pitch_deg: float) -> Camera:
-    """Fly-mode look: the view direction turns about the eye (yaw about world z, pitch up), horizon level."""
+def look(camera: Camera, d_yaw_deg: float, d_pitch_deg: float, up: npt.ArrayLike = _Z) -> Camera:
+    """Fly-mode look: the view direction turns about the eye (yaw about ``up``, pitch towards it), horizon
+    level."""
     eye = np.asarray(camera.position, np.float64)
-    focal = eye + _turn(np.subtract(camera.focal_point, eye), d_yaw_deg, d_pitch_deg)
-    return Camera(camera.position, tuple(focal), (0.0, 0.0, 1.0), camera.fovy_deg)  # type: ignore[arg-type]
+    focal = eye + _turn(np.subtract(camera.focal_point, eye), d_yaw_deg, d_pitch_deg, up)
+    return Camera(camera.position, tuple(focal), _vertical(up), camera.fovy_deg)  # type: ignore[arg-type]
+
+
+def _vertical(up: npt.ArrayLike) -> tuple[float, float, float]:
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    return (float(u[0]), float(u[1]), float(u[2]))
 
 
 def pan(camera: Camera, dx_px: float, dy_px: float, height_px: int) -> Camera:
@@ -123,7 +143,8 @@ class Navigator:
     settle_s = 0.25  # no motion for this long: the camera has stopped, refine
 
     def __init__(self, get_camera: Callable[[], Camera | None], set_camera: Callable[[Camera], None], *,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 get_up: Callable[[], npt.ArrayLike] | None = None) -> None:
         self.get_camera = get_camera
         self.set_camera = set_camera
         self.clock = clock
@@ -136,6 +157,7 @@ class Navigator:
         self._wheel_steps = 0.0
         self._wheel_toward: npt.NDArray[np.float64] | None = None
         self.last_motion_s = -math.inf  # clock() of the last camera change
+        self.get_up = get_up  # the turntable's axis, the data's vertical (None: world z)
 
     def set_mode(self, mode: str) -> None:
         if mode not in NAV_MODES:
@@ -177,8 +199,9 @@ class Navigator:
             cam = pan(cam, dx, dy, height_px)
         elif self._button == "left":
             # Dragging right turns the scene right (the eye goes left); dragging up tilts towards the horizon.
-            cam = orbit(cam, -dx * k, dy * k) if self.mode == "turntable" else look(cam, -dx * k * 0.5,
-                                                                                    -dy * k * 0.5)
+            up = _Z if self.get_up is None else self.get_up()
+            cam = (orbit(cam, -dx * k, dy * k, up) if self.mode == "turntable"
+                   else look(cam, -dx * k * 0.5, -dy * k * 0.5, up))
         elif self._button == "right":
             cam = dolly(cam, math.exp(dy * 0.01))
         else:

@@ -106,7 +106,7 @@ class SceneView(QWidget):
             style.AddObserver(event, lambda *_: None)
         self.interactor.SetInteractorStyle(style)
         self._style = style
-        self.navigator = Navigator(self.camera, self.set_camera)
+        self.navigator = Navigator(self.camera, self.set_camera, get_up=lambda: self.document.up())
         self.vtk.installEventFilter(self)
         self.vtk.setMouseTracking(True)
         self._cursor_xy: tuple[int, int] | None = None
@@ -194,7 +194,8 @@ class SceneView(QWidget):
         if cam is not None and not self._exporting:
             w, h = self.renderer.GetSize()
             dist = float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
-            self.hud.update(cam, 2.0 * dist * np.tan(np.radians(cam.fovy_deg) / 2.0) / max(h, 1), (w, h))
+            self.hud.update(cam, 2.0 * dist * np.tan(np.radians(cam.fovy_deg) / 2.0) / max(h, 1), (w, h),
+                            self.document.north())
             self._measure_text.SetPosition(12, max(h - 40, 12))  # top left: the scale bar is bottom right
 
     def request_render(self) -> None:
@@ -266,7 +267,7 @@ class SceneView(QWidget):
         if cam is None:
             return
         dist = float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
-        self.set_camera(fly(cam, direction, max(dist * 0.08, 1.0)))
+        self.set_camera(fly(cam, direction, max(dist * 0.08, 1.0), self.document.up()))
 
     def focus_under_cursor(self) -> bool:
         """Focus the camera on the surface point under the mouse cursor (F)."""

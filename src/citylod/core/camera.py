@@ -365,3 +365,13 @@ def in_local_frame(make: Any, lo: npt.ArrayLike, hi: npt.ArrayLike, up: npt.Arra
                           tuple(centre + rot @ np.asarray(cam.focal_point)),  # type: ignore[arg-type]
                           tuple(rot @ np.asarray(cam.view_up, np.float64)), cam.fovy_deg))  # type: ignore[arg-type]
     return out
+
+
+def local_north(crs: Any, lo: npt.ArrayLike, hi: npt.ArrayLike) -> F64:
+    """North at the centre of the box ``lo``–``hi`` in ``crs``: +y (grid north) for projected data; for a
+    geocentric frame the local north (towards the pole along the surface, square to :func:`local_up`)."""
+    up = local_up(crs, lo, hi)
+    if np.allclose(up, [0.0, 0.0, 1.0]):
+        return np.array([0.0, 1.0, 0.0])
+    east = _unit(np.asarray(np.cross([0.0, 0.0, 1.0], up), np.float64))
+    return np.asarray(np.cross(up, east), np.float64)

@@ -38,8 +38,9 @@ def nice_length(metres_per_px: float, target_px: float = 120.0) -> tuple[float, 
     return best, best / metres_per_px
 
 
-def north_on_screen(camera: Camera) -> tuple[float, float]:
-    """Unit 2D direction (right, up) in which the data's north (+y) points on screen.
+def north_on_screen(camera: Camera, north: npt.ArrayLike = (0.0, 1.0, 0.0)) -> tuple[float, float]:
+    """Unit 2D direction (right, up) in which the data's north (+y; for geocentric data the local north,
+    :func:`citylod.core.camera.local_north`) points on screen.
 
     Projected through the camera's right and up vectors; looking north it points up, and straight down
     it turns with the camera's heading.
@@ -48,7 +49,7 @@ def north_on_screen(camera: Camera) -> tuple[float, float]:
     (0.0, 1.0)
     """
     right, up, _fwd = camera.basis()
-    north = np.array([0.0, 1.0, 0.0])
+    north = np.asarray(north, np.float64)
     # A small step north at the focal point moves on screen by its components along the camera's right
     # and up vectors (the forward component only changes its depth). Looking level due north the step
     # is along the view and has no screen image: the arrow then points up.
@@ -208,9 +209,10 @@ class Hud:
         data.SetLines(cells)
         actor.GetMapper().SetInputData(data)
 
-    def update(self, camera: Camera, metres_per_px: float, size: tuple[int, int]) -> None:
+    def update(self, camera: Camera, metres_per_px: float, size: tuple[int, int],
+               north: npt.ArrayLike = (0.0, 1.0, 0.0)) -> None:
         """Place both aids for a view ``size`` (w, h) pixels where one pixel spans ``metres_per_px`` at the
-        focal distance."""
+        focal distance, the arrow towards ``north`` (a direction in the data's frame)."""
         w, h = size
         for prop in (self.bar_shadow, self.bar, self.arrow, self.bar_text, self.north_text):
             prop.VisibilityOn()
@@ -227,7 +229,7 @@ class Hud:
         self.bar_text.SetInput(label)
         self.bar_text.SetPosition((x0 + x1) / 2, y + 8)
         cx, cy, r = w - 40.0, h - 60.0, 22.0
-        dx, dy = north_on_screen(camera)
+        dx, dy = north_on_screen(camera, north)
         tip = (cx + dx * r, cy + dy * r)
         tail = (cx - dx * r, cy - dy * r)
         # Arrow head: two short strokes back from the tip, ±150° from the arrow's direction.
