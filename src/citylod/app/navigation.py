@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from citylod.core.camera import Camera
+from citylod.core.camera import Camera, enu_axes
 
 __all__ = ["NAV_MODES", "Navigator", "dolly", "look", "orbit", "pan"]
 
@@ -44,19 +44,10 @@ def _cartesian(r: float, az: float, el: float) -> npt.NDArray[np.float64]:
     return r * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
 
 
-def _frame(up: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """(3, 3) columns east, north, up of the local frame whose vertical is ``up`` (world x, y, z for z)."""
-    u = np.asarray(up, np.float64)
-    u = u / np.linalg.norm(u)
-    e = np.cross(_Z, u)
-    e = e / np.linalg.norm(e) if np.linalg.norm(e) > 1e-9 else np.array([1.0, 0.0, 0.0])
-    return np.column_stack([e, np.cross(u, e), u])
-
-
 def _turn(v: npt.NDArray[np.float64], d_az_deg: float, d_el_deg: float,
           up: npt.ArrayLike = _Z) -> npt.NDArray[np.float64]:
     """``v`` turned by d_az about ``up`` and tilted by d_el towards it, the tilt clamped below ±89°."""
-    rot = _frame(up)
+    rot = enu_axes(up)
     r, az, el = _spherical(rot.T @ v)
     lim = math.radians(_MAX_ELEVATION_DEG)
     el = min(max(el + math.radians(d_el_deg), -lim), lim)

@@ -6,8 +6,9 @@ angles in degrees)::
     {"position": [x, y, z], "focal_point": [x, y, z], "view_up": [0, 0, 1], "fovy_deg": 45.0}
 
 A camera path is a JSON list of such objects, or ``{"cameras": [...]}``. Instead of a file, ``citylod render
---camera`` also takes ``overview`` (the default: the whole dataset in view, :func:`overview_camera`) or
-``orbit[:N]`` (N cameras around it, :func:`orbit_cameras`); :func:`cameras_for` reads either.
+--camera`` also takes ``overview`` (the default: the whole dataset in view) or
+``orbit[:N]`` (N cameras around it, :func:`orbit_cameras`), built by :func:`framing_camera`;
+:func:`cameras_for` reads either.
 """
 
 from __future__ import annotations
@@ -260,10 +261,7 @@ def _framing(lo: npt.ArrayLike, hi: npt.ArrayLike, fovy_deg: float, azimuth_deg:
     lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     centre = (lo_a + hi_a) / 2.0
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    vertical = _unit(np.asarray(up, np.float64))
-    east = np.cross([0.0, 0.0, 1.0], vertical)
-    east = _unit(np.asarray(east, np.float64)) if np.linalg.norm(east) > 1e-9 else np.array([1.0, 0.0, 0.0])
-    north = np.cross(vertical, east)
+    east, north, vertical = enu_axes(up).T
     back = (math.sin(az) * math.cos(el)) * east + (math.cos(az) * math.cos(el)) * north + math.sin(el) * vertical
     # The axes the renderer will use (straight down, view_up is along the view and basis() picks one).
     right, up, forward = Camera(tuple(centre + back), tuple(centre), tuple(vertical), fovy_deg).basis()  # type: ignore[arg-type]
@@ -293,8 +291,6 @@ def orbit_cameras(lo: npt.ArrayLike, hi: npt.ArrayLike, n: int = 36, *, fovy_deg
 
 
 _BUILT_IN = re.compile(r"(overview|orbit)(?::(\d+))?")
-#: What ``--camera`` takes besides a file, for messages.
-CAMERA_CHOICES = "a camera JSON file, 'overview' or 'orbit[:N]'"
 
 
 def built_in_camera(spec: str | PathLike[str] | None) -> tuple[str, int] | None:
@@ -348,14 +344,11 @@ def in_local_frame(make: Any, lo: npt.ArrayLike, hi: npt.ArrayLike, up: npt.Arra
     """Cameras that ``make(lo', hi')`` places over a z-up box, for data whose vertical is ``up``: the box is
     taken into the east / north / up frame at its centre (its bounds there), ``make`` runs on those, and
     its cameras come back into the data's frame. For z-up data, ``make(lo, hi)`` itself."""
-    vertical = _unit(np.asarray(up, np.float64))
-    if np.allclose(vertical, [0.0, 0.0, 1.0]):
+    rot = enu_axes(up)  # local -> data
+    if np.allclose(rot, np.eye(3)):
         return list(make(lo, hi))
     lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     centre = (lo_a + hi_a) / 2.0
-    east = np.cross([0.0, 0.0, 1.0], vertical)
-    east = _unit(np.asarray(east, np.float64)) if np.linalg.norm(east) > 1e-9 else np.array([1.0, 0.0, 0.0])
-    rot = np.column_stack([east, np.cross(vertical, east), vertical])  # local -> data
     corners = np.array([[x, y, z] for x in (lo_a[0], hi_a[0]) for y in (lo_a[1], hi_a[1])
                         for z in (lo_a[2], hi_a[2])]) - centre
     local = corners @ rot
@@ -370,8 +363,13 @@ def in_local_frame(make: Any, lo: npt.ArrayLike, hi: npt.ArrayLike, up: npt.Arra
 def local_north(crs: Any, lo: npt.ArrayLike, hi: npt.ArrayLike) -> F64:
     """North at the centre of the box ``lo``–``hi`` in ``crs``: +y (grid north) for projected data; for a
     geocentric frame the local north (towards the pole along the surface, square to :func:`local_up`)."""
-    up = local_up(crs, lo, hi)
-    if np.allclose(up, [0.0, 0.0, 1.0]):
-        return np.array([0.0, 1.0, 0.0])
-    east = _unit(np.asarray(np.cross([0.0, 0.0, 1.0], up), np.float64))
-    return np.asarray(np.cross(up, east), np.float64)
+    return enu_axes(local_up(crs, lo, hi))[:, 1]
+
+
+def enu_axes(up: npt.ArrayLike) -> F64:
+    """(3, 3) whose columns are east, north and ``up`` (made a unit vector) of the local frame with that
+    vertical: the identity for z; else east is square to z and ``up``, north completes the frame."""
+    vertical = _unit(np.asarray(up, np.float64))
+    east = np.cross([0.0, 0.0, 1.0], vertical)
+    east = _unit(np.asarray(east, np.float64)) if np.linalg.norm(east) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    return np.column_stack([east, np.cross(vertical, east), vertical])
