@@ -37,3 +37,21 @@ def test_publish_replaces_an_earlier_output_but_not_a_foreign_folder(tmp_path) -
     with pytest.raises(InputError, match="Documents"):
         publish_dir(part, docs)
     assert (docs / "thesis.tex").read_text() == "precious" and part.exists()
+
+
+def test_publishing_drops_the_temporaries_of_killed_writers(tmp_path) -> None:
+    """A writer killed between writing and renaming leaves ``.name.tmpPID``; the resumed build rewrites the
+    file, and publishing removes the stray temporary, nothing else."""
+    from citylod.core.fileio import atomic_write_bytes, publish_dir
+
+    partial = tmp_path / "out.partial"
+    atomic_write_bytes(partial / "tiles" / "2" / "3-0-2.glb", b"glb")
+    (partial / "tileset.json").write_text("{}")
+    (partial / "tiles" / "2" / ".3-0-2.glb.tmp15389").write_bytes(b"half")  # as a SIGKILL leaves it
+    (partial / "tiles" / ".a.npz.tmp77.npz").write_bytes(b"half")  # with the writer's suffix
+    keep = [partial / ".hidden", partial / "tiles" / "x.tmp5", partial / "tiles" / ".b.tmpl"]
+    for k in keep:
+        k.write_bytes(b"user")
+    publish_dir(partial, tmp_path / "out")
+    got = sorted(str(f.relative_to(tmp_path / "out")) for f in (tmp_path / "out").rglob("*") if f.is_file())
+    assert got == sorted([".hidden", "tileset.json", "tiles/.b.tmpl", "tiles/2/3-0-2.glb", "tiles/x.tmp5"])

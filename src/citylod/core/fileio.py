@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -44,14 +45,33 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     return atomic_write(path, lambda t: t.write_text(text, encoding="utf-8"))
 
 
+# The names atomic_write gives its temporaries: ".<name>.tmp<pid>[<suffix>]".
+_TEMPORARY = re.compile(r"\..+\.tmp\d+(\.[A-Za-z0-9]+)?")
+
+
+def remove_temporaries(folder: str | os.PathLike[str]) -> int:
+    """Delete the temporaries :func:`atomic_write` left in ``folder`` (recursively) when its process was
+    killed between writing and renaming; returns how many. A build that resumed after SIGKILL rewrote the
+    file itself, so its output would otherwise carry a stray ``.x.glb.tmp1234`` (seen once in
+    tests/cli/test_kill.py)."""
+    n = 0
+    for path in Path(folder).rglob(".*.tmp*"):
+        if path.is_file() and _TEMPORARY.fullmatch(path.name):
+            path.unlink(missing_ok=True)
+            n += 1
+    return n
+
+
 def publish_dir(partial: str | os.PathLike[str], out: str | os.PathLike[str], *,
                 marker: str = "tileset.json") -> None:
-    """Move the finished folder ``partial`` to ``out``, replacing a previous output there.
+    """Move the finished folder ``partial`` to ``out``, replacing a previous output there; temporaries
+    that killed writers left in it are removed first (:func:`remove_temporaries`).
 
     A non-empty ``out`` that lacks ``marker`` (so is not an earlier output of the same kind) is refused
     rather than deleted: a mistyped ``-o`` must never remove a user's folder.
     """
     src, dst = Path(partial), Path(out)
+    remove_temporaries(src)
     if not dst.exists():
         os.replace(src, dst)
         return
