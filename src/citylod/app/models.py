@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from citylod.core.camera import Camera, in_local_frame, local_north, local_up, overview_camera
+from citylod.core.camera import Camera, enu_axes, in_local_frame, local_up, overview_camera
 from citylod.core.errors import CitylodError, InputError
 
 __all__ = [
@@ -766,16 +766,16 @@ class Document:
 
     def up(self) -> npt.NDArray[np.float64]:
         """The data's vertical: z, or for a geocentric scene (other tools' ECEF tilesets) the direction away
-        from the Earth's centre at the data (:func:`citylod.core.camera.local_up`)."""
-        b = self.bounds()
-        crs = self.scene.crs if self.scene.layers else None
-        return np.array([0.0, 0.0, 1.0]) if b is None else local_up(crs, *b)
+        from the Earth's centre at the data (:func:`citylod.core.camera.local_up`). Asked for on every mouse
+        move and frame, so it reads only the layers' boxes, and only for a geocentric scene (a city store's
+        bounds are an SQL scan)."""
+        if not self.scene.layers or not getattr(self.scene.crs, "is_geocentric", False):
+            return np.array([0.0, 0.0, 1.0])
+        return local_up(self.scene.crs, *self.scene.bounds)
 
     def north(self) -> npt.NDArray[np.float64]:
         """The data's north for the view's arrow: +y, or the local north of a geocentric scene."""
-        b = self.bounds()
-        crs = self.scene.crs if self.scene.layers else None
-        return np.array([0.0, 1.0, 0.0]) if b is None else local_north(crs, *b)
+        return enu_axes(self.up())[:, 1]
 
     def home_camera(self, aspect: float = 1.5) -> Camera | None:
         b = self.bounds()

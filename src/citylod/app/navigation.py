@@ -81,9 +81,8 @@ def look(camera: Camera, d_yaw_deg: float, d_pitch_deg: float, up: npt.ArrayLike
 
 
 def _vertical(up: npt.ArrayLike) -> tuple[float, float, float]:
-    u = np.asarray(up, np.float64)
-    u = u / np.linalg.norm(u)
-    return (float(u[0]), float(u[1]), float(u[2]))
+    """``up`` as a unit view-up tuple (the third axis of its east / north / up frame)."""
+    return tuple(float(v) for v in enu_axes(up)[:, 2])  # type: ignore[return-value]
 
 
 def pan(camera: Camera, dx_px: float, dy_px: float, height_px: int) -> Camera:

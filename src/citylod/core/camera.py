@@ -360,12 +360,6 @@ def in_local_frame(make: Any, lo: npt.ArrayLike, hi: npt.ArrayLike, up: npt.Arra
     return out
 
 
-def local_north(crs: Any, lo: npt.ArrayLike, hi: npt.ArrayLike) -> F64:
-    """North at the centre of the box ``lo``–``hi`` in ``crs``: +y (grid north) for projected data; for a
-    geocentric frame the local north (towards the pole along the surface, square to :func:`local_up`)."""
-    return enu_axes(local_up(crs, lo, hi))[:, 1]
-
-
 def enu_axes(up: npt.ArrayLike) -> F64:
     """(3, 3) whose columns are east, north and ``up`` (made a unit vector) of the local frame with that
     vertical: the identity for z; else east is square to z and ``up``, north completes the frame."""

@@ -40,7 +40,7 @@ def nice_length(metres_per_px: float, target_px: float = 120.0) -> tuple[float, 
 
 def north_on_screen(camera: Camera, north: npt.ArrayLike = (0.0, 1.0, 0.0)) -> tuple[float, float]:
     """Unit 2D direction (right, up) in which the data's north (+y; for geocentric data the local north,
-    :func:`citylod.core.camera.local_north`) points on screen.
+    :func:`citylod.core.camera.enu_axes`) points on screen.
 
     Projected through the camera's right and up vectors; looking north it points up, and straight down
     it turns with the camera's heading.
