@@ -818,3 +818,27 @@ def test_far_field_tileset_is_drawn_with_its_fields_and_follows_a_drag(qtbot, wi
     doc.set_visible(0, False)
     view.render_now()
     assert not any(c.actor.GetVisibility() for c in far.cells.values())
+
+
+def test_an_ecef_tileset_turns_about_its_local_vertical(qtbot, window, xin) -> None:
+    """Another tool's geocentric tileset (Cesium's Composite sample): the home view stands on the local
+    vertical, and a real mouse drag turns the camera about it: the horizon stays level (the camera's right
+    vector square to that vertical) and the eye keeps its height over the focal point."""
+    from tests.paths import ROOT
+
+    assert window.open_path(ROOT / "tests" / "data" / "3dtiles" / "Composite" / "CompositeOfInstanced")
+    view = window.view
+    view.reset_view()
+    _wait_resolved(qtbot, window)
+    up = window.document.up()
+    before = view.camera()
+    assert abs(float(up[2])) < 0.99  # not world z
+    assert abs(float(before.basis()[0] @ up)) < 1e-6 and float(np.asarray(before.view_up) @ up) > 0
+    w, h = view.vtk.width(), view.vtk.height()
+    xin.drag(view.vtk, [(w // 2 + dx, h // 2) for dx in range(0, 241, 20)])
+    _wait_resolved(qtbot, window)
+    after = view.camera()
+    assert np.linalg.norm(np.subtract(after.position, before.position)) > 1.0  # it orbited
+    assert abs(float(after.basis()[0] @ up)) < 1e-6
+    height = [float(np.subtract(c.position, c.focal_point) @ up) for c in (before, after)]
+    assert height[1] == pytest.approx(height[0], rel=1e-6)
