@@ -96,6 +96,14 @@ def test_build_city_writes_the_store_and_the_tileset_beside_it(sample_city, tmp_
     assert not (tmp_path / "c.gpkg").exists() and not (tmp_path / "c_tiles").exists()
 
 
+def test_quiet_silences_the_textured_sample(tmp_path: Path, capfd) -> None:
+    args = ["sample", str(tmp_path / "s"), "--textured", "200", "--image-px", "8"]
+    assert main(["-q", *args]) == 0
+    assert "textured houses" not in capfd.readouterr().err
+    assert main([*args[:1], str(tmp_path / "t"), *args[2:]]) == 0  # the bar shows without -q
+    assert "textured houses" in capfd.readouterr().err
+
+
 def test_build_city_textured_warns_about_a_missing_image(tmp_path: Path, capsys) -> None:
     from citylod.io.tiles3d import open_tileset
 

@@ -20,7 +20,8 @@ def run(args: argparse.Namespace, progress: bool) -> int:
     if args.textured is not None:
         from citylod.sample.textured import make_textured_city
 
-        city = make_textured_city(args.out_dir, buildings=args.textured, seed=args.seed, image_px=args.image_px)
+        city = make_textured_city(args.out_dir, buildings=args.textured, seed=args.seed, image_px=args.image_px,
+                                  progress=progress)
         print(f"city       {city.path}")
         print(f"textures   {city.path.parent / 'textures'} ({2 * len(city.houses)} images of {city.image_px} px)")
         return 0

@@ -136,7 +136,8 @@ def _house_surfaces(h: TexturedHouse, z0: float) -> list[tuple[str, str, npt.NDA
 
 
 def make_textured_city(out_dir: str | os.PathLike[str], buildings: int = 5000, seed: int = 7, *,
-                       image_px: int = 256, spacing_m: float = 24.0, ground_z: float = 100.0) -> TexturedCity:
+                       image_px: int = 256, spacing_m: float = 24.0, ground_z: float = 100.0,
+                       progress: bool = True) -> TexturedCity:
     """Write ``textured.gml`` and ``textures/*.jpg`` into ``out_dir``.
 
     Parameters
@@ -149,6 +150,8 @@ def make_textured_city(out_dir: str | os.PathLike[str], buildings: int = 5000, s
         Seed of every random choice.
     image_px
         Side of each façade and roof image in pixels.
+    progress
+        A progress bar on stderr for 200 houses or more (the command line's ``--quiet`` turns it off).
 
     Returns
     -------
@@ -178,7 +181,7 @@ def make_textured_city(out_dir: str | os.PathLike[str], buildings: int = 5000, s
     etree.SubElement(app, _q(APP, "theme")).text = "rgbTexture"
     from tqdm import tqdm
 
-    for i in tqdm(range(buildings), desc="textured houses", unit="house", disable=buildings < 200):
+    for i in tqdm(range(buildings), desc="textured houses", unit="house", disable=not progress or buildings < 200):
         r, c = divmod(i, cols)
         hid = f"BLDG_T{i:04d}"
         h = TexturedHouse(
