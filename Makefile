@@ -15,7 +15,8 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 # The DSM build's kernels compiled ahead of time (citylod.lod.kernels.aot): a no-op when they are up to date, a
-# minute when a kernel changed; builds run on the JIT kernels when this cannot compile them.
+# minute when a kernel changed; builds run on the JIT kernels when this cannot compile them. Then numba's cache
+# is filled for points builds (20 s once, a second after).
 kernels: $(STAMP)
 	@$(VENV)/bin/citylod build-kernels
 
