@@ -286,6 +286,9 @@ def _plot(path: Path, rows: list[TauRow]) -> Path:
         ax.set_xscale("log")
         ax.grid(True, alpha=0.3)
     axes[1].set_yscale("log")
+    # Frame times from zero: a speed-up reads as the ratio of heights, and the scatter of a small scene's few
+    # milliseconds does not fill the panel.
+    axes[0].set_ylim(0, 1.08 * max([full.frame_ms_median, *(r.frame_ms_median for r in lod)]))
     axes[0].legend(fontsize=8)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
