@@ -115,6 +115,23 @@ uniform sampler2D citylodState;
 uniform int citylodOn;
 uniform int citylodLutWidth;
 """
+# Splats (a glyph mapper): the instance's position, and no flattening (points inside a hidden object are
+# discarded). VTK declares the samplers (property textures) and the fragment stage's custom uniforms; the
+# glyph vertex template has no place for custom uniforms, so the matrix, a fragment custom uniform too (one
+# value per program), is declared here as well.
+_VS_DEC_GLYPH = """//VTK::PositionVC::Dec
+uniform mat4 citylodToMap;
+out vec3 citylodG;
+out float citylodFlat;
+"""
+_VS_IMPL_GLYPH = """//VTK::PositionVC::Impl
+citylodG = (citylodToMap * vertex).xyz;
+citylodFlat = 0.0;
+"""
+_FS_DEC_GLYPH = """//VTK::PositionVC::Dec
+in vec3 citylodG;
+in float citylodFlat;
+"""
 # After the texture is applied (TCoord::Impl follows Light::Impl in VTK's fragment template), so the tint
 # goes over orthophotos and point colours alike.
 #
@@ -355,8 +372,11 @@ class SemanticOverlay:
         self._lut_tex: Any = None
         self._uploaded_lut = -1
         self._window: Any = None
-        self._actors: list[tuple[Any, int]] = []  # (actor, observer tag)
-        self._shaded: dict[int, bool] = {}  # id(actor) -> the semantic shader is attached
+        self._actors: list[tuple[Any, Any, int]] = []  # (actor, observed mapper, observer tag)
+        # id(actor) -> the semantic shader attached: None, "mc" (a mapper drawing the data's vertices) or
+        # "glyph" (splats: a glyph mapper's instances, whose uniforms go through the shader property)
+        self._shaded: dict[int, str | None] = {}
+        self._glyph_textures: tuple[Any, Any] | None = None  # the two maps as textures of an actor's property
         self._unsubscribe = self.state.on_change(self._on_state)
         self._remove_hook = scene.add_actor_hook(self._attach)
         # After the scene's own StartEvent observer (which picks the tiles): lower priority runs later.
@@ -463,10 +483,10 @@ class SemanticOverlay:
         self._unsubscribe()
         self._remove_hook()
         self.scene.renderer.RemoveObserver(self._start_tag)
-        for actor, tag in self._actors:
-            actor.GetMapper().RemoveObserver(tag)
+        for actor, mapper, tag in self._actors:
+            mapper.RemoveObserver(tag)
             if self._shaded.get(id(actor)):
-                self._set_shader(actor, False)
+                self._set_shader(actor, None)
         self._actors.clear()
         self._shaded.clear()
         for tex in (self._map_tex, self._lut_tex):
@@ -475,6 +495,7 @@ class SemanticOverlay:
                     tex.Deactivate()
                     tex.ReleaseGraphicsResources(self._window)
         self._map_tex = self._lut_tex = None
+        self._glyph_textures = None
 
     # -- state table ------------------------------------------------------------------------------
     def _on_state(self, change: StateChange) -> None:
@@ -550,16 +571,17 @@ class SemanticOverlay:
 
     # -- GL ---------------------------------------------------------------------------------------
     def _attach(self, actor: Any) -> None:
-        tag = actor.GetMapper().AddObserver(_vtk.vtkCommand.UpdateShaderEvent, self._callback(actor))
-        self._actors.append((actor, tag))
-        self._shaded[id(actor)] = False
+        mapper = actor.GetMapper()
+        tag = mapper.AddObserver(_vtk.vtkCommand.UpdateShaderEvent, self._callback(actor))
+        self._actors.append((actor, mapper, tag))
+        self._shaded[id(actor)] = None
 
     def _on_start(self, _obj: Any, _event: str) -> None:
         """Before each frame: give the shader to the shown actors whose tile touches an object with a state,
         take it from the others. Tiles away from every highlighted or hidden object draw with VTK's own
         shader, so they cost nothing extra (on llvmpipe the lookup costs ~15 % of a tile's frame time)."""
         boxes = self._active_boxes if self.enabled else None
-        for actor, _tag in self._actors:
+        for i, (actor, mapper, tag) in enumerate(self._actors):
             if not actor.GetVisibility():
                 continue
             need = False
@@ -567,24 +589,76 @@ class SemanticOverlay:
                 b = actor.GetBounds()
                 need = bool(np.any((boxes[:, 0] <= b[1]) & (boxes[:, 1] >= b[0]) & (boxes[:, 2] <= b[3])
                                    & (boxes[:, 3] >= b[2]) & (boxes[:, 4] <= b[5]) & (boxes[:, 5] >= b[4])))
-            if need != self._shaded[id(actor)]:
-                self._set_shader(actor, need)
+            current = actor.GetMapper()
+            glyph = bool(current.IsA("vtkGlyph3DMapper"))
+            if not glyph and current is not mapper:  # a tile back from splats on a mapper not yet observed
+                mapper.RemoveObserver(tag)
+                self._actors[i] = (actor, current, current.AddObserver(_vtk.vtkCommand.UpdateShaderEvent,
+                                                                       self._callback(actor)))
+            mode = ("glyph" if glyph else "mc") if need else None
+            if mode != self._shaded[id(actor)]:
+                self._set_shader(actor, mode)
+            if mode == "glyph":
+                self._glyph_uniforms(actor)
 
-    def _set_shader(self, actor: Any, on: bool) -> None:
+    def _set_shader(self, actor: Any, mode: str | None) -> None:
         sp = actor.GetShaderProperty()
-        if on:
+        sp.ClearVertexShaderReplacement("//VTK::PositionVC::Dec", True)
+        sp.ClearVertexShaderReplacement("//VTK::PositionVC::Impl", True)
+        sp.ClearVertexShaderReplacement("//VTK::CustomEnd::Impl", True)
+        sp.ClearFragmentShaderReplacement("//VTK::PositionVC::Dec", True)
+        sp.ClearFragmentShaderReplacement("//VTK::TCoord::Impl", True)
+        if mode == "mc":
             sp.AddVertexShaderReplacement("//VTK::PositionVC::Dec", True, _VS_DEC, False)
             sp.AddVertexShaderReplacement("//VTK::PositionVC::Impl", True, _VS_IMPL, False)
             sp.AddVertexShaderReplacement("//VTK::CustomEnd::Impl", True, _VS_END, False)
             sp.AddFragmentShaderReplacement("//VTK::PositionVC::Dec", True, _FS_DEC, False)
+        elif mode == "glyph":
+            sp.AddVertexShaderReplacement("//VTK::PositionVC::Dec", True, _VS_DEC_GLYPH, False)
+            sp.AddVertexShaderReplacement("//VTK::PositionVC::Impl", True, _VS_IMPL_GLYPH, False)
+            sp.AddFragmentShaderReplacement("//VTK::PositionVC::Dec", True, _FS_DEC_GLYPH, False)
+        if mode is not None:
             sp.AddFragmentShaderReplacement("//VTK::TCoord::Impl", True, _FS_IMPL, False)
-        else:
-            sp.ClearVertexShaderReplacement("//VTK::PositionVC::Dec", True)
-            sp.ClearVertexShaderReplacement("//VTK::PositionVC::Impl", True)
-            sp.ClearVertexShaderReplacement("//VTK::CustomEnd::Impl", True)
-            sp.ClearFragmentShaderReplacement("//VTK::PositionVC::Dec", True)
-            sp.ClearFragmentShaderReplacement("//VTK::TCoord::Impl", True)
-        self._shaded[id(actor)] = on
+        if mode != "glyph" and self._shaded.get(id(actor)) == "glyph":
+            prop = actor.GetProperty()
+            for name in ("citylodMap", "citylodState"):
+                prop.RemoveTexture(name)
+            sp.GetFragmentCustomUniforms().RemoveAllUniforms()
+        self._shaded[id(actor)] = mode
+
+    def _glyph_uniforms(self, actor: Any) -> None:
+        """The uniforms of a glyph (splat) actor, set before each frame (called from the renderer's StartEvent,
+        with the GL context current).
+
+        VTK's glyph mapper draws through internal helper mappers, which raise no ``UpdateShaderEvent`` to
+        observe; so the two maps become textures of the actor's property (VTK declares and binds them), and
+        the numbers are the shader property's custom uniforms (VTK declares and sets them). The instance
+        position is the glyph shader's ``vertex`` (``GCMCMatrix * vertexMC``), in the dataset's coordinates,
+        which the glyph mapper uploads unshifted. The glyph vertex template has no place for custom uniforms:
+        the matrix is a fragment custom uniform, declared by hand in the vertex stage too."""
+        self._bind()
+        if self._glyph_textures is None:
+            from vtkmodules.vtkRenderingOpenGL2 import vtkOpenGLTexture
+
+            wrapped = []
+            for tex in (self._map_tex, self._lut_tex):
+                t = vtkOpenGLTexture()
+                t.SetTextureObject(tex)
+                wrapped.append(t)
+            self._glyph_textures = (wrapped[0], wrapped[1])
+        prop = actor.GetProperty()
+        if prop.GetTexture("citylodMap") is not self._glyph_textures[0]:
+            prop.SetTexture("citylodMap", self._glyph_textures[0])
+            prop.SetTexture("citylodState", self._glyph_textures[1])
+        sp = actor.GetShaderProperty()
+        fu = sp.GetFragmentCustomUniforms()
+        fu.SetUniformi("citylodOn", 1 if self.enabled and self._any_state else 0)
+        fu.SetUniformi("citylodLutWidth", self._lut_w)
+        m = actor.GetMatrix()
+        model = np.array([m.GetElement(i, j) for i in range(4) for j in range(4)]).reshape(4, 4)
+        to_map = _vtk.vtkMatrix4x4()
+        to_map.DeepCopy((self._to_map @ model).T.ravel().tolist())  # GLSL reads column by column
+        fu.SetUniformMatrix("citylodToMap", to_map)
 
     def _callback(self, actor: Any) -> Callable[..., None]:
         cache: dict[str, Any] = {"key": None, "matrix": _vtk.vtkMatrix4x4(), "inverse": _vtk.vtkMatrix4x4()}
