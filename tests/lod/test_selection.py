@@ -308,6 +308,22 @@ def test_culled_root_selects_nothing() -> None:
     assert sel.stats.culled == 1 and sel.stats.visited == 1
 
 
+
+@pytest.mark.parametrize("refine", ["REPLACE", "ADD"])
+def test_a_tile_whose_children_are_all_out_of_view(refine: str) -> None:
+    # The parent's box reaches past its children's (as a point octree's quads can): a camera near that
+    # margin, looking into it and away from the children, sees the parent's box and none of the children.
+    kids = [Node(f"1/{i}", 1, (i * 10.0, 0.0, 0.0), (i * 10.0 + 10.0, 10.0, 5.0), 0.0) for i in range(2)]
+    parent = Node("0", 0, (-30.0, 0.0, 0.0), (20.0, 10.0, 5.0), 8.0, refine=refine, children=kids)
+    cam = Camera((-5.0, 5.0, 3.0), (-25.0, 5.0, 3.0), (0.0, 0.0, 1.0), 40.0)  # inside the margin, looking -x
+    view = View(cam, 800, 600)
+    assert not view.cull_box(parent.box) and all(view.cull_box(k.box) for k in kids)
+    sel = select(parent, view, tau_px=1.0, resident=all_keys(parent))
+    # REPLACE: the children stand for the parent, and none is in view, so nothing is (CesiumJS would draw
+    # the parent, here at an error of hundreds of pixels); ADD: the parent is drawn whatever its children.
+    assert [n.key for n in sel.render] == ([] if refine == "REPLACE" else ["0"])
+    assert sel.request == []
+
 # -- resolve: the off-screen loop -----------------------------------------------------------------
 
 

@@ -28,7 +28,8 @@ Rules, in one place:
   the missing children are requested. A visible child *without* content (an empty interior node) is
   looked through to the content tiles that would fill it (CesiumJS ``executeEmptyTraversal``). A tile
   without content of its own refines as soon as its error asks for it, since refining it cannot uncover
-  anything it drew.
+  anything it drew. A tile whose error asks for refinement and none of whose children is in view draws
+  nothing: its children stand for it (CesiumJS draws it, at whatever error it has there).
 * **ADD**: the tile stays drawn and its resident visible children are drawn with it; missing children
   are requested, and nothing below a missing child is visited.
 * **Failed tiles** (``unavailable``) are treated as tiles without content: never drawn, never
@@ -468,9 +469,16 @@ def select(
             if not fr.refines(node, tau_px):
                 continue
             visible = [c for c in node.children if not fr.evaluate(c)[0]]
-            if not visible:
-                continue  # CesiumJS: a tile none of whose children is visible stays as it is
             additive = node.refine.upper() == ADD
+            if not visible:
+                # REPLACE: the children stand for the tile, and none is in view, so at the error asked for
+                # nothing of it is (CesiumJS keeps such a tile drawn; its box can reach past its children's,
+                # with a point octree's quads or cluster centres, and then a tile many times over τ is drawn
+                # next to the camera: Delft, a coarse node at 122 px, its splats blobs across the view).
+                if not additive and id(node) in desired:
+                    desired.pop(id(node))
+                    total = total - fr.cost(node)
+                continue
             if id(node) in committed:
                 pushed = visible
             elif additive:
