@@ -3,6 +3,7 @@ targets far below and far above any real frame time make the direction certain).
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
 
 import numpy as np
@@ -26,13 +27,16 @@ def test_budget_mode_steers_points_and_restores(tmp_path: Path) -> None:
         layer = r.scene.layers[0]
         fixed = layer.budget
         full = r.render(cam).stats.points
+        thresholds = gc.get_threshold()
         mode = FrameBudget(r.scene, target_ms=1e-3)  # unreachably fast: detail must fall
+        assert gc.get_threshold()[2] > 1e6 and gc.get_freeze_count() > 0  # no full collection in a frame
         for _ in range(6):
             r.render(cam)
         assert len(mode.frame_ms) == 6
         assert layer.budget.max_points < fixed.max_points
         assert r.render(cam).stats.points < full
         mode.close()
+        assert gc.get_threshold() == thresholds  # as before the mode (CPython's, or an open window's policy)
         assert layer.budget == fixed
         assert r.render(cam).stats.points == full
         slow = FrameBudget(r.scene, target_ms=1e6)  # any frame is fast enough: the budget never rises past

@@ -31,7 +31,6 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
 )
 
-from citylod.app.gc_policy import GcPolicy
 from citylod.app.models import (
     SHORTCUTS,
     Document,
@@ -60,6 +59,7 @@ from citylod.app.qt_tasks import ProcessTask
 from citylod.app.qt_tools import ClipPanel, PointPanel
 from citylod.app.qt_view import SceneView
 from citylod.core.errors import CitylodError
+from citylod.core.gc_policy import GcPolicy
 
 __all__ = ["MainWindow", "settings"]
 
@@ -163,7 +163,7 @@ class MainWindow(QMainWindow):
         self._status_timer.timeout.connect(self._update_status)
         self._status_timer.start()
         # Python's full garbage collections held the GUI thread for 0.3-0.6 s in the middle of a frame:
-        # they run only while the view is idle (app/gc_policy.py).
+        # they run only while the view is idle (core/gc_policy.py).
         self.gc_policy = GcPolicy()
         self.gc_policy.install()
         self.view.gc_policy = self.gc_policy

@@ -123,7 +123,7 @@ class SceneView(QWidget):
         # triangles per frame, adapted to the measured upload time (see _frame_end): a burst of finished
         # tiles becomes several short frames instead of one long one that holds the GUI thread.
         self.scene.admit_cost = self.ADMIT_START
-        #: Full garbage collections only while idle (app/gc_policy.py); set by the main window.
+        #: Full garbage collections only while idle (core/gc_policy.py); set by the main window.
         self.gc_policy: Any = None
         self._uploads = self.scene.uploads
         self._base_ms: float | None = None

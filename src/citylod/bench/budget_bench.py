@@ -102,6 +102,8 @@ def run(frames: int = 60, fraction: float = 0.5, target_ms: float | None = None,
                         step(cam)
             assert len(mode.frame_ms) == len(steered) == len(mode_old.frame_ms)
             predicted = list(mode.predicted_ms)
+            mode.close()
+            mode_old.close()
     load.append(os.getloadavg()[0])
 
     def share(ts: list[float], t: float, skip: int = 0) -> float:

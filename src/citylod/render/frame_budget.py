@@ -11,6 +11,8 @@ PI controller corrects what the model misses, and the budget grows by a bounded 
 reacts to the last frames' cost per point), for comparisons. Other layers (meshes) get τ from a
 :class:`~citylod.lod.runtime.budget.FrameTimeController` (PID on the frame time); their triangles enter the
 point layers' cost model. Fixed budgets stay what they were when the mode is switched off (:meth:`close`).
+While the mode is on, full garbage collections wait (:class:`~citylod.core.gc_policy.GcPolicy`): one in a
+timed draw is a frame 20–30 ms over the target.
 Creates no VTK objects; call from the GL thread. No Qt.
 """
 
@@ -21,6 +23,7 @@ import time
 from typing import Any
 
 from citylod.core.camera import View
+from citylod.core.gc_policy import GcPolicy
 from citylod.lod.runtime.budget import FeedForwardBudgetController, FrameTimeController, PointBudgetController
 from citylod.lod.runtime.selection import Budget, select
 from citylod.render import _vtk
@@ -69,6 +72,8 @@ class FrameBudget:
         ren = scene.renderer
         self._tags = [ren.AddObserver(_vtk.vtkCommand.StartEvent, self._start),
                       ren.AddObserver(_vtk.vtkCommand.EndEvent, self._end)]
+        self._gc = GcPolicy()
+        self._gc.install()  # what lives now (the scene, its tiles) is frozen; full collections wait
 
     # -- feed-forward: the next frame's budget from its candidates ---------------------------------------
     def _cost(self, key: str) -> int:
@@ -162,7 +167,9 @@ class FrameBudget:
                 layer.tau_px = self.tau_ctl.tau_px
 
     def close(self) -> None:
-        """Leave budget mode: the layers get their fixed budgets and τ back."""
+        """Leave budget mode: the layers get their fixed budgets and τ back, and garbage collection its
+        thresholds."""
+        self._gc.uninstall()
         for tag in self._tags:
             self.scene.renderer.RemoveObserver(tag)
         if self.scene.before_select == self._plan:

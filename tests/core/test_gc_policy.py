@@ -1,10 +1,10 @@
-"""The desktop app's garbage-collection policy (app/gc_policy.py): full collections only while idle."""
+"""The desktop app's garbage-collection policy (core/gc_policy.py): full collections only while idle."""
 
 from __future__ import annotations
 
 import gc
 
-from citylod.app.gc_policy import GcPolicy
+from citylod.core.gc_policy import GcPolicy
 
 
 class _Clock:

@@ -1,9 +1,11 @@
-"""When Python's cyclic garbage collector may run in the desktop application.
+"""When Python's cyclic garbage collector may run: in the desktop application, and in budget mode.
 
 A full (generation 2) collection visits every container object the process holds. With a city open that
 is hundreds of thousands of objects (tile trees, VTK wrappers, pyproj and Qt bindings), and a collection
 triggered by an allocation in the middle of a frame held the GUI thread for a third of a second or more
-(docs/PERFORMANCE_LOG.md). So the application takes full collections out of the allocator's hands:
+(docs/PERFORMANCE_LOG.md); off screen, one in a timed draw cost a budget-mode frame 20–30 ms over a 65 ms
+target. So the application, and :class:`~citylod.render.frame_budget.FrameBudget` while it holds a frame
+time, take full collections out of the allocator's hands:
 
 * :meth:`GcPolicy.settle` moves the objects alive after start-up and after each opened source (they live
   as long as the window or the layer) to the permanent generation (``gc.freeze``, which costs nothing):
@@ -13,7 +15,8 @@ triggered by an allocation in the middle of a frame held the GUI thread for a th
 * :meth:`GcPolicy.tick`, called from the view's timer, runs the full collection itself when the view has
   been idle (no camera motion, nothing loading) for ``idle_s`` and the last one is ``every_s`` ago, and
   freezes the survivors; it visits only what was created since the last freeze, and never delays a frame
-  of a motion.
+  of a motion. Budget mode does not tick: an off-screen flight has no idle time, and the collection runs
+  when the mode ends (:meth:`uninstall` of the last policy gives the thresholds back).
 
 Frozen objects are still freed by reference counting (an evicted tile's arrays and VTK objects go as
 before); only garbage *cycles* among frozen objects stay until :meth:`uninstall`. The application's
