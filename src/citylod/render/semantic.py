@@ -377,6 +377,7 @@ class SemanticOverlay:
         # "glyph" (splats: a glyph mapper's instances, whose uniforms go through the shader property)
         self._shaded: dict[int, str | None] = {}
         self._glyph_textures: tuple[Any, Any] | None = None  # the two maps as textures of an actor's property
+        self._glyph_matrix: dict[int, int] = {}  # id(actor) -> MTime of the matrix its uniform was made from
         self._unsubscribe = self.state.on_change(self._on_state)
         self._remove_hook = scene.add_actor_hook(self._attach)
         # After the scene's own StartEvent observer (which picks the tiles): lower priority runs later.
@@ -496,6 +497,7 @@ class SemanticOverlay:
                     tex.ReleaseGraphicsResources(self._window)
         self._map_tex = self._lut_tex = None
         self._glyph_textures = None
+        self._glyph_matrix.clear()
 
     # -- state table ------------------------------------------------------------------------------
     def _on_state(self, change: StateChange) -> None:
@@ -624,6 +626,7 @@ class SemanticOverlay:
             for name in ("citylodMap", "citylodState"):
                 prop.RemoveTexture(name)
             sp.GetFragmentCustomUniforms().RemoveAllUniforms()
+            self._glyph_matrix.pop(id(actor), None)
         self._shaded[id(actor)] = mode
 
     def _glyph_uniforms(self, actor: Any) -> None:
@@ -655,10 +658,12 @@ class SemanticOverlay:
         fu.SetUniformi("citylodOn", 1 if self.enabled and self._any_state else 0)
         fu.SetUniformi("citylodLutWidth", self._lut_w)
         m = actor.GetMatrix()
-        model = np.array([m.GetElement(i, j) for i in range(4) for j in range(4)]).reshape(4, 4)
-        to_map = _vtk.vtkMatrix4x4()
-        to_map.DeepCopy((self._to_map @ model).T.ravel().tolist())  # GLSL reads column by column
-        fu.SetUniformMatrix("citylodToMap", to_map)
+        if self._glyph_matrix.get(id(actor)) != m.GetMTime():  # the tile's placement changed (or is new)
+            model = np.array([m.GetElement(i, j) for i in range(4) for j in range(4)]).reshape(4, 4)
+            to_map = _vtk.vtkMatrix4x4()
+            to_map.DeepCopy((self._to_map @ model).T.ravel().tolist())  # GLSL reads column by column
+            fu.SetUniformMatrix("citylodToMap", to_map)
+            self._glyph_matrix[id(actor)] = m.GetMTime()
 
     def _callback(self, actor: Any) -> Callable[..., None]:
         cache: dict[str, Any] = {"key": None, "matrix": _vtk.vtkMatrix4x4(), "inverse": _vtk.vtkMatrix4x4()}
