@@ -170,3 +170,32 @@ def test_document_up_and_home_camera_follow_ecef_data() -> None:
         assert north_on_screen(cam, north)[1] > 0.8
     finally:
         doc.close()
+
+
+def test_home_camera_frames_what_is_drawn_not_the_store(sample_built, tmp_path) -> None:
+    """A city store is drawn only through the other layers; its model may cover far more ground than the
+    LiDAR (Delft: twice the area). The home view fits the drawn layers' box, corners and all, not the sphere."""
+    from citylod.app.models import Document
+    from citylod.bench.synthetic import make_point_tileset
+    from citylod.semantics.store import CityStore
+
+    sb = np.asarray(CityStore.open(sample_built.gpkg).bounds, np.float64)
+    centre = (sb[:3] + sb[3:]) / 2
+    tiles = make_point_tileset(tmp_path / "pts", levels=2, points_per_tile=500, extent=30.0,
+                               corner=(centre[0] - 15.0, centre[1] - 15.0, sb[2]), crs="EPSG:32632")
+    doc = Document(workers=1)
+    try:
+        doc.open(sample_built.gpkg)
+        doc.open(tiles)
+        cam = doc.home_camera(aspect=1.5)
+        lo, hi = doc.scene.bounds
+        right, up, forward = (np.asarray(v) for v in cam.basis())
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        rel = corners - np.asarray(cam.position)
+        t = math.tan(math.radians(cam.fovy_deg) / 2)
+        sx = np.abs(rel @ right) / (rel @ forward) / (t * 1.5)
+        sy = np.abs(rel @ up) / (rel @ forward) / t
+        assert max(sx.max(), sy.max()) <= 1.0  # all of it in view
+        assert max(sx.max(), sy.max()) >= 0.9  # and filling it, the 5 % margin aside
+    finally:
+        doc.close()

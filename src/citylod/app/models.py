@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from citylod.core.camera import Camera, enu_axes, in_local_frame, local_up, overview_camera
+from citylod.core.camera import Camera, enu_axes, framing_camera, local_up, overview_camera
 from citylod.core.errors import CitylodError, InputError
 
 __all__ = [
@@ -778,10 +778,17 @@ class Document:
         return enu_axes(self.up())[:, 1]
 
     def home_camera(self, aspect: float = 1.5) -> Camera | None:
-        b = self.bounds()
+        """What is drawn, all in view, as close as its box's corners allow (``citylod render``'s overview):
+        a city is flat, and the bounding sphere fitted before left it in the middle third. A city store is
+        drawn only through the other layers, and its model can reach far past them (Delft's covers twice
+        the LiDAR's area), so it counts only when nothing else is open."""
+        boxes = [e.far.bounds() for e in self.entries if e.far is not None]
+        if self.scene.layers:
+            boxes.append(self.scene.bounds)
+        b = (np.min([x[0] for x in boxes], axis=0), np.max([x[1] for x in boxes], axis=0)) if boxes else self.bounds()
         if b is None:
             return None
-        return in_local_frame(lambda lo, hi: [overview_camera(lo, hi, aspect=aspect)], *b, self.up())[0]
+        return framing_camera(*b, aspect=aspect, up=self.up())
 
     # -- layer display ----------------------------------------------------------------------------
     def entry(self, index: int) -> LayerEntry:
