@@ -641,11 +641,9 @@ class SemanticOverlay:
         the matrix is a fragment custom uniform, declared by hand in the vertex stage too."""
         self._bind()
         if self._glyph_textures is None:
-            from vtkmodules.vtkRenderingOpenGL2 import vtkOpenGLTexture
-
             wrapped = []
             for tex in (self._map_tex, self._lut_tex):
-                t = vtkOpenGLTexture()
+                t = _vtk.vtkOpenGLTexture()
                 t.SetTextureObject(tex)
                 wrapped.append(t)
             self._glyph_textures = (wrapped[0], wrapped[1])
