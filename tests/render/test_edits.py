@@ -122,6 +122,31 @@ def test_point_edits_match_an_independent_point_in_polygon_test(points_tiles: Pa
     assert z_edit - z_plain == pytest.approx(30.0, abs=1.0)
 
 
+def test_discard_and_the_class_filter_reach_splats(points_tiles: Path) -> None:
+    # Splats are glyphs of every point, not of the vertex cells that discard and the class filter trim:
+    # they take a bit mask (VTK's glyph mapper ignores any other kind of mask array).
+    cam = top_camera()
+    polys = polygons()
+    with OffscreenRenderer([points_tiles], size=SIZE, tau_px=0.5) as r:
+        r.scene.layers[0].point_shape = "splat"
+        plain = r.render(cam, depth=True)
+        edits = PolygonEdits(r.scene, PolygonLayer(polys[8:9], pyproj.CRS("EPSG:25832")))  # the cut alone
+        edited = r.render(cam, depth=True)
+        edits.close()
+        r.scene.layers[0].class_filter = frozenset({6})  # buildings only (the synthetic block)
+        r.scene.layers[0].restyle()
+        filtered = r.render(cam, depth=True)
+    p_pl = world(plain, cam)
+    seen = np.isfinite(p_pl[..., 0])
+    cut = np.zeros(seen.shape, bool)
+    # Disks reach up to three spacings past their point: a 6 m margin inside the cut's edge.
+    cut[seen] = inside(polys[8].geometry, p_pl[seen][:, :2]) & margin_ok(polys[8:9], p_pl[seen][:, :2], 6.0)
+    assert cut.sum() > 500
+    assert np.isinf(edited.depth[cut]).mean() > 0.99
+    assert np.isfinite(edited.depth[seen & ~cut]).mean() > 0.9  # the rest stays
+    assert np.isfinite(filtered.depth).sum() < 0.5 * seen.sum()  # the ground is filtered out
+
+
 def test_mesh_edits_discard_displace_and_tint(tmp_path: Path) -> None:
     tiles = make_terrain_tileset(tmp_path / "dsm", levels=2, n=33, extent=EXT, corner=CORNER,
                                  height_fn=lambda x, y: np.zeros_like(x, dtype=np.float64), texture_px=64)

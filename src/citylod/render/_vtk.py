@@ -26,6 +26,7 @@ from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray,
 from vtkmodules.util.vtkConstants import VTK_FLOAT, VTK_OBJECT
 from vtkmodules.vtkCommonCore import (
     VTK_UNSIGNED_CHAR,
+    vtkBitArray,
     vtkCommand,
     vtkDoubleArray,
     vtkFloatArray,
@@ -90,6 +91,7 @@ __all__ = [
     "offscreen_window",
     "vtkActor",
     "vtkActor2D",
+    "vtkBitArray",
     "vtkCamera",
     "vtkCellArray",
     "vtkCommand",

@@ -8,8 +8,9 @@ box), and the tile's VTK arrays are changed in place:
 
 * ``recolor`` / ``texture``: the colour array (point colours, per-vertex or baked per-face mesh colours; on
   an orthophoto-textured mesh a per-vertex tint that modulates the texture);
-* ``discard``: points leave the vertex cell array; mesh triangles whose centre is inside collapse to a point
-  (cell arrays keep their length, so per-cell colours and skirt flags stay aligned);
+* ``discard``: points leave the vertex cell array (drawn as splats, they are masked out of the glyphs); mesh
+  triangles whose centre is inside collapse to a point (cell arrays keep their length, so per-cell colours
+  and skirt flags stay aligned);
 * ``displace``: vertices move by ``height_m`` along the data's vertical axis.
 
 The later polygon of the layer wins where polygons overlap. A frame then costs what it cost before: the
@@ -195,6 +196,10 @@ class PolygonEdits:
                 gone = (idx >= 0) & (actions[np.maximum(idx, 0)] == "discard")
                 keep = np.flatnonzero(~gone[: props.drawn])
                 data.SetVerts(_cells(keep.astype(np.int64), 1))
+                if props.splat_mapper is not None and props.actor.GetMapper() is props.splat_mapper:
+                    # Splats are glyphs of every point, not of the vertex cells: masked instead, with the
+                    # class filter's mask.
+                    props.set_splat_mask(~gone if props.keep is None else ~gone & props.keep)
         data.Modified()
         self._state[k] = _Edited(data, data.GetPointData().GetScalars(), props.drawn, self.version, idx, world)
 

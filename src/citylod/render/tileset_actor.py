@@ -302,6 +302,7 @@ class _PointProps:
         # Splat drawing (TilesetLayer.point_shape == "splat"): a glyph mapper over the same data.
         self.splat_mapper: Any = None
         self.splat_data: Any = None  # the vtkPolyData whose splat arrays are computed
+        self._splat_bits: npt.NDArray[np.uint8] | None = None  # the mask's bits, which VTK reads in place
 
     def use_splats(self, positions: npt.NDArray[np.float32]) -> None:
         """Draw the tile's points as oriented disks (:mod:`citylod.render.splats`): normals and radii from
@@ -317,16 +318,30 @@ class _PointProps:
             add_splat_arrays(self.data, estimate_splats(positions))
             self.splat_data = self.data
         self.splat_mapper.SetInputData(self.data)
-        self.splat_mapper.SetMasking(self.keep is not None)
-        if self.keep is not None:
-            keep = _vtk.numpy_to_vtk(self.keep.astype(np.uint8), deep=True)
-            keep.SetName("splat_keep")
-            self.data.GetPointData().AddArray(keep)
-            self.splat_mapper.SetMaskArray("splat_keep")
+        self.set_splat_mask(self.keep)
         if self.actor.GetMapper() is not self.splat_mapper:
             # Unlit, as points are: a pixel has its point's colour (class, elevation...), and a disk whose
             # estimated normal is off (edges, crowns) does not show as a dark sliver.
             self.actor.SetMapper(self.splat_mapper)
+
+    def set_splat_mask(self, mask: npt.NDArray[np.bool_] | None) -> None:
+        """Glyph only the points where ``mask`` (total,) is true; None glyphs all. Splats are glyphs of the
+        points, not of the vertex cells that :meth:`draw_first` and :meth:`set_keep` trim, so a class filter
+        or a polygon's discard reaches them only through this mask. VTK's glyph mapper reads a bit array and
+        ignores any other kind (a byte array was silently ignored before): bits packed first point highest,
+        as ``vtkBitArray`` keeps them, read in place."""
+        if self.splat_mapper is None or self.data is None:
+            return
+        if mask is None:
+            self.splat_mapper.SetMasking(False)
+            return
+        self._splat_bits = np.packbits(np.asarray(mask, bool))
+        bits = _vtk.vtkBitArray()
+        bits.SetVoidArray(self._splat_bits, len(mask), 1)
+        bits.SetName("splat_keep")
+        self.data.GetPointData().AddArray(bits)
+        self.splat_mapper.SetMaskArray("splat_keep")
+        self.splat_mapper.SetMasking(True)
 
     def use_points(self) -> None:
         """Back to plain points (after :meth:`use_splats`)."""
