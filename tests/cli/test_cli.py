@@ -46,6 +46,11 @@ def test_info_gives_a_rasters_heights_and_writes_nothing(tmp_path, capsys, monke
     out = capsys.readouterr().out
     assert f"heights  {valid.min():.2f} … {valid.max():.2f}" in out and f"{100 * valid.size / z.size:.1f} %" in out
     assert "x 500000.00 … 500050.00, y 5399960.00 … 5400000.00" in out
+    assert f"(mean {valid.astype(np.float64).mean():.2f})" in out
+    monkeypatch.setattr(info, "_STRIP_SAMPLES", 120)  # strips of 2 rows: the same exact figures
+    assert main(["info", str(r)]) == 0
+    assert f"heights  {valid.min():.2f} … {valid.max():.2f} (mean {valid.astype(np.float64).mean():.2f})" \
+        in capsys.readouterr().out
     monkeypatch.setattr(info, "_EXACT_HEIGHTS_SAMPLES", 100)
     assert main(["info", str(r)]) == 0
     out = capsys.readouterr().out
