@@ -19,3 +19,9 @@ def test_the_demo_builds_reports_and_says_the_datum_once(tmp_path, capfd) -> Non
     assert (out + err).count("vertical datum") == 1, out + err
     assert not [w for w in caught if "vertical datum" in str(w.message)]
     assert "τ = 1 px: median frame" in out
+
+
+def test_a_too_small_demo_sample_is_refused_and_writes_nothing(tmp_path, capsys) -> None:
+    assert main(["-q", "demo", str(tmp_path / "d"), "--no-gui", "--size", "5"]) == 2
+    assert "at least 33" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()

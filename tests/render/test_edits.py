@@ -64,6 +64,16 @@ def margin_ok(polys: tuple[EditPolygon, ...], xy: np.ndarray, m: float) -> np.nd
     return shapely.distance(edges, shapely.points(xy)) > m
 
 
+def inside_px(points: np.ndarray, poly: EditPolygon, m: float) -> np.ndarray:
+    """Pixels whose surface point (``world``; NaN where nothing is drawn) lies inside ``poly``, more than
+    ``m`` metres from its edge."""
+    seen = np.isfinite(points[..., 0])
+    out = np.zeros(seen.shape, bool)
+    xy = points[seen][:, :2]
+    out[seen] = inside(poly.geometry, xy) & margin_ok((poly,), xy, m)
+    return out
+
+
 @pytest.fixture(scope="module")
 def points_tiles(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return make_point_tileset(tmp_path_factory.mktemp("pts"), levels=3, points_per_tile=12000, extent=EXT,
@@ -107,15 +117,12 @@ def test_point_edits_match_an_independent_point_in_polygon_test(points_tiles: Pa
 
     # discard: where the plain render saw ground inside the cut, the edited one sees nothing
     p_pl = world(plain, cam)
-    seen = np.isfinite(p_pl[..., 0])
-    cut = np.zeros(seen.shape, bool)
-    cut[seen] = inside(polys[8].geometry, p_pl[seen][:, :2]) & margin_ok(polys[8:9], p_pl[seen][:, :2], 3.0)
+    cut = inside_px(p_pl, polys[8], 3.0)
     assert cut.sum() > 500
     assert np.isinf(edited.depth[cut]).mean() > 0.99
 
     # displace: the points inside the dyke polygon are drawn 30 m higher
-    dyke = np.zeros(seen.shape, bool)
-    dyke[seen] = inside(polys[9].geometry, p_pl[seen][:, :2]) & margin_ok(polys[9:], p_pl[seen][:, :2], 8.0)
+    dyke = inside_px(p_pl, polys[9], 8.0)
     z_plain = np.median(p_pl[dyke][:, 2])
     moved = np.isfinite(p_ed[..., 0]) & dyke
     z_edit = np.median(p_ed[moved][:, 2])
@@ -138,9 +145,7 @@ def test_discard_and_the_class_filter_reach_splats(points_tiles: Path) -> None:
         filtered = r.render(cam, depth=True)
     p_pl = world(plain, cam)
     seen = np.isfinite(p_pl[..., 0])
-    cut = np.zeros(seen.shape, bool)
-    # Disks reach up to three spacings past their point: a 6 m margin inside the cut's edge.
-    cut[seen] = inside(polys[8].geometry, p_pl[seen][:, :2]) & margin_ok(polys[8:9], p_pl[seen][:, :2], 6.0)
+    cut = inside_px(p_pl, polys[8], 6.0)  # disks reach up to three spacings past their point: a 6 m margin
     assert cut.sum() > 500
     assert np.isinf(edited.depth[cut]).mean() > 0.99
     assert np.isfinite(edited.depth[seen & ~cut]).mean() > 0.9  # the rest stays

@@ -751,12 +751,13 @@ class Document:
         crs = self.scene.crs if self.scene.crs is not None else (self.store.crs if self.store else None)
         return bool(crs is not None and getattr(crs, "is_geographic", False))
 
-    def bounds(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
-        """(lo, hi) of every layer and the store, in the data's CRS; None when nothing is open."""
+    def bounds(self, *, store: bool = True) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
+        """(lo, hi) of every layer and (``store``) the city store, in the data's CRS; None when nothing is
+        open."""
         boxes = [e.far.bounds() for e in self.entries if e.far is not None]
         if self.scene.layers:
             boxes.append(self.scene.bounds)
-        if self.store is not None:
+        if store and self.store is not None:
             b = np.asarray(self.store.bounds, np.float64)
             if np.all(np.isfinite(b)):
                 boxes.append((b[:3], b[3:]))
@@ -782,10 +783,7 @@ class Document:
         a city is flat, and the bounding sphere fitted before left it in the middle third. A city store is
         drawn only through the other layers, and its model can reach far past them (Delft's covers twice
         the LiDAR's area), so it counts only when nothing else is open."""
-        boxes = [e.far.bounds() for e in self.entries if e.far is not None]
-        if self.scene.layers:
-            boxes.append(self.scene.bounds)
-        b = (np.min([x[0] for x in boxes], axis=0), np.max([x[1] for x in boxes], axis=0)) if boxes else self.bounds()
+        b = self.bounds(store=False) or self.bounds()
         if b is None:
             return None
         return framing_camera(*b, aspect=aspect, up=self.up())

@@ -60,7 +60,6 @@ def _build(out: Path, files: dict[str, Path], progress: bool) -> tuple[list[Path
 def run_demo(out_dir: str | os.PathLike[str], *, no_gui: bool = False, progress: bool = True,
              size: int = 513) -> int:
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     from citylod.sample.files import make_sample
 
     t = _step(f"sample city ({size}×{size} m) into {out / 'sample'}")
