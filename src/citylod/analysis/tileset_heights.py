@@ -32,6 +32,7 @@ import pyproj
 from numba import njit
 
 from citylod.core.errors import InputError
+from citylod.io.tiles3d.package import is_tileset_path
 
 __all__ = ["TilesetHeights", "is_tileset", "rasterise_tileset"]
 
@@ -51,9 +52,9 @@ class TilesetHeights:
 
 
 def is_tileset(path: str | os.PathLike[str]) -> bool:
-    """True for a ``tileset.json`` or a folder holding one."""
+    """True for a ``tileset.json``, a folder holding one, or a ``.3tz`` / ``.3dtiles`` package."""
     p = Path(path)
-    return (p.is_dir() and (p / "tileset.json").is_file()) or (p.is_file() and p.suffix.lower() == ".json")
+    return (p.is_dir() and (p / "tileset.json").is_file()) or (p.is_file() and is_tileset_path(p))
 
 
 @njit(cache=True, nogil=True)

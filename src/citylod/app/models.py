@@ -35,6 +35,7 @@ import numpy.typing as npt
 
 from citylod.core.camera import Camera, enu_axes, framing_camera, local_up, overview_camera
 from citylod.core.errors import CitylodError, InputError
+from citylod.io.tiles3d.package import PACKAGE_SUFFIXES
 
 __all__ = [
     "ASPRS_CLASSES",
@@ -348,6 +349,8 @@ def source_kind(path: str | os.PathLike[str]) -> str | None:
         return "tileset" if (p / "tileset.json").is_file() else None
     if p.name.lower() == "tileset.json" or (suf == ".json" and p.name.lower().endswith("tileset.json")):
         return "tileset"
+    if suf in PACKAGE_SUFFIXES:
+        return "tileset"
     if suf == ".gpkg":
         return "store"
     if suf in _RASTER:
@@ -632,7 +635,8 @@ class Document:
             self._apply_budget(layer)
             if self.lod.target_ms > 0:
                 self._restart_frame_budget()  # the new layer is steered too
-            entry = LayerEntry(layer.name if p.is_dir() else p.parent.name, "tileset", p, layer)
+            entry = LayerEntry(layer.name if p.is_dir() else p.name if p.suffix.lower() in PACKAGE_SUFFIXES
+                               else p.parent.name, "tileset", p, layer)
             if p.is_dir():
                 entry.name = p.name
             self.entries.append(entry)
@@ -653,7 +657,7 @@ class Document:
         elif kind in ("raster", "points", "citymodel"):
             raise InputError(f"a {kind} file must be built before it can be viewed (File → Open builds it)", p)
         else:
-            raise InputError("not a tileset folder, tileset.json or .gpkg city store", p)
+            raise InputError("not a tileset folder, tileset.json, .3tz / .3dtiles package or .gpkg city store", p)
         self.entries.append(entry)
         self._emit("layers")
         return entry

@@ -99,7 +99,7 @@ class FloodPanel(QWidget):
     # -- loading ----------------------------------------------------------------------------------
     def _load_dialog(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Height raster or DSM tileset to flood", "",
-                                              "Rasters or tilesets (*.tif *.tiff *.json)")
+                                              "Rasters or tilesets (*.tif *.tiff *.json *.3tz *.3dtiles)")
         if path:
             self.load(path, FloodSources(edge=True))
 

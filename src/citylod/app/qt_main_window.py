@@ -63,9 +63,9 @@ from citylod.core.gc_policy import GcPolicy
 
 __all__ = ["MainWindow", "settings"]
 
-_FILTER = ("All supported (*.citylod *.json *.gpkg *.tif *.tiff *.vrt *.las *.laz *.gml *.xml *.cityjson);;"
+_FILTER = ("All supported (*.citylod *.json *.3tz *.3dtiles *.gpkg *.tif *.tiff *.vrt *.las *.laz *.gml *.xml *.cityjson);;"
            "citylod project (*.citylod);;"
-           "Tileset (tileset.json);;City store (*.gpkg);;Raster DSM (*.tif *.tiff *.vrt);;"
+           "Tileset (tileset.json *.3tz *.3dtiles);;City store (*.gpkg);;Raster DSM (*.tif *.tiff *.vrt);;"
            "Point cloud (*.las *.laz);;City model (*.gml *.xml *.json *.cityjson);;All files (*)")
 _MAX_RECENT = 10
 # Width of each side column of docks at first start (later, the saved layout): the widest panel's narrowest.

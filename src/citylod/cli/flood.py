@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from citylod.cli._args import floats
+from citylod.io.tiles3d.package import is_tileset_path
 
 
 def _xy(text: str) -> tuple[float, float]:
@@ -49,7 +50,7 @@ def run(args: argparse.Namespace, progress: bool) -> int:
                             ", ".join(str(p) for p in args.source))
     sources = FloodSources(tuple(args.seed), poly, args.edge)
     levels = args.levels if args.levels is not None else [args.level]
-    is_tiles = args.raster.is_dir() or args.raster.suffix.lower() == ".json"
+    is_tiles = is_tileset_path(args.raster)
     report = (flood_tileset if is_tiles else flood_raster)(args.raster, levels, args.output, sources=sources, depressions=args.depressions,
                           eight=args.eight, city=args.city, touch_m=args.touch, progress=progress)
     print(report.summary())

@@ -8,6 +8,7 @@ from collections import Counter
 from pathlib import Path
 
 from citylod.core.errors import InputError
+from citylod.io.tiles3d.package import is_tileset_path
 
 
 def describe(source: str | os.PathLike[str]) -> str:
@@ -18,7 +19,7 @@ def describe(source: str | os.PathLike[str]) -> str:
     suffix = p.suffix.lower()
     if suffix in (".gml", ".xml", ".jsonl") or p.name.endswith(".city.json"):
         return f"{p}: city model (build a store with `citylod build city {p} -o CITY.gpkg`)"
-    if p.is_dir() or p.name.endswith(".json"):
+    if is_tileset_path(p):
         return _describe_tileset(p)
     if suffix in (".las", ".laz"):
         return _describe_las(p)

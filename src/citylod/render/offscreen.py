@@ -27,6 +27,7 @@ import numpy.typing as npt
 from citylod.core.camera import Camera, built_in_camera, cameras_for, load_cameras, local_up
 from citylod.core.errors import CitylodError, InputError
 from citylod.core.fileio import atomic_write, atomic_write_bytes
+from citylod.io.tiles3d.package import is_tileset_path
 from citylod.render import _vtk
 from citylod.render.depth import zbuffer_to_distance
 from citylod.render.gl_context import guard
@@ -54,14 +55,14 @@ def _tileset_sources(sources: Sequence[str | os.PathLike[str]]) -> tuple[list[Pa
         p = Path(s)
         if p.suffix.lower() == ".gpkg":
             cities.append(p)
-        elif p.is_dir() or p.suffix.lower() == ".json":
+        elif is_tileset_path(p):
             if not p.exists():
                 raise InputError("no such tileset", p)
             tilesets.append(p)
         elif not p.exists():
             raise InputError("no such file or folder", p)
         else:
-            raise InputError("not a tileset folder, tileset.json or .gpkg city store", p)
+            raise InputError("not a tileset folder, tileset.json, .3tz / .3dtiles package or .gpkg city store", p)
     return tilesets, cities
 
 

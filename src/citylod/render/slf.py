@@ -39,7 +39,7 @@ import numpy.typing as npt
 from citylod.core.camera import Camera, View
 from citylod.core.errors import CitylodError, InputError
 from citylod.io.image import decode_image
-from citylod.io.tiles3d import Tile, open_tileset
+from citylod.io.tiles3d import Tile, is_tileset_path, open_tileset
 from citylod.lod.build.slf import read_cell_arrays, read_group
 from citylod.lod.kernels.slf import (
     DirectionSet,
@@ -1190,7 +1190,7 @@ def is_far_field(source: str | Path) -> bool:
     """Whether ``source`` (a tileset folder or ``tileset.json``) is a far-field tileset (``citylod build
     slf``). Unreadable sources answer False: the ordinary renderer reports them."""
     p = Path(source)
-    if not (p.is_dir() or p.suffix.lower() == ".json") or not p.exists():
+    if not is_tileset_path(p) or not p.exists():
         return False
     try:
         return open_tileset(p).citylod.get("kind") == "slf"

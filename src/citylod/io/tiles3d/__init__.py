@@ -1,5 +1,5 @@
 """OGC 3D Tiles: tile content (:mod:`.content` writes glb; :mod:`.gltf` and :mod:`.legacy` read glTF and the
-1.0 formats; :mod:`.colour` converts vertex colours) and the tileset document (:mod:`.tileset`).
+1.0 formats; :mod:`.colour` converts vertex colours) and the tileset document (:mod:`.tileset`), in a folder or a package (:mod:`.package`).
 
 What a tile *is* lives here; what *makes* tiles lives in :mod:`citylod.lod.build`.
 """
@@ -8,6 +8,7 @@ from citylod.io.tiles3d.content import MeshData, PointData, TileContent, encode_
 from citylod.io.tiles3d.features import FeatureIdSet, PropertyTable
 from citylod.io.tiles3d.gltf import decode_glb
 from citylod.io.tiles3d.legacy import decode_content
+from citylod.io.tiles3d.package import is_tileset_path
 from citylod.io.tiles3d.tileset import (
     Tile,
     TileMesh,
@@ -22,6 +23,6 @@ from citylod.io.tiles3d.tileset import (
 
 __all__ = [
     "FeatureIdSet", "MeshData", "PointData", "PropertyTable", "Tile", "TileContent", "TileMesh", "TileSpec", "Tileset", "content_path",
-    "decode_content", "decode_glb", "encode_glb", "glb_buffer", "open_tileset", "safe_resolve", "write_content",
+    "decode_content", "decode_glb", "encode_glb", "glb_buffer", "is_tileset_path", "open_tileset", "safe_resolve", "write_content",
     "write_tileset",
 ]

@@ -54,7 +54,8 @@ def decode_content(data: bytes, source: str, *, y_up: bool = True, resolve: Reso
     if magic == b"pnts":
         return _decode_pnts(data, source)
     if magic == b"PK\x03\x04" or data[:16] == b"SQLite format 3\x00":
-        raise InputError("3D Tiles packages (.3tz, .3dtiles) are not supported; extract the package first", source)
+        raise InputError("a 3D Tiles package (.3tz, .3dtiles) as tile content is not supported; open the package "
+                         "itself as a tileset", source)
     if magic == b"vctr" or magic == b"geom":
         raise InputError(f"{magic.decode()} (vector / geometry) content is not supported", source)
     raise InputError(f"unknown tile content (magic {magic!r}); expected glb, glTF, b3dm, i3dm, cmpt or pnts", source)

@@ -8,8 +8,9 @@ source CRS.
 
 What citylod reads: any 3D Tiles 1.x tileset — glb, glTF, b3dm, i3dm, cmpt and pnts content (gzip or not),
 several contents per tile, implicit tiling (:mod:`.implicit`), box / region / sphere bounding volumes, tile
-transforms, external tilesets, gzip-compressed tileset JSON. URIs that leave the tileset's folder (``../``, absolute paths,
-URLs) are refused with :class:`~citylod.core.errors.UnsafePathError`.
+transforms, external tilesets, gzip-compressed tileset JSON, and all of it inside a ``.3tz`` or ``.3dtiles`` package
+(:mod:`.package`), read in place. URIs that leave the tileset's folder or package (``../``, absolute paths, URLs) are
+refused with :class:`~citylod.core.errors.UnsafePathError`.
 
 No VTK and no Qt here.
 """
@@ -40,6 +41,7 @@ from citylod.io.crs import ecef_from_local, parse_crs
 from citylod.io.tiles3d.content import TileContent, glb_buffer
 from citylod.io.tiles3d.implicit import expand_implicit
 from citylod.io.tiles3d.legacy import decode_content
+from citylod.io.tiles3d.package import Package, package_kind
 
 
 # --------------------------------------------------------------------------------------- atomic writing
@@ -260,10 +262,7 @@ class Tile:
         if self._size is None:
             self._size = 0
             for p in self.content_paths:
-                try:
-                    self._size += p.stat().st_size
-                except OSError:
-                    pass
+                self._size += self.tileset.file_size(p)
         return self._size
 
     def load_content(self) -> TileContent:
@@ -276,18 +275,11 @@ class Tile:
         return out
 
     def _load_one(self, path: Path) -> TileContent:
-        try:
-            data = path.read_bytes()
-        except OSError as exc:
-            raise InputError(f"cannot read tile content ({exc.strerror})", path) from exc
-        folder = self.tileset.folder
+        ts = self.tileset
+        data = ts.read_file(path, "tile content", str(path))
 
         def resolve(uri: str) -> bytes:
-            target = safe_resolve(path.parent, uri, folder, str(path))
-            try:
-                return target.read_bytes()
-            except OSError as exc:
-                raise InputError(f"cannot read {uri!r} ({exc.strerror})", path) from exc
+            return ts.read_file(safe_resolve(path.parent, uri, ts.folder, str(path)), repr(uri), str(path))
 
         content = decode_content(data, str(path), y_up=self.tileset.y_up, resolve=resolve)
         if self.tileset.up_axis == "X":  # CesiumJS's Axis.X_UP_TO_Z_UP, a −90° turn about y; RTC is z-up already
@@ -340,9 +332,11 @@ class Tileset:
     to itself, directly or through others, is refused.
     """
 
-    def __init__(self, path: Path, doc: dict[str, Any]) -> None:
+    def __init__(self, path: Path, doc: dict[str, Any], package: Package | None = None) -> None:
         self.path = path
         self.folder = path.parent
+        # A .3tz / .3dtiles file read in place: ``folder`` is the package's path, the files' paths lie below it.
+        self.package = package
         self.doc = doc
         self.extras: dict[str, Any] = doc.get("extras", {}) or {}
         cl = self.extras.get("citylod", {}) if isinstance(self.extras, dict) else {}
@@ -384,7 +378,7 @@ class Tileset:
             if not isinstance(tj, dict) or "boundingVolume" not in tj or "geometricError" not in tj:
                 raise InputError(f"tile {key[:80]} lacks boundingVolume or geometricError", source)
             if "implicitTiling" in tj or "3DTILES_implicit_tiling" in tj.get("extensions", {}):
-                tj = expand_implicit(tj, _reader(base, self.folder, source), source)
+                tj = expand_implicit(tj, self._reader(base, source), source)
             matrix = self._crs_from_world @ world
             # A region is in ECEF whatever the tile's transform; boxes and spheres live in the tile's frame.
             in_ecef = "region" in tj["boundingVolume"]
@@ -417,7 +411,7 @@ class Tileset:
                         raise InputError(f"external tileset {curi!r} is referenced {loads[external]} times "
                                          f"({external_loads} external loads in all); refused as a likely hostile "
                                          "tileset", source)
-                    ext = _read_json(ext_path)
+                    ext = _read_json(ext_path, self.read_file)
                     children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
                                                         "_external_source": external})
                 else:
@@ -447,6 +441,32 @@ class Tileset:
             t.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
         return root_tile
 
+    def read_file(self, path: Path, what: str = "file", source: str | None = None) -> bytes:
+        """The bytes of a file of this tileset (``path`` from :func:`safe_resolve`), in its folder or package."""
+        if self.package is not None:
+            return self.package.read(path.relative_to(self.folder).as_posix())
+        try:
+            return path.read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read {what} ({exc.strerror or exc})", source or path) from exc
+
+    def file_size(self, path: Path) -> int:
+        """A file's size in bytes, 0 when it cannot be found."""
+        if self.package is not None:
+            return self.package.size(path.relative_to(self.folder).as_posix())
+        try:
+            return path.stat().st_size
+        except OSError:
+            return 0
+
+    def _reader(self, base: Path, source: str) -> Callable[[str], bytes]:
+        """Reads URIs relative to ``base`` that stay inside the tileset (implicit tiling's subtrees)."""
+
+        def read(uri: str) -> bytes:
+            return self.read_file(safe_resolve(base, uri, self.folder, source), repr(uri), source)
+
+        return read
+
     @staticmethod
     def walk_from(root: Tile) -> Iterator[Tile]:
         queue = [root]
@@ -469,19 +489,6 @@ class Tileset:
         return f"Tileset({str(self.path)!r}, kind={self.kind!r}, crs={self.crs.name!r})"
 
 
-def _reader(base: Path, root: Path, source: str) -> Callable[[str], bytes]:
-    """Reads URIs relative to ``base`` that stay inside ``root`` (implicit tiling's subtrees)."""
-
-    def read(uri: str) -> bytes:
-        path = safe_resolve(base, uri, root, source)
-        try:
-            return path.read_bytes()
-        except OSError as exc:
-            raise InputError(f"cannot read {uri!r} ({exc.strerror})", source) from exc
-
-    return read
-
-
 def _contents(tj: dict[str, Any]) -> list[Any]:
     """A tile's contents: ``content``, 1.1 ``contents`` and the 1.0 ``3DTILES_multiple_contents`` extension."""
     out = [tj["content"]] if tj.get("content") else []
@@ -490,9 +497,9 @@ def _contents(tj: dict[str, Any]) -> list[Any]:
     return out
 
 
-def _read_json(path: Path) -> dict[str, Any]:
+def _read_json(path: Path, read: Callable[[Path], bytes] | None = None) -> dict[str, Any]:
     try:
-        raw = path.read_bytes()
+        raw = path.read_bytes() if read is None else read(path)
         if raw[:2] == b"\x1f\x8b":  # gzip-compressed tileset JSON, as some servers store it
             raw = gzip.decompress(raw)
         doc = json.loads(raw.decode("utf-8"))
@@ -546,7 +553,8 @@ def _bounding_box(bv: dict[str, Any], source: str, key: str) -> Box:
 
 
 def open_tileset(path: str | os.PathLike[str]) -> Tileset:
-    """Open a 3D Tiles 1.x tileset: a ``tileset.json`` or the folder holding one.
+    """Open a 3D Tiles 1.x tileset: a ``tileset.json``, the folder holding one, or a ``.3tz`` / ``.3dtiles``
+    package (read in place, tile by tile).
 
     Only the tileset document (and external tilesets it names) is read; tile content loads on demand
     (:meth:`Tile.load`). Coordinates come out in :attr:`Tileset.crs`: the source CRS for tilesets citylod
@@ -563,11 +571,16 @@ def open_tileset(path: str | os.PathLike[str]) -> Tileset:
     (3, 3)
     """
     p = Path(path)
-    if p.is_dir():
+    package = None
+    kind = package_kind(p)
+    if kind is not None:
+        package = Package(p.resolve(), kind)
+        p = package.path / "tileset.json"
+    elif p.is_dir():
         p = p / "tileset.json"
-    doc = _read_json(p)
+    doc = _read_json(p, None if package is None else lambda q: package.read(q.name))
     try:
-        return Tileset(p.resolve(), doc)
+        return Tileset(p if package is not None else p.resolve(), doc, package)
     except (KeyError, TypeError, AttributeError, ValueError, OverflowError, IndexError) as exc:
         # Any shape the schema does not allow (a string where a number belongs, a list for an object).
         raise InputError(f"tileset structure is invalid ({type(exc).__name__}: {str(exc)[:200]})", p) from exc
