@@ -4,9 +4,9 @@ Produces :class:`~citylod.io.tiles3d.content.TileContent` with z-up positions re
 (glTF is y-up; 3D Tiles turns it z-up when it places content). Node transforms and ``EXT_mesh_gpu_instancing``
 are applied; vertex colours (linear in glTF) and material base colours come back as sRGB bytes
 (:mod:`.colour`). ``KHR_draco_mesh_compression`` is decoded with DracoPy (Google's Draco decoder),
-``KHR_mesh_quantization`` by the accessors' own normalisation. A required extension citylod cannot honour
-(``EXT_meshopt_compression``, ``KHR_texture_basisu``, ...) is one :class:`~citylod.core.errors.InputError`
-naming it, never geometry read wrong.
+``KHR_mesh_quantization`` by the accessors' own normalisation, ``EXT_meshopt_compression`` by meshoptimizer's
+decoders. A required extension citylod cannot honour (``KHR_texture_basisu``, ...) is one
+:class:`~citylod.core.errors.InputError` naming it, never geometry read wrong.
 
 glTF 1.0 (3D Tiles 1.0 b3dm) is read by lifting its document to the 2.0 layout first, the way CesiumJS and
 gltf-pipeline's ``updateVersion`` do (id-keyed objects become arrays, ``KHR_binary_glTF`` becomes buffer 0,
@@ -45,10 +45,9 @@ _HONOURED = {
     "KHR_draco_mesh_compression", "KHR_mesh_quantization", "EXT_mesh_gpu_instancing", "CESIUM_RTC",
     "KHR_materials_unlit", "KHR_materials_pbrSpecularGlossiness", "KHR_materials_emissive_strength",
     "EXT_mesh_features", "EXT_structural_metadata", "EXT_instance_features", "CESIUM_primitive_outline",
-    "KHR_binary_glTF", "KHR_techniques_webgl",
+    "KHR_binary_glTF", "KHR_techniques_webgl", "EXT_meshopt_compression",
 }
 _WHY = {
-    "EXT_meshopt_compression": "meshopt-compressed buffers",
     "KHR_texture_basisu": "KTX2/Basis Universal textures",
     "EXT_texture_webp": "WebP textures",
     "KHR_texture_transform": "texture coordinate transforms",
@@ -168,7 +167,7 @@ def _buffers(gltf: dict[str, Any], chunks: list[bytes], source: str, resolve: Re
         if "uri" in buf:
             out.append(_uri_bytes(buf["uri"], resolve, source))
         elif buf.get("extensions", {}).get("EXT_meshopt_compression", {}).get("fallback"):
-            out.append(b"")  # read only through EXT_meshopt_compression (refused if a view uses it)
+            out.append(b"")  # read only through EXT_meshopt_compression
         else:
             out.append(chunks[0] if i == 0 and chunks else b"")
     return out
@@ -177,13 +176,63 @@ def _buffers(gltf: dict[str, Any], chunks: list[bytes], source: str, resolve: Re
 def _view_bytes(gltf: dict[str, Any], buffers: list[bytes], index: int, source: str) -> bytes:
     bv = gltf["bufferViews"][index]
     if "EXT_meshopt_compression" in bv.get("extensions", {}):
-        raise InputError("glTF buffer view needs EXT_meshopt_compression (meshopt-compressed buffers), "
-                         "which citylod does not decode", source)
+        cache = gltf.setdefault("_meshopt_views", {})  # views shared by interleaved accessors decode once
+        if index not in cache:
+            cache[index] = _meshopt_view(bv["extensions"]["EXT_meshopt_compression"], buffers, index, source)
+        return cache[index]
     data = buffers[int(bv.get("buffer", 0))]
     start, n = int(bv.get("byteOffset", 0)), int(bv["byteLength"])
     if start + n > len(data):
         raise InputError(f"buffer view {index} reaches past the end of its buffer", source)
     return data[start: start + n]
+
+
+_MESHOPT_FILTERS = {"NONE", "OCTAHEDRAL", "QUATERNION", "EXPONENTIAL"}
+
+
+def _meshopt_view(ext: dict[str, Any], buffers: list[bytes], index: int, source: str) -> bytes:
+    """A buffer view compressed by ``EXT_meshopt_compression``, decoded by meshoptimizer's own decoders.
+
+    The extension's bitstreams (vertex codec, index codec, filters) are meshoptimizer's, and so is the decoder
+    here: its C++ library through the binding its repository publishes. The decoders check every read
+    against the input's end, so a damaged stream is an error code, never a read past the buffer.
+    """
+    import meshoptimizer as mo
+
+    try:
+        data = buffers[int(ext.get("buffer", 0))]
+        start, n = int(ext.get("byteOffset", 0)), int(ext["byteLength"])
+        count, stride = int(ext["count"]), int(ext["byteStride"])
+        mode, filt = str(ext["mode"]), str(ext.get("filter", "NONE"))
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise InputError(f"buffer view {index}: EXT_meshopt_compression is incomplete ({exc!r})", source) from exc
+    if start < 0 or n < 0 or start + n > len(data):
+        raise InputError(f"buffer view {index}: its meshopt stream reaches past the end of its buffer", source)
+    if filt not in _MESHOPT_FILTERS or (filt != "NONE" and mode != "ATTRIBUTES"):
+        raise InputError(f"buffer view {index}: meshopt filter {filt!r} with mode {mode!r} is not part of "
+                         "EXT_meshopt_compression", source)
+    stream = np.frombuffer(data, np.uint8, count=n, offset=start)
+    try:
+        if mode == "ATTRIBUTES":
+            out = mo.decode_vertex_buffer(count, stride, stream).view(np.uint8).reshape(-1)
+            if filt == "OCTAHEDRAL":
+                out = mo.decode_filter_oct(out, count, stride)
+            elif filt == "QUATERNION":
+                out = mo.decode_filter_quat(out, count, stride)
+            elif filt == "EXPONENTIAL":
+                out = mo.decode_filter_exp(out, count, stride)
+        elif mode in ("TRIANGLES", "INDICES"):
+            if stride not in (2, 4):
+                raise ValueError(f"index byteStride {stride} is not 2 or 4")
+            # Decoded as 4-byte indices: the stream does not depend on the index size, and the binding returns
+            # a uint32 array whatever size it is asked to write.
+            decode = mo.decode_index_buffer if mode == "TRIANGLES" else mo.decode_index_sequence
+            out = decode(count, 4, stream).astype(np.uint16 if stride == 2 else np.uint32)
+        else:
+            raise ValueError(f"mode {mode!r} is not ATTRIBUTES, TRIANGLES or INDICES")
+    except (ValueError, RuntimeError) as exc:
+        raise InputError(f"buffer view {index}: meshopt stream cannot be decoded ({exc})", source) from exc
+    return out.tobytes()
 
 
 def _normalize(arr: np.ndarray) -> np.ndarray:
