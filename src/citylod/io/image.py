@@ -18,7 +18,8 @@ from citylod.core.errors import InputError
 
 
 def encode_image(pixels: npt.NDArray[np.uint8], fmt: str = "jpg", quality: int = 88) -> bytes:
-    """Encode (H, W, 1|3|4) uint8 pixels, row 0 at the top, as JPEG (``fmt="jpg"``) or PNG (``fmt="png"``)."""
+    """Encode (H, W, 1|3|4) uint8 pixels, row 0 at the top, as JPEG (``fmt="jpg"``), PNG (``fmt="png"``) or
+    WebP (``fmt="webp"``, lossless)."""
     if fmt == "png":
         return encode_png(pixels)
     import OpenImageIO as oiio
@@ -30,6 +31,8 @@ def encode_image(pixels: npt.NDArray[np.uint8], fmt: str = "jpg", quality: int =
     spec = oiio.ImageSpec(w, h, c, "uint8")
     if fmt == "jpg":
         spec.attribute("Compression", f"jpeg:{quality}")
+    elif fmt == "webp":
+        spec.attribute("Compression", "lossless")
     buf = oiio.ImageBuf(spec)
     buf.set_pixels(oiio.ROI(), arr)
     fd, tmp = tempfile.mkstemp(suffix="." + fmt)
@@ -44,10 +47,11 @@ def encode_image(pixels: npt.NDArray[np.uint8], fmt: str = "jpg", quality: int =
 
 
 def decode_image(data: bytes, source: str = "") -> npt.NDArray[np.uint8]:
-    """Decode JPEG/PNG bytes to (H, W, C) uint8."""
+    """Decode JPEG, PNG or WebP bytes to (H, W, C) uint8, row 0 at the top."""
     import OpenImageIO as oiio
 
-    suffix = ".png" if data[:8] == b"\x89PNG\r\n\x1a\n" else ".jpg"
+    suffix = (".png" if data[:8] == b"\x89PNG\r\n\x1a\n" else
+              ".webp" if data[:4] == b"RIFF" and data[8:12] == b"WEBP" else ".jpg")
     fd, tmp = tempfile.mkstemp(suffix=suffix)
     try:
         with os.fdopen(fd, "wb") as f:

@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from citylod.core.errors import InputError
+from citylod.io import image as image_io
 from citylod.io.tiles3d import PointData
 from citylod.render import _vtk, flat_colors, mesh_order
 
@@ -82,19 +83,24 @@ class PreparedTile:
 
 
 def decode_image(data: bytes, source: str = "") -> npt.NDArray[np.uint8]:
-    """Decode JPEG or PNG bytes into (H, W, C) uint8 with rows bottom-up (VTK's image order).
+    """Decode JPEG, PNG or WebP bytes into (H, W, C) uint8 with rows bottom-up (VTK's image order).
+
+    JPEG and PNG go through VTK's readers straight from memory; WebP (``EXT_texture_webp``), which VTK does
+    not read, through OpenImageIO.
 
     Raises
     ------
     InputError
-        If the bytes are neither format or the decoder fails.
+        If the bytes are none of these formats or the decoder fails.
     """
     if data[:8] == b"\x89PNG\r\n\x1a\n":
         reader: Any = _vtk.vtkPNGReader()
     elif data[:3] == b"\xff\xd8\xff":
         reader = _vtk.vtkJPEGReader()
+    elif data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        return np.ascontiguousarray(image_io.decode_image(bytes(data), source)[::-1])
     else:
-        raise InputError("tile texture is neither JPEG nor PNG", source)
+        raise InputError("tile texture is neither JPEG, PNG nor WebP", source)
     stream = _vtk.vtkMemoryResourceStream()
     stream.SetBuffer(bytes(data), len(data), True)  # copy: the stream must not outlive a Python buffer
     reader.SetStream(stream)

@@ -5,8 +5,9 @@ Produces :class:`~citylod.io.tiles3d.content.TileContent` with z-up positions re
 are applied; vertex colours (linear in glTF) and material base colours come back as sRGB bytes
 (:mod:`.colour`). ``KHR_draco_mesh_compression`` is decoded with DracoPy (Google's Draco decoder),
 ``KHR_mesh_quantization`` by the accessors' own normalisation, ``EXT_meshopt_compression`` by meshoptimizer's
-decoders. A required extension citylod cannot honour (``KHR_texture_basisu``, ...) is one
-:class:`~citylod.core.errors.InputError` naming it, never geometry read wrong.
+decoders, ``EXT_texture_webp`` by OpenImageIO, ``KHR_texture_transform`` on the UVs; KTX2 textures
+(``KHR_texture_basisu``) have no decoder here and are drawn in the material's colour, with a warning. Any
+other required extension is one :class:`~citylod.core.errors.InputError` naming it, never geometry read wrong.
 
 glTF 1.0 (3D Tiles 1.0 b3dm) is read by lifting its document to the 2.0 layout first, the way CesiumJS and
 gltf-pipeline's ``updateVersion`` do (id-keyed objects become arrays, ``KHR_binary_glTF`` becomes buffer 0,
@@ -19,8 +20,10 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import struct
 import urllib.parse
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -45,12 +48,8 @@ _HONOURED = {
     "KHR_draco_mesh_compression", "KHR_mesh_quantization", "EXT_mesh_gpu_instancing", "CESIUM_RTC",
     "KHR_materials_unlit", "KHR_materials_pbrSpecularGlossiness", "KHR_materials_emissive_strength",
     "EXT_mesh_features", "EXT_structural_metadata", "EXT_instance_features", "CESIUM_primitive_outline",
-    "KHR_binary_glTF", "KHR_techniques_webgl", "EXT_meshopt_compression",
-}
-_WHY = {
-    "KHR_texture_basisu": "KTX2/Basis Universal textures",
-    "EXT_texture_webp": "WebP textures",
-    "KHR_texture_transform": "texture coordinate transforms",
+    "KHR_binary_glTF", "KHR_techniques_webgl", "EXT_meshopt_compression", "EXT_texture_webp",
+    "KHR_texture_transform", "KHR_texture_basisu",  # the last drawn in the material's colour, with a warning
 }
 
 
@@ -107,8 +106,7 @@ def decode_gltf(gltf: dict[str, Any], chunks: list[bytes], source: str, *, rtc_c
     """Decode a parsed glTF 2.0 document; ``chunks`` holds a glb's binary chunk (buffer 0 without a URI)."""
     missing = sorted(set(gltf.get("extensionsRequired", [])) - _HONOURED)
     if missing:
-        why = "; ".join(f"{m} ({_WHY[m]})" if m in _WHY else m for m in missing)
-        raise InputError(f"glTF content needs extensions citylod does not decode: {why}", source)
+        raise InputError(f"glTF content needs extensions citylod does not decode: {'; '.join(missing)}", source)
     try:
         buffers = _buffers(gltf, chunks, source, resolve)
         if rtc_center is None and "CESIUM_RTC" in gltf.get("extensions", {}):
@@ -433,11 +431,13 @@ def _decode_group(gltf: dict[str, Any], buffers: list[bytes], group: list[dict[s
             tri = tri[:, ::-1]
         faces_list.append(np.ascontiguousarray(tri))
         skirt_list.append(np.full(len(tri), bool(prim.get("extras", {}).get("citylod_skirt", False))))
-    uv = texture = None
-    if "TEXCOORD_0" in names:
-        texture = _material_texture(gltf, first, images)
-        if texture is not None:
-            uv = repeat(np.asarray(attribute("TEXCOORD_0"), np.float32))
+    uv = None
+    texture, tex_info = _material_texture(gltf, first, images)
+    coords = f"TEXCOORD_{_texcoord_set(tex_info)}"
+    if texture is not None and coords in names:
+        uv = repeat(_texture_transform(np.asarray(attribute(coords), np.float32), tex_info))
+    else:
+        texture = None
     if colors is None and texture is None:
         rgb = _material_rgb(gltf, first, len(pos32))
         if rgb is not None:
@@ -532,19 +532,62 @@ def _images(gltf: dict[str, Any], buffers: list[bytes], resolve: Resolver | None
     return out
 
 
-def _material_texture(gltf: dict[str, Any], prim: dict[str, Any], images: list[bytes | None]) -> bytes | None:
+def _material_texture(gltf: dict[str, Any], prim: dict[str, Any], images: list[bytes | None]
+                      ) -> tuple[bytes | None, dict[str, Any]]:
+    """The base colour texture's image bytes (None when there is none or it cannot be decoded) and its
+    ``textureInfo`` (``texCoord``, ``KHR_texture_transform``).
+
+    The image is the texture's ``source``, else its ``EXT_texture_webp`` source (OpenImageIO reads WebP). A
+    texture only in ``KHR_texture_basisu`` (KTX2) has no decoder here: the mesh is drawn in its material's
+    colour, with one warning.
+    """
     try:
         mat = gltf["materials"][prim["material"]]
     except (KeyError, IndexError, TypeError):
-        return None
-    index = mat.get("pbrMetallicRoughness", {}).get("baseColorTexture", {}).get("index")
+        return None, {}
+    info = mat.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})
+    index = info.get("index") if isinstance(info, dict) else None
     if index is None:  # KHR_techniques_webgl (glTF 1.0 shaders carried into 2.0): its first texture value
         values = mat.get("extensions", {}).get("KHR_techniques_webgl", {}).get("values", {})
-        index = next((v["index"] for v in values.values() if isinstance(v, dict) and "index" in v), None)
+        info = next((v for v in values.values() if isinstance(v, dict) and "index" in v), {})
+        index = info.get("index")
     try:
-        return None if index is None else images[gltf["textures"][index]["source"]]
-    except (KeyError, IndexError, TypeError):
-        return None
+        tex = gltf["textures"][index] if index is not None else {}
+        ext = tex.get("extensions", {})
+        src = tex.get("source", ext.get("EXT_texture_webp", {}).get("source"))
+        if src is None and "KHR_texture_basisu" in ext:
+            warnings.warn("KTX2 (Basis Universal) textures cannot be decoded here; their meshes are drawn in their "
+                          "material's colour", stacklevel=2)  # one message, so shown once however many tiles
+        return (None if src is None else images[src]), info
+    except (KeyError, IndexError, TypeError, AttributeError):
+        return None, {}
+
+
+def _texcoord_set(info: dict[str, Any]) -> int:
+    """Which TEXCOORD_n a texture reads: ``KHR_texture_transform.texCoord`` overrides ``texCoord``."""
+    t = info.get("extensions", {}).get("KHR_texture_transform", {}) if isinstance(info, dict) else {}
+    try:
+        return int(t.get("texCoord", info.get("texCoord", 0)))
+    except (TypeError, ValueError):
+        return 0
+
+
+def _texture_transform(uv: np.ndarray, info: dict[str, Any]) -> np.ndarray:
+    """UVs mapped by ``KHR_texture_transform``: uv' = offset + R(r) · S(scale) · uv with u' = u cos r + v sin r and
+    v' = v cos r − u sin r, the extension's counter-clockwise turn as CesiumJS, cesium-native and three.js apply it
+    (v grows downwards in glTF's UV space)."""
+    t = info.get("extensions", {}).get("KHR_texture_transform") if isinstance(info, dict) else None
+    if not t:
+        return uv
+    try:
+        ox, oy = (float(v) for v in t.get("offset", (0.0, 0.0)))
+        sx, sy = (float(v) for v in t.get("scale", (1.0, 1.0)))
+        r = float(t.get("rotation", 0.0))
+    except (TypeError, ValueError):
+        return uv
+    c, s = math.cos(r), math.sin(r)
+    u, v = uv[:, 0].astype(np.float64) * sx, uv[:, 1].astype(np.float64) * sy
+    return np.stack([c * u + s * v + ox, -s * u + c * v + oy], axis=1).astype(np.float32)
 
 
 def _concat_points(parts: list[PointData]) -> PointData:
