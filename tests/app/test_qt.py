@@ -443,3 +443,61 @@ def test_cli_view_screenshot_exit(sample, tmp_path) -> None:
     assert img.shape[0] > 300 and img.shape[1] > 400
     centre = img[img.shape[0] // 3: 2 * img.shape[0] // 3, img.shape[1] // 3: 2 * img.shape[1] // 3]
     assert centre.reshape(-1, 3).std(axis=0).max() > 15 and centre.mean() > 40
+
+
+@needs_display
+def test_open_url_from_the_file_menu(qtbot, window) -> None:
+    """File → Open tileset URL…, typed into the dialog: the tileset a local web server serves opens as a layer."""
+    import http.server
+    import threading
+
+    from PySide6.QtCore import Qt, QTimer
+    from PySide6.QtWidgets import QApplication, QLineEdit
+
+    data = Path(__file__).resolve().parents[1] / "data" / "3dtiles" / "meshopt"
+
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def __init__(self, *a, **k):  # type: ignore[no-untyped-def]
+            super().__init__(*a, directory=str(data), **k)
+
+        def log_message(self, *a) -> None:  # type: ignore[no-untyped-def]
+            pass
+
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Quiet)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    url = f"http://127.0.0.1:{httpd.server_address[1]}/dsm_tileset/tileset.json"
+    typed = []
+
+    def answer() -> None:
+        dialog = QApplication.activeModalWidget()
+        if dialog is None:
+            QTimer.singleShot(50, answer)
+            return
+        edit = dialog.findChild(QLineEdit)
+        edit.selectAll()
+        qtbot.keyClicks(edit, url)
+        typed.append(edit.text())
+        qtbot.keyClick(edit, Qt.Key.Key_Return)
+
+    try:
+        menu = next(m for m in window.menuBar().findChildren(type(window.recent_menu)) if m.title() == "&File")
+        QTimer.singleShot(50, answer)
+        bar = window.menuBar()
+        qtbot.mouseClick(bar, Qt.MouseButton.LeftButton, pos=bar.actionGeometry(menu.menuAction()).center())
+        qtbot.waitUntil(menu.isVisible, timeout=3000)
+        action = window.actions["open_url"]
+        qtbot.mouseClick(menu, Qt.MouseButton.LeftButton, pos=menu.actionGeometry(action).center())
+        qtbot.waitUntil(lambda: bool(window.document.entries), timeout=10000)
+        _wait_resolved(qtbot, window)  # the tiles come over HTTP on the loader's threads
+    finally:
+        httpd.shutdown()
+    assert window.document.scene.last_stats.tiles > 0 and window.document.scene.last_stats.triangles > 500
+    rgb = _rgb(window.grab_window())
+    pos, size = window.view.origin_in(window), window.view.vtk.size()
+    view = rgb[pos.y(): pos.y() + size.height(), pos.x(): pos.x() + size.width()].astype(int)
+    background = np.array([0.72, 0.80, 0.90]) * 255
+    assert (np.abs(view - background).sum(axis=2) > 40).mean() > 0.05  # the tiles are drawn
+    assert typed == [url]
+    entry = window.document.entries[0]
+    assert entry.kind == "tileset" and entry.name == "dsm_tileset"
+    assert url in window.recent_files()

@@ -35,7 +35,7 @@ import numpy.typing as npt
 
 from citylod.core.camera import Camera, enu_axes, framing_camera, local_up, overview_camera
 from citylod.core.errors import CitylodError, InputError
-from citylod.io.tiles3d.package import PACKAGE_SUFFIXES
+from citylod.io.tiles3d.package import PACKAGE_SUFFIXES, is_url
 
 __all__ = [
     "ASPRS_CLASSES",
@@ -343,6 +343,8 @@ _CITY = {".gml", ".xml", ".citygml", ".cityjson"}
 def source_kind(path: str | os.PathLike[str]) -> str | None:
     """What a path is, by suffix or folder content (constant time, no reading): ``tileset``, ``store``,
     ``raster``, ``points``, ``citymodel``, or None."""
+    if is_url(path):
+        return "tileset"
     p = Path(path)
     suf = p.suffix.lower()
     if p.is_dir():

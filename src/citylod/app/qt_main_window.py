@@ -17,6 +17,7 @@ from typing import Any
 from PySide6.QtCore import QByteArray, QRect, QSettings, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QGuiApplication, QImage, QKeySequence, QPainter
 from PySide6.QtWidgets import (
+    QApplication,
     QDialog,
     QDialogButtonBox,
     QDockWidget,
@@ -60,6 +61,7 @@ from citylod.app.qt_tools import ClipPanel, PointPanel
 from citylod.app.qt_view import SceneView
 from citylod.core.errors import CitylodError
 from citylod.core.gc_policy import GcPolicy
+from citylod.io.tiles3d.package import is_url, unfold_url
 
 __all__ = ["MainWindow", "settings"]
 
@@ -188,6 +190,7 @@ class MainWindow(QMainWindow):
         f = mb.addMenu("&File")
         self._action("open", "&Open…", self.open_dialog, "Ctrl+O", f)
         self._action("open_folder", "Open tileset &folder…", self.open_folder_dialog, None, f)
+        self._action("open_url", "Open tileset &URL…", self.open_url_dialog, None, f)
         self.recent_menu = f.addMenu("Open &recent")
         self._refresh_recent()
         f.addSeparator()
@@ -397,7 +400,8 @@ class MainWindow(QMainWindow):
 
     @profiled("MainWindow.open_path")
     def open_path(self, path: str | os.PathLike[str]) -> bool:
-        """Open a source; raw inputs start a build whose result opens when done. False on an error."""
+        """Open a source (a file, folder or tileset URL); raw inputs start a build whose result opens when done.
+        False on an error."""
         p = Path(path)
         if p.suffix == ".citylod":
             return self.open_project(p) is not None
@@ -485,12 +489,31 @@ class MainWindow(QMainWindow):
         if folder:
             self.open_path(folder)
 
+    def open_url_dialog(self) -> None:
+        """A tileset on a web server: the URL of its tileset JSON (tiles are fetched as views need them)."""
+        from PySide6.QtWidgets import QInputDialog
+
+        url, ok = QInputDialog.getText(self, "Open tileset URL", "URL of a 3D Tiles tileset JSON (http or https):",
+                                       text=str(self.settings.value("last_url", "https://")))
+        url = url.strip()
+        if not ok or not url:
+            return
+        if not is_url(url):
+            self._error(f"{url}: not an http(s) URL")
+            return
+        self.settings.setValue("last_url", url)
+        QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)  # the tileset JSON is fetched on this thread
+        try:
+            self.open_path(url)
+        finally:
+            QApplication.restoreOverrideCursor()
+
     def recent_files(self) -> list[str]:
         val = self.settings.value("recent", [])
         return [str(v) for v in (val if isinstance(val, list) else [val]) if v]
 
     def _add_recent(self, path: Path) -> None:
-        p = str(path.resolve())
+        p = unfold_url(str(path)) if is_url(path) else str(path.resolve())
         items = [p] + [r for r in self.recent_files() if r != p]
         self.settings.setValue("recent", items[:_MAX_RECENT])
         self._refresh_recent()
@@ -632,3 +655,4 @@ class MainWindow(QMainWindow):
 
     def copy_text(self, text: str) -> None:
         QGuiApplication.clipboard().setText(text)
+

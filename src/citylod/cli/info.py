@@ -8,12 +8,14 @@ from collections import Counter
 from pathlib import Path
 
 from citylod.core.errors import InputError
-from citylod.io.tiles3d.package import is_tileset_path
+from citylod.io.tiles3d.package import is_tileset_path, is_url
 
 
 def describe(source: str | os.PathLike[str]) -> str:
     """A human-readable summary of ``source``; InputError when it is not something citylod reads."""
     p = Path(source)
+    if is_url(source):
+        return _describe_tileset(p)
     if not p.exists():
         raise InputError("not found", p)
     suffix = p.suffix.lower()
@@ -44,10 +46,11 @@ def _describe_tileset(p: Path) -> str:
         nbytes += t.content_bytes
     lo, hi = ts.bounds
     lines = [
-        f"{ts.path}: 3D Tiles {ts.doc.get('asset', {}).get('version', '?')}, kind {ts.kind}",
+        f"{ts.source}: 3D Tiles {ts.doc.get('asset', {}).get('version', '?')}, kind {ts.kind}",
         f"  crs      {ts.crs.name}" + (f" (EPSG:{ts.crs.to_epsg()})" if ts.crs.to_epsg() else ""),
         f"  bounds   x {lo[0]:.2f} … {hi[0]:.2f}, y {lo[1]:.2f} … {hi[1]:.2f}, z {lo[2]:.2f} … {hi[2]:.2f}",
-        f"  tiles    {tiles} on {len(levels)} levels, {nbytes / 1e6:.1f} MB content",
+        f"  tiles    {tiles} on {len(levels)} levels, "
+        + ("content on a web server" if is_url(ts.source) else f"{nbytes / 1e6:.1f} MB content"),
     ]
     if ts.kind == "slf":  # a far field (citylod build slf): its light fields beside the average textures
         meta = ts.citylod

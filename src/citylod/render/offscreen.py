@@ -27,7 +27,7 @@ import numpy.typing as npt
 from citylod.core.camera import Camera, built_in_camera, cameras_for, load_cameras, local_up
 from citylod.core.errors import CitylodError, InputError
 from citylod.core.fileio import atomic_write, atomic_write_bytes
-from citylod.io.tiles3d.package import is_tileset_path
+from citylod.io.tiles3d.package import is_tileset_path, is_url
 from citylod.render import _vtk
 from citylod.render.depth import zbuffer_to_distance
 from citylod.render.gl_context import guard
@@ -56,7 +56,7 @@ def _tileset_sources(sources: Sequence[str | os.PathLike[str]]) -> tuple[list[Pa
         if p.suffix.lower() == ".gpkg":
             cities.append(p)
         elif is_tileset_path(p):
-            if not p.exists():
+            if not p.exists() and not is_url(s):
                 raise InputError("no such tileset", p)
             tilesets.append(p)
         elif not p.exists():

@@ -36,9 +36,25 @@ _ZIP_MAGIC = b"PK\x03\x04"
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
+def is_url(source: object) -> bool:
+    """Whether ``source`` is an http(s) URL, also after ``pathlib.Path`` folded its ``//`` into ``/``."""
+    return str(source).startswith(("http://", "https://", "http:/", "https:/"))
+
+
+def unfold_url(source: object) -> str:
+    """A URL as typed, after ``pathlib.Path`` folded its ``//`` (``https:/host`` → ``https://host``)."""
+    s = str(source)
+    for scheme in ("http:", "https:"):
+        if s.startswith(scheme + "/") and not s.startswith(scheme + "//"):
+            return scheme + "/" + s[len(scheme):]
+    return s
+
+
 def is_tileset_path(path: str | os.PathLike[str]) -> bool:
-    """Whether ``path`` names a tileset by its form: a folder, a ``.json`` file or a ``.3tz`` / ``.3dtiles``
-    package (existence is the reader's to check)."""
+    """Whether ``path`` names a tileset by its form: a folder, a ``.json`` file, a ``.3tz`` / ``.3dtiles``
+    package or an http(s) URL (existence is the reader's to check)."""
+    if is_url(path):
+        return True
     p = Path(path)
     return p.is_dir() or p.suffix.lower() in (".json", *PACKAGE_SUFFIXES)
 

@@ -9,8 +9,8 @@ source CRS.
 What citylod reads: any 3D Tiles 1.x tileset — glb, glTF, b3dm, i3dm, cmpt and pnts content (gzip or not),
 several contents per tile, implicit tiling (:mod:`.implicit`), box / region / sphere bounding volumes, tile
 transforms, external tilesets, gzip-compressed tileset JSON, and all of it inside a ``.3tz`` or ``.3dtiles`` package
-(:mod:`.package`), read in place. URIs that leave the tileset's folder or package (``../``, absolute paths, URLs) are
-refused with :class:`~citylod.core.errors.UnsafePathError`.
+(:mod:`.package`), read in place, or on a web server (:mod:`.remote`). URIs that leave the tileset's folder, package
+or server folder (``../``, absolute paths, URLs) are refused with :class:`~citylod.core.errors.UnsafePathError`.
 
 No VTK and no Qt here.
 """
@@ -42,6 +42,7 @@ from citylod.io.tiles3d.content import TileContent, glb_buffer
 from citylod.io.tiles3d.implicit import expand_implicit
 from citylod.io.tiles3d.legacy import decode_content
 from citylod.io.tiles3d.package import Package, package_kind
+from citylod.io.tiles3d.remote import Remote, is_url
 
 
 # --------------------------------------------------------------------------------------- atomic writing
@@ -332,11 +333,14 @@ class Tileset:
     to itself, directly or through others, is refused.
     """
 
-    def __init__(self, path: Path, doc: dict[str, Any], package: Package | None = None) -> None:
+    def __init__(self, path: Path, doc: dict[str, Any], store: Package | Remote | None = None) -> None:
         self.path = path
         self.folder = path.parent
-        # A .3tz / .3dtiles file read in place: ``folder`` is the package's path, the files' paths lie below it.
-        self.package = package
+        # A .3tz / .3dtiles file read in place, or a folder on a web server: ``folder`` stands for it (the package's
+        # path, or a stand-in path for the server's folder) and the files' paths lie below it. None: files.
+        self.store = store
+        #: Where the tileset came from, as the user named it (a path, or the URL of a remote tileset).
+        self.source = store.url if isinstance(store, Remote) else str(path)
         self.doc = doc
         self.extras: dict[str, Any] = doc.get("extras", {}) or {}
         cl = self.extras.get("citylod", {}) if isinstance(self.extras, dict) else {}
@@ -443,8 +447,8 @@ class Tileset:
 
     def read_file(self, path: Path, what: str = "file", source: str | None = None) -> bytes:
         """The bytes of a file of this tileset (``path`` from :func:`safe_resolve`), in its folder or package."""
-        if self.package is not None:
-            return self.package.read(path.relative_to(self.folder).as_posix())
+        if self.store is not None:
+            return self.store.read(path.relative_to(self.folder).as_posix())
         try:
             return path.read_bytes()
         except OSError as exc:
@@ -452,8 +456,8 @@ class Tileset:
 
     def file_size(self, path: Path) -> int:
         """A file's size in bytes, 0 when it cannot be found."""
-        if self.package is not None:
-            return self.package.size(path.relative_to(self.folder).as_posix())
+        if self.store is not None:
+            return self.store.size(path.relative_to(self.folder).as_posix())
         try:
             return path.stat().st_size
         except OSError:
@@ -553,8 +557,8 @@ def _bounding_box(bv: dict[str, Any], source: str, key: str) -> Box:
 
 
 def open_tileset(path: str | os.PathLike[str]) -> Tileset:
-    """Open a 3D Tiles 1.x tileset: a ``tileset.json``, the folder holding one, or a ``.3tz`` / ``.3dtiles``
-    package (read in place, tile by tile).
+    """Open a 3D Tiles 1.x tileset: a ``tileset.json``, the folder holding one, a ``.3tz`` / ``.3dtiles``
+    package (read in place, tile by tile) or an http(s) URL of a tileset JSON (:mod:`.remote`).
 
     Only the tileset document (and external tilesets it names) is read; tile content loads on demand
     (:meth:`Tile.load`). Coordinates come out in :attr:`Tileset.crs`: the source CRS for tilesets citylod
@@ -570,17 +574,22 @@ def open_tileset(path: str | os.PathLike[str]) -> Tileset:
     >>> mesh.vertices.shape[1], mesh.faces.shape[1]                           # doctest: +SKIP
     (3, 3)
     """
-    p = Path(path)
-    package = None
-    kind = package_kind(p)
-    if kind is not None:
-        package = Package(p.resolve(), kind)
-        p = package.path / "tileset.json"
-    elif p.is_dir():
-        p = p / "tileset.json"
-    doc = _read_json(p, None if package is None else lambda q: package.read(q.name))
+    store: Package | Remote | None = None
+    if is_url(path):
+        store = Remote(str(path))
+        p = store.root / store.entry
+    else:
+        p = Path(path)
+        kind = package_kind(p)
+        if kind is not None:
+            store = Package(p.resolve(), kind)
+            p = store.path / "tileset.json"
+        elif p.is_dir():
+            p = p / "tileset.json"
+    read = None if store is None else (lambda q: store.read(q.name))  # type: ignore[union-attr]
+    doc = _read_json(p, read)
     try:
-        return Tileset(p if package is not None else p.resolve(), doc, package)
+        return Tileset(p if store is not None else p.resolve(), doc, store)
     except (KeyError, TypeError, AttributeError, ValueError, OverflowError, IndexError) as exc:
         # Any shape the schema does not allow (a string where a number belongs, a list for an object).
         raise InputError(f"tileset structure is invalid ({type(exc).__name__}: {str(exc)[:200]})", p) from exc

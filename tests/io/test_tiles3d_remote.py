@@ -1,0 +1,146 @@
+"""Tilesets over HTTP: a local web server (Python's http.server) serves tests/data/3dtiles, and what citylod reads
+from the URL equals what it reads from the folder; servers that fail, stall, redirect away or send too much are
+one line naming the URL."""
+
+from __future__ import annotations
+
+import http.server
+import json
+import threading
+import time
+import urllib.parse
+from collections.abc import Iterator
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from citylod.core.errors import InputError, UnsafePathError
+from citylod.io.tiles3d import open_tileset
+from citylod.io.tiles3d import remote as remote_mod
+from tests.cli_harness import run_cli
+from tests.paths import ROOT
+
+DATA = ROOT / "tests" / "data" / "3dtiles"
+TILESETS = sorted(p.parent.relative_to(DATA).as_posix() for p in DATA.rglob("tileset.json"))
+
+
+class _Handler(http.server.SimpleHTTPRequestHandler):
+    log: ClassVar[list[str]] = []
+
+    def __init__(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        super().__init__(*args, directory=str(DATA), **kwargs)
+
+    def log_message(self, *args) -> None:  # type: ignore[no-untyped-def]
+        pass
+
+    def do_GET(self) -> None:
+        _Handler.log.append(self.path)
+        path = urllib.parse.urlsplit(self.path).path
+        if path.startswith("/redirect/"):
+            self.send_response(302)
+            self.send_header("Location", "http://example.invalid/elsewhere/tileset.json")
+            self.end_headers()
+        elif path.startswith("/stall/"):
+            time.sleep(3)
+            self.send_error(500)
+        elif path.startswith("/crafted/"):
+            uri = ("../Batched/BatchedColors/batchedColors.b3dm" if path.endswith("tileset.json")
+                   else "http://example.invalid/x.b3dm")
+            body = json.dumps({"asset": {"version": "1.1"}, "geometricError": 1, "root": {
+                "boundingVolume": {"box": [0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1]}, "geometricError": 0,
+                "content": {"uri": uri}}}).encode()
+            self.send_response(200)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+        elif path.startswith("/huge/"):
+            self.send_response(200)
+            self.send_header("Content-Length", str(remote_mod.MAX_ENTRY_BYTES + 1))
+            self.end_headers()
+        else:
+            super().do_GET()
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[str]:
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _Handler)
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}"
+    httpd.shutdown()
+
+
+def _geometry(ts) -> list[tuple[str, np.ndarray]]:  # type: ignore[no-untyped-def]
+    out = []
+    for t in ts.walk():
+        m = t.load()
+        out.append((t.key, np.concatenate([m.vertices.ravel(), m.points.ravel() if m.points is not None else []])))
+    return out
+
+
+@pytest.mark.parametrize("name", TILESETS)
+def test_tileset_over_http_reads_as_from_the_folder(server: str, name: str) -> None:
+    url = open_tileset(f"{server}/{urllib.parse.quote(name)}/tileset.json")
+    local = open_tileset(DATA / name)
+    got, want = _geometry(url), _geometry(local)
+    assert [k for k, _ in got] == [k for k, _ in want]
+    assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(got, want, strict=True))
+    assert url.source.startswith("http://") and str(url.crs) == str(local.crs)
+
+
+def test_the_query_string_goes_with_every_request(server: str) -> None:
+    _Handler.log.clear()
+    ts = open_tileset(f"{server}/implicit/QuadtreeSubtrees/tileset.json?token=abc")
+    _geometry(ts)
+    assert len(_Handler.log) > 5  # the tileset, subtrees and contents
+    assert all(p.endswith("?token=abc") for p in _Handler.log)
+
+
+def test_a_path_folded_by_pathlib_still_opens(server: str) -> None:
+    """``Path("http://h/x")`` is ``http:/h/x``: sources that went through Path (the app, argparse) still open."""
+    ts = open_tileset(Path(f"{server}/Batched/BatchedColors/tileset.json"))
+    assert ts.source == f"{server}/Batched/BatchedColors/tileset.json"
+    # and a URL with ".." in its path names the folder the server reads it as
+    ts = open_tileset(f"{server}/packages/../meshopt/dsm_tileset/tileset.json")
+    assert len(ts.root.load().faces) > 500
+
+
+def test_servers_that_fail_are_one_line(server: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(InputError, match="HTTP 404"):
+        open_tileset(f"{server}/nowhere/tileset.json")
+    with pytest.raises(InputError, match="outside the tileset's folder"):
+        open_tileset(f"{server}/redirect/tileset.json")
+    with pytest.raises(InputError, match="refused"):
+        open_tileset(f"{server}/huge/tileset.json")
+    monkeypatch.setattr(remote_mod, "TIMEOUT_S", 0.5)
+    t0 = time.perf_counter()
+    with pytest.raises(InputError, match="no answer within 0.5 s"):
+        open_tileset(f"{server}/stall/tileset.json")
+    assert time.perf_counter() - t0 < 2.5
+    with pytest.raises(InputError, match="cannot reach the server"):
+        open_tileset("http://127.0.0.1:9/tileset.json")  # the discard port: nothing listens
+
+    r = run_cli(["render", f"{server}/nowhere/tileset.json", "-o", tmp_path / "x.png", "--size", "64x48"])
+    assert r.returncode == 2 and "HTTP 404" in r.stderr and f"{server}/nowhere/tileset.json" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.png").exists()
+
+
+def test_content_cannot_leave_the_server_folder(server: str) -> None:
+    """A tileset whose content URI climbs out of its folder (to a file the server would give) is refused."""
+    with pytest.raises(UnsafePathError, match="outside"):
+        open_tileset(f"{server}/crafted/tileset.json")
+    with pytest.raises(UnsafePathError, match="URL"):
+        open_tileset(f"{server}/crafted/absolute.json")
+
+
+def test_render_over_http_draws_what_the_folder_draws(server: str) -> None:
+    import citylod
+    from citylod.render.offscreen import render_images
+
+    local = DATA / "meshopt" / "dsm_tileset"
+    cam = citylod.orbit_cameras(*open_tileset(local).bounds, n=1, aspect=200 / 150)[0]
+    (a, _), = render_images([f"{server}/meshopt/dsm_tileset/tileset.json"], [cam], size=(200, 150))
+    (b, _), = render_images([local], [cam], size=(200, 150))
+    assert (a != a[0, 0]).any(axis=-1).sum() > 2000 and np.array_equal(a, b)
