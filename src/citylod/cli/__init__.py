@@ -36,6 +36,7 @@ COMMANDS: dict[str, str] = {
     "demo": "demo",
     "build-kernels": "kernels",
     "flood": "flood",
+    "pack": "pack",
 }
 
 

@@ -4,9 +4,9 @@ Both hold a tileset folder in one file, as CesiumGS's 3d-tiles-tools write them 
 ``-o X.3dtiles``) and Cesium ion exports them:
 
 * **3TZ** is a ZIP archive (ZIP64 where large) whose entries are the folder's files under their relative
-  paths, ``tileset.json`` at the top; its last entry ``@3dtilesIndex1@`` is an index of path hashes to entry
-  offsets for readers over HTTP range requests. The ZIP's own central directory, read once by Python's
-  :mod:`zipfile`, finds every entry as well, so the index is not needed here.
+  paths, ``tileset.json`` at the top; its last entry ``@3dtilesIndex1@`` indexes the entries by the MD5 of
+  their paths, which :mod:`.archive3tz` reads, so an archive of a million tiles opens without parsing its
+  central directory. A ZIP without the index is read through :mod:`zipfile` instead.
 * **3DTILES** is an SQLite database with one table ``media(key TEXT PRIMARY KEY, content BLOB)``, a row per
   file (gzip-compressed content is unpacked by the content decoder, as for files).
 
@@ -28,9 +28,9 @@ from pathlib import Path
 from typing import Any
 
 from citylod.core.errors import InputError
+from citylod.io.tiles3d.archive3tz import MAX_ENTRY_BYTES, Index3tz, NeedsCentralDirectory
 
 PACKAGE_SUFFIXES = (".3tz", ".3dtiles")
-MAX_ENTRY_BYTES = 1 << 30  # 1 GiB: more than any tile or tileset JSON; a larger declared size is hostile
 
 _ZIP_MAGIC = b"PK\x03\x04"
 _SQLITE_MAGIC = b"SQLite format 3\x00"
@@ -90,6 +90,7 @@ class Package:
         self._pid = -1
         self._zip: zipfile.ZipFile | None = None
         self._entries: dict[str, zipfile.ZipInfo] = {}
+        self._index: Index3tz | None = None
         self._db: sqlite3.Connection | None = None
         self._open()
 
@@ -103,8 +104,14 @@ class Package:
         self._pid = os.getpid()
         try:
             if self.kind == "3tz":
-                self._zip = zipfile.ZipFile(self.path)
-                self._entries = {_norm(i.filename): i for i in self._zip.infolist() if not i.is_dir()}
+                # Through the archive's index when it has one (the format requires it); the ZIP's central
+                # directory, parsed whole by zipfile, only for archives without one or names it lacks.
+                if self._index is not None:
+                    self._index.close()
+                self._index = Index3tz.open(self.path)
+                self._zip = None
+                if self._index is None:
+                    self._central()
             else:
                 uri = "file:" + urllib.parse.quote(str(self.path.resolve())) + "?mode=ro&immutable=1"
                 self._db = sqlite3.connect(uri, uri=True, check_same_thread=False)
@@ -117,27 +124,36 @@ class Package:
             what = "3TZ (ZIP) archive" if self.kind == "3tz" else "3DTILES (SQLite) package"
             raise InputError(f"not a readable {what} ({str(exc)[:200]})", self.path) from exc
 
+    def _central(self) -> zipfile.ZipFile:
+        if self._zip is None:
+            self._zip = zipfile.ZipFile(self.path)
+            self._entries = {_norm(i.filename): i for i in self._zip.infolist() if not i.is_dir()}
+        return self._zip
+
     def _handles(self) -> None:
         if self._pid != os.getpid():  # a forked worker: a ZIP offset or SQLite handle must not be shared
             self._open()
-
-    def names(self) -> list[str]:
-        """Every entry's path inside the package."""
-        with self._lock:
-            self._handles()
-            if self._zip is not None:
-                return sorted(self._entries)
-            assert self._db is not None
-            return sorted(_norm(str(k)) for (k,) in self._db.execute("SELECT key FROM media"))
 
     def size(self, name: str) -> int:
         """The entry's size in bytes (uncompressed), 0 when absent."""
         name = _norm(name)
         with self._lock:
             self._handles()
-            if self._zip is not None:
-                info = self._entries.get(name)
-                return 0 if info is None else int(info.file_size)
+            if self.kind == "3tz":
+                try:
+                    size = None if self._index is None else self._index.size(name)
+                except NeedsCentralDirectory:
+                    size = None
+                if size is None and self._index is not None:
+                    return 0
+                if size is None:
+                    try:
+                        self._central()
+                    except (zipfile.BadZipFile, OSError, ValueError):
+                        return 0
+                    info = self._entries.get(name)
+                    size = 0 if info is None else int(info.file_size)
+                return size
             assert self._db is not None
             row = self._db.execute("SELECT length(content) FROM media WHERE key = ?", (name,)).fetchone()
             return 0 if row is None or row[0] is None else int(row[0])
@@ -149,7 +165,18 @@ class Package:
         with self._lock:
             self._handles()
             try:
-                if self._zip is not None:
+                if self.kind == "3tz":
+                    if self._index is not None:
+                        try:
+                            data = self._index.read(name)
+                        except NeedsCentralDirectory:
+                            data = None
+                        else:
+                            if data is None:  # the index lists every file of the archive
+                                raise InputError("no such entry in the package", source)
+                            return data
+                    self._central()
+                    assert self._zip is not None
                     info = self._entries.get(name)
                     if info is None:
                         raise InputError("no such entry in the package", source)
