@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,16 +78,18 @@ class _Node:
     so each layer selects over a proxy tree built once when the layer is added.
     """
 
-    __slots__ = ("box", "children", "content_bytes", "content_uri", "geometric_error", "key", "level", "matrix",
-                 "point_count", "refine", "reproject", "tile", "triangle_count")
+    __slots__ = ("box", "children", "content_bytes", "content_uri", "external", "geometric_error", "key", "level",
+                 "matrix", "point_count", "refine", "reproject", "tile", "tree", "triangle_count")
 
-    def __init__(self, tile: Tile, prefix: str) -> None:
+    def __init__(self, tile: Tile, prefix: str, tree: _Tree | None = None) -> None:
         self.tile = tile
+        self.tree = tree
         self.key = f"{prefix}{tile.key}"
         self.level = tile.level
         self.box: Box = tile.box
         self.geometric_error = float(tile.geometric_error)
         self.refine = tile.refine
+        self.external = tile.external  # content in an external tileset: traversed whatever the error
         self.content_uri = tile.content_uri
         self.content_bytes = tile.content_bytes
         self.children: list[_Node] = []
@@ -100,27 +103,74 @@ class _Node:
         self.reproject: Reprojection | None = None
 
 
-def _proxy_tree(root: Tile, prefix: str, reprojection: Reprojection | None = None) -> tuple[_Node, dict[str, _Node]]:
-    top = _Node(root, prefix)
-    index = {top.key: top}
-    stack = [top]
+    @property
+    def pending(self) -> bool:
+        """Children not proxied yet: external tilesets not read, or read through another path (a walk)."""
+        if self.tree is not None and self.key in self.tree.failed:
+            return False
+        return self.tile.pending is not None or len(self.children) != len(self.tile.children)
+
+    def expand(self) -> bool:
+        """Read this tile's external tilesets (selection refines into them) and proxy the new children. A
+        tileset that cannot be read is one warning; the tile then stays without those children."""
+        assert self.tree is not None
+        if self.tile.pending is not None:
+            try:
+                self.tile.tileset.expand(self.tile)
+            except CitylodError as exc:
+                self.tree.failed[self.key] = str(exc)
+                warnings.warn(f"{exc}; the tiles below it are not drawn", stacklevel=2)
+                return False
+        known = {id(c.tile): c for c in self.children}
+        new = [c for c in self.tile.children if id(c) not in known]
+        if not new:
+            return False
+        _grow_proxies(self, new, self.tree)
+        order = {id(t): i for i, t in enumerate(self.tile.children)}
+        self.children.sort(key=lambda c: order[id(c.tile)])
+        return True
+
+
+class _Tree:
+    """What a layer's proxies share: their index by key, the layer's key prefix, its reprojection, and the
+    tiles whose external tilesets could not be read."""
+
+    __slots__ = ("failed", "index", "prefix", "reprojection")
+
+    def __init__(self, prefix: str, reprojection: Reprojection | None) -> None:
+        self.index: dict[str, _Node] = {}
+        self.prefix = prefix
+        self.reprojection = reprojection
+        self.failed: dict[str, str] = {}
+
+
+def _grow_proxies(parent: _Node | None, tiles: list[Tile], tree: _Tree) -> list[_Node]:
+    """Proxies for ``tiles`` and every child already read below them, under ``parent``."""
+    made: list[_Node] = []
+    stack: list[tuple[_Node | None, Tile]] = [(parent, t) for t in tiles]
     while stack:
-        node = stack.pop()
-        for child in node.tile.children:
-            proxy = _Node(child, prefix)
-            node.children.append(proxy)
-            index[proxy.key] = proxy
-            stack.append(proxy)
-    if reprojection is not None:
+        up, tile = stack.pop()
+        proxy = _Node(tile, tree.prefix, tree)
+        if up is not None:
+            up.children.append(proxy)
+        tree.index[proxy.key] = proxy
+        made.append(proxy)
+        stack.extend((proxy, c) for c in reversed(tile.children))
+    if tree.reprojection is not None:
         # Boxes and errors in the scene's CRS for selection (conservative: citylod.render.reproject).
-        nodes = list(index.values())
-        boxes, errors, _scale = reprojection.boxes([n.box for n in nodes], [n.geometric_error for n in nodes])
-        for n, box, err in zip(nodes, boxes, errors, strict=True):
+        boxes, errors, _scale = tree.reprojection.boxes([n.box for n in made], [n.geometric_error for n in made])
+        for n, box, err in zip(made, boxes, errors, strict=True):
             n.box = box
             n.geometric_error = float(err)
             n.matrix = translation(np.round(box.center))
-            n.reproject = reprojection
-    return top, index
+            n.reproject = tree.reprojection
+    return made
+
+
+def _proxy_tree(root: Tile, prefix: str, reprojection: Reprojection | None = None) -> tuple[_Node, dict[str, _Node]]:
+    tree = _Tree(prefix, reprojection)
+    top = _grow_proxies(None, [root], tree)[0]
+    return top, tree.index
 
 
 def _load_node(node: _Node) -> tuple[PreparedTile, int]:
@@ -485,9 +535,16 @@ class TilesetLayer:
         return self._nodes[key]
 
     def leaves(self) -> list[_Node]:
-        """Proxy nodes of the tiles with content and no children with content (the full resolution)."""
+        """Proxy nodes of the tiles with content and no children with content (the full resolution); external
+        tilesets not read yet are read first."""
+        stack = [self.root]
+        while stack:
+            node = stack.pop()
+            if node.pending:
+                node.expand()
+            stack.extend(node.children)
         out = []
-        for node in self._nodes.values():
+        for node in list(self._nodes.values()):
             if node.content_uri is not None and not node.children:
                 out.append(node)
         return out

@@ -21,6 +21,7 @@ import gzip
 import json
 import math
 import os
+import threading
 import urllib.parse
 import zlib
 from collections.abc import Callable, Iterator
@@ -223,8 +224,9 @@ class TileMesh:
 class Tile:
     """One tile of an opened tileset. See docs/CONTRACTS.md."""
 
-    __slots__ = ("_size", "box", "children", "content_path", "content_paths", "content_uri", "geometric_error",
-                 "key", "level", "matrix", "parent", "point_count", "refine", "shift", "tileset", "triangle_count")
+    __slots__ = ("_size", "box", "chain", "children", "content_path", "content_paths", "content_uri", "external",
+                 "geometric_error", "key", "level", "matrix", "parent", "pending", "point_count", "refine", "shift",
+                 "tileset", "triangle_count", "world")
 
     def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
                  geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None,
@@ -250,6 +252,16 @@ class Tile:
         # Cost hints for budgets before a tile is loaded (written by citylod builders in tile extras).
         self.triangle_count = 0
         self.point_count = 0
+        #: External tilesets this tile refers to that are not read yet, as (child index, tileset file); None when
+        #: every child is known (:meth:`Tileset.expand` reads them).
+        self.pending: list[tuple[int, Path]] | None = None
+        #: Some of the tile's content is an external tileset (its root is a child): clients traverse such a tile
+        #: whatever its error, as CesiumJS does, since the tile itself draws none of it.
+        self.external = False
+        # The tile frame in the world (ECEF for other tools' tilesets) and the tileset files above it, which
+        # an expansion continues from.
+        self.world: F64 = np.eye(4)
+        self.chain: tuple[str, ...] = ()
 
     def __repr__(self) -> str:
         return f"Tile({self.key!r}, level={self.level}, error={self.geometric_error:.3g})"
@@ -315,22 +327,34 @@ class Tile:
         )
 
 
+#: A tile's JSON waiting to be built: (JSON, world matrix, parent, key, level, folder its URIs are relative to,
+#: the tileset file it is in, the chain of tileset files above it).
+_Pending = tuple[dict[str, Any], F64, "Tile | None", str, int, Path, str, tuple[str, ...]]
+
 # Limits on what a tileset may make citylod build, so that a small hostile file cannot exhaust memory or time:
 # deep nesting, a chain of external tilesets each referenced many times (8 children pointing at the next file,
 # nine files deep, are 8^9 tiles), self references. Real tilesets stay far below them: a quadtree of 64
 # levels already resolves 1 mm on the Earth, and a file referenced from more than a few places is unusual.
 MAX_TILES = 2_000_000
 MAX_LEVELS = 64
-MAX_EXTERNAL_LOADS = 10_000
+MAX_EXTERNAL_LOADS = 1_000_000
 MAX_LOADS_PER_EXTERNAL = 64
+#: External tilesets read while a tileset opens; the others wait until :meth:`Tileset.expand` (a walk, or a view
+#: that refines into them). Photogrammetry exports hold tens of thousands of them, one per tile.
+EAGER_EXTERNAL_FILES = 1000
+EAGER_EXTERNAL_REMOTE = 16
 
 
 class Tileset:
     """An opened 3D Tiles tileset (see :func:`open_tileset`).
 
-    Opening builds every tile of the tree (external tilesets spliced in) under the limits :data:`MAX_TILES`,
-    :data:`MAX_LEVELS`, :data:`MAX_EXTERNAL_LOADS` and :data:`MAX_LOADS_PER_EXTERNAL`; a tileset that refers
-    to itself, directly or through others, is refused.
+    Opening builds the tree, splicing in up to :data:`EAGER_EXTERNAL_FILES` external tilesets
+    (:data:`EAGER_EXTERNAL_REMOTE` from a web server); a tile whose external tilesets are not read yet has
+    ``pending`` set, and :meth:`expand` reads them (:meth:`walk` expands as it goes; the renderer's selection
+    expands what a view refines into), so a tree of many files opens at once and loads what is looked at, as
+    3D Tiles clients do. The limits :data:`MAX_TILES`, :data:`MAX_LEVELS`, :data:`MAX_EXTERNAL_LOADS` and
+    :data:`MAX_LOADS_PER_EXTERNAL` hold over every expansion; a tileset that refers to itself, directly or
+    through others, is refused.
     """
 
     def __init__(self, path: Path, doc: dict[str, Any], store: Package | Remote | None = None) -> None:
@@ -360,22 +384,25 @@ class Tileset:
             self.origin = np.zeros(3)
             self._crs_from_world = np.eye(4)
         self.kind = str(self.citylod.get("kind", "unknown"))
-        self.root = self._build(root_json, root_m, None, "0", 0, self.folder, str(path))
+        self._tiles = self._external_loads = 0
+        self._loads: dict[str, int] = {}
+        self._eager_left = EAGER_EXTERNAL_REMOTE if isinstance(store, Remote) else EAGER_EXTERNAL_FILES
+        self._expand_lock = threading.RLock()
+        root = self._grow([(root_json, root_m, None, "0", 0, self.folder, str(path), (str(self.path),))])
+        assert root is not None
+        self.root = root
 
-    def _build(self, tj: dict[str, Any], world: F64, parent: Tile | None, key: str, level: int,
-               base: Path, source: str) -> Tile:
-        # Explicit stack over the JSON tree (tilesets can be deep); external tilesets are spliced in. Each
-        # entry carries the chain of tileset files above it, to name a cycle.
-        root_tile: Tile | None = None
-        chain0 = (str(self.path),)
-        stack: list[tuple[dict[str, Any], F64, Tile | None, str, int, Path, str, tuple[str, ...]]] = [
-            (tj, world, parent, key, level, base, source, chain0)]
-        tiles = external_loads = 0
-        loads: dict[str, int] = {}
+    def _grow(self, stack: list[_Pending]) -> Tile | None:
+        """Build the tiles of ``stack``'s JSON subtrees (an explicit stack: tilesets can be deep). External
+        tilesets are read and spliced in while the eager budget lasts, else left ``pending`` on their tile.
+        Each entry carries the chain of tileset files above it, to name a cycle. Returns the first entry's
+        tile."""
+        first: Tile | None = None
+        grown: list[Tile] = []
         while stack:
             tj, world, parent, key, level, base, source, chain = stack.pop()
-            tiles += 1
-            if tiles > MAX_TILES:
+            self._tiles += 1
+            if self._tiles > MAX_TILES:
                 raise InputError(f"more than {MAX_TILES:,} tiles; refused as a likely hostile tileset", source)
             if level > MAX_LEVELS:
                 raise InputError(f"tiles nest deeper than {MAX_LEVELS} levels; refused", source)
@@ -396,6 +423,7 @@ class Tileset:
             uri = None
             cpaths: list[Path] = []
             children_json = list(tj.get("children", []))
+            externals: list[tuple[int, Path]] = []  # (child index, tileset file) of the tile's external tilesets
             for content in _contents(tj):
                 curi = content.get("uri", content.get("url")) if isinstance(content, dict) else None
                 if curi is not None and not isinstance(curi, str):
@@ -409,41 +437,75 @@ class Tileset:
                         raise InputError(f"tileset refers to itself through {curi!r} (a cycle of external "
                                          f"tilesets: {' -> '.join(Path(c).name for c in chain)} -> {ext_path.name})",
                                          source)
-                    loads[external] = loads.get(external, 0) + 1
-                    external_loads += 1
-                    if loads[external] > MAX_LOADS_PER_EXTERNAL or external_loads > MAX_EXTERNAL_LOADS:
-                        raise InputError(f"external tileset {curi!r} is referenced {loads[external]} times "
-                                         f"({external_loads} external loads in all); refused as a likely hostile "
-                                         "tileset", source)
-                    ext = _read_json(ext_path, self.read_file)
-                    children_json.append(ext["root"] | {"_external_base": str(ext_path.parent),
-                                                        "_external_source": external})
+                    self._loads[external] = self._loads.get(external, 0) + 1
+                    self._external_loads += 1
+                    if (self._loads[external] > MAX_LOADS_PER_EXTERNAL
+                            or self._external_loads > MAX_EXTERNAL_LOADS):
+                        raise InputError(f"external tileset {curi!r} is referenced {self._loads[external]} times "
+                                         f"({self._external_loads} external loads in all); refused as a likely "
+                                         "hostile tileset", source)
+                    externals.append((len(children_json) + len(externals), ext_path))
                 else:
                     uri = uri or curi
                     cpaths.append(safe_resolve(base, curi, self.folder, source))
             tile = Tile(self, key, level, parent, matrix @ translation(shift), box, float(tj["geometricError"]),
                         refine, uri, cpaths[0] if cpaths else None, cpaths)
             tile.shift = shift
+            tile.world = world
+            tile.chain = chain
+            tile.external = bool(externals)
             hints = tj.get("extras", {})
             if isinstance(hints, dict):
                 tile.triangle_count = int(hints.get("triangles", 0) or 0)
                 tile.point_count = int(hints.get("points", 0) or 0)
-            if parent is None:
-                root_tile = tile
-            else:
+            if parent is not None:
                 parent.children.append(tile)
+            if first is None:
+                first = tile
+            grown.append(tile)
             for i, cj in enumerate(reversed(children_json)):
                 ci = len(children_json) - 1 - i
-                child_world = world @ _tile_transform(cj, source)
-                cbase = Path(cj.pop("_external_base")) if "_external_base" in cj else base
-                csource = cj.pop("_external_source", source)
-                cchain = (*chain, csource) if csource != source else chain
-                stack.append((cj, child_world, tile, f"{key}/{ci}", level + 1, cbase, csource, cchain))
-        assert root_tile is not None
-        # children were pushed reversed and popped in order; restore document order
-        for t in self.walk_from(root_tile):
-            t.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
-        return root_tile
+                stack.append((cj, world @ _tile_transform(cj, source), tile, f"{key}/{ci}", level + 1, base, source,
+                              chain))
+            if externals:
+                if self._eager_left >= len(externals):
+                    self._eager_left -= len(externals)
+                    stack.extend(self._external_roots(tile, externals))
+                else:
+                    tile.pending = externals
+        # children were pushed reversed and popped in order; splices come last: restore document order
+        for t in grown:
+            if len(t.children) > 1:
+                t.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
+        return first
+
+    def _external_roots(self, tile: Tile, externals: list[tuple[int, Path]]) -> list[_Pending]:
+        """Stack entries for the roots of ``tile``'s external tilesets, read now, last first."""
+        out: list[_Pending] = []
+        for ci, ext_path in reversed(externals):
+            external = str(ext_path)
+            ext = _read_json(ext_path, self.read_file)
+            root = ext["root"]
+            out.append((root, tile.world @ _tile_transform(root, external), tile, f"{tile.key}/{ci}", tile.level + 1,
+                        ext_path.parent, external, (*tile.chain, external)))
+        return out
+
+    def expand(self, tile: Tile) -> bool:
+        """Read the external tilesets ``tile`` refers to (``tile.pending``) and splice their trees in as its
+        children; False when there were none. Safe to call from several threads."""
+        with self._expand_lock:
+            externals, tile.pending = tile.pending, None
+            if not externals:
+                return False
+            try:
+                self._grow(self._external_roots(tile, externals))
+            except Exception:
+                tile.pending = externals  # nothing spliced: the next call reports the same problem
+                for c in [c for c in tile.children if int(c.key.rsplit("/", 1)[1]) in {ci for ci, _ in externals}]:
+                    tile.children.remove(c)
+                raise
+            tile.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
+            return True
 
     def read_file(self, path: Path, what: str = "file", source: str | None = None) -> bytes:
         """The bytes of a file of this tileset (``path`` from :func:`safe_resolve`), in its folder or package."""
@@ -473,16 +535,19 @@ class Tileset:
 
     @staticmethod
     def walk_from(root: Tile) -> Iterator[Tile]:
+        """Every tile under ``root``, breadth first, external tilesets read as they are reached."""
         queue = [root]
         i = 0
         while i < len(queue):
             t = queue[i]
             i += 1
+            if t.pending:
+                t.tileset.expand(t)
             yield t
             queue.extend(t.children)
 
     def walk(self) -> Iterator[Tile]:
-        """Every tile, root first (breadth first)."""
+        """Every tile, root first (breadth first); external tilesets not read yet are read on the way."""
         return self.walk_from(self.root)
 
     @property

@@ -3,7 +3,7 @@
 :func:`select` is a pure function (CesiumJS ``Cesium3DTilesetTraversal.js`` split into traversal,
 cache and statistics; see docs/STYLE.md): it reads the tree, the view, the budgets and which tiles are
 resident, and returns a :class:`Selection` (tiles to render, keys to request, statistics). It does no
-I/O, keeps no state between calls, imports neither VTK nor Qt and never recurses (an explicit heap and
+I/O of its own (a tree may read an external tileset when traversal enters it, below), keeps no state between calls, imports neither VTK nor Qt and never recurses (an explicit heap and
 explicit stacks), so it can run in a test without a window and on trees of any depth.
 
 The tree is anything satisfying :class:`TileNode` (``citylod.io.tiles3d.Tile`` does, and so do the
@@ -32,6 +32,10 @@ Rules, in one place:
   nothing: its children stand for it (CesiumJS draws it, at whatever error it has there).
 * **ADD**: the tile stays drawn and its resident visible children are drawn with it; missing children
   are requested, and nothing below a missing child is visited.
+* **External tilesets.** A tile whose content is an external tileset (``external``, optional) is traversed
+  whatever its error, as CesiumJS's ``canTraverse`` does: it draws none of that content, the external root
+  (its child) does. A tile whose children are not read yet (``pending``, optional) is expanded through its
+  ``expand()`` when traversal enters it, so a tree of many tileset files is read as far as views reach.
 * **Failed tiles** (``unavailable``) are treated as tiles without content: never drawn, never
   requested, never blocking a parent. A corrupt tile becomes a hole where nothing finer is available,
   while the rest of the frame renders.
@@ -264,6 +268,7 @@ class _Frame:
         self._cover: dict[tuple[int, int], int] = {}
         self._frustum: dict[int, tuple[bool, bool]] = {}
         self.refine_to_cull = False
+        self.expanded = 0
 
     def evaluate(self, node: TileNode) -> tuple[bool, float, float]:
         """(culled, sse_px, distance) of ``node``, computed once per call."""
@@ -302,9 +307,19 @@ class _Frame:
 
     def refines(self, node: TileNode, tau_px: float) -> bool:
         culled, sse, _ = self.evaluate(node)
-        if culled or not node.children:
+        if culled:
             return False
-        if sse > tau_px:
+        # A tile whose content is an external tileset is traversed whatever its error (CesiumJS canTraverse):
+        # it draws none of that content itself, its child (the external root) does.
+        external = bool(getattr(node, "external", False))
+        if (sse > tau_px or external) and getattr(node, "pending", False):
+            # Children in external tilesets not read yet: read them now that the view refines into them
+            # (optional hook ``expand()``; citylod's tileset proxies have it).
+            node.expand()  # type: ignore[attr-defined]
+            self.expanded += 1
+        if not node.children:
+            return False
+        if sse > tau_px or external:
             return True
         return self.refine_to_cull and self.cover_triangles(node, CULL_LOOKAHEAD) < self.cost(node).triangles
 
