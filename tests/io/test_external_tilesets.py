@@ -69,6 +69,16 @@ def _split(src: Path, dst: Path, stub_error: float | None = None) -> int:
     return count
 
 
+def _known(root):  # type: ignore[no-untyped-def]
+    """The tiles read so far, without reading more (``Tileset.walk`` would)."""
+    out, stack = [], [root]
+    while stack:
+        t = stack.pop()
+        out.append(t)
+        stack.extend(t.children)
+    return out
+
+
 def _contents(ts) -> dict[str, np.ndarray]:  # type: ignore[no-untyped-def]
     return {t.content_path.relative_to(ts.folder).as_posix(): t.load().vertices
             for t in ts.walk() if t.content_path is not None}
@@ -193,3 +203,36 @@ def test_over_http_a_view_fetches_only_its_files(single, tmp_path, monkeypatch) 
     assert np.array_equal(a, b)
     fetched = [p for p in got if p.endswith(".json") and p != "/tileset.json"]
     assert 0 < len(fetched) < files and len(set(fetched)) == len(fetched)  # each file once
+
+
+def test_implicit_subtrees_are_read_when_reached(monkeypatch) -> None:
+    """An implicit quadtree (3d-tiles-tools' sample, 5 subtree files): with nothing read eagerly, opening reads
+    the root subtree only, and a walk reaches every content tile the fully read tree has."""
+    from tests.paths import ROOT
+
+    folder = ROOT / "tests" / "data" / "3dtiles" / "implicit" / "QuadtreeSubtrees"
+    want = _contents(open_tileset(folder))
+    monkeypatch.setattr(tileset_mod, "EAGER_EXTERNAL_FILES", 0)
+    reads: list[str] = []
+    real = tileset_mod.Tileset.read_file
+
+    def counting(self, path, *a, **k):  # type: ignore[no-untyped-def]
+        reads.append(path.name)
+        return real(self, path, *a, **k)
+
+    monkeypatch.setattr(tileset_mod.Tileset, "read_file", counting)
+    ts = open_tileset(folder)
+    assert [r for r in reads if r.endswith(".subtree")] == ["0.0.0.subtree"]
+    stubs = [t for t in _known(ts.root) if t.pending is not None]
+    assert stubs and all(t.external and not t.children and t.content_path is None for t in stubs)
+    got = _contents(ts)
+    assert sorted(r for r in reads if r.endswith(".subtree")) == sorted(
+        p.name for p in (folder / "subtrees").glob("*.subtree"))
+    assert got.keys() == want.keys() and all(np.array_equal(got[k], want[k]) for k in want)
+    from citylod.render.offscreen import render_images
+
+    cam = citylod.orbit_cameras(*open_tileset(folder).bounds, n=1, aspect=1.0)[0]
+    (a, _), = render_images([folder], [cam], size=(200, 200), tau_px=0.5)
+    monkeypatch.setattr(tileset_mod, "EAGER_EXTERNAL_FILES", 1000)
+    (b, _), = render_images([folder], [cam], size=(200, 200), tau_px=0.5)
+    assert (b != b[0, 0]).any(axis=-1).sum() > 500 and np.array_equal(a, b)

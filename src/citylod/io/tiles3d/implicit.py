@@ -73,8 +73,15 @@ class _Subtree:
         self.child = bits(doc.get("childSubtreeAvailability"), n_children ** levels)
 
 
-def expand_implicit(tile: dict[str, Any], read: ReadUri, source: str) -> dict[str, Any]:
-    """The implicit ``tile`` as explicit tile JSON (children nested, content URIs filled in)."""
+def expand_implicit(tile: dict[str, Any], read: ReadUri, source: str,
+                    may_read: Callable[[], bool] | None = None) -> dict[str, Any]:
+    """The implicit ``tile`` as explicit tile JSON (children nested, content URIs filled in).
+
+    Child subtrees are read while ``may_read()`` says so (always without it). Where it says no, the child
+    subtree's root becomes a stub tile (its volume and error, no content) whose ``"_subtree"`` is a function
+    building that subtree's root tile the same way: the reader (``Tileset.expand``) calls it when a walk or a
+    view reaches the stub, and traverses the stub whatever its error, as for an external tileset.
+    """
     ext = tile.get("extensions", {}).get("3DTILES_implicit_tiling", {})
     spec = tile.get("implicitTiling") or ext
     try:
@@ -150,8 +157,12 @@ def expand_implicit(tile: dict[str, Any], read: ReadUri, source: str) -> dict[st
                     ch = build(sub, root_level, root_coords, rel_level + 1, child_rel)
                 elif sub.child[_morton(child_rel, levels)]:
                     child_coords = tuple((r << levels) + c for r, c in zip(root_coords, child_rel, strict=True))
-                    child_sub = load_subtree(level + 1, child_coords)
-                    ch = build(child_sub, level + 1, child_coords, 0, (0,) * dims)
+                    if may_read is None or may_read():
+                        ch = build(load_subtree(level + 1, child_coords), level + 1, child_coords, 0, (0,) * dims)
+                    else:
+                        ch = {"boundingVolume": volume(level + 1, child_coords),
+                              "geometricError": error0 / (1 << (level + 1)), "refine": refine,
+                              "_subtree": _later(level + 1, child_coords)}
                 else:
                     ch = None
                 if ch is not None:
@@ -159,6 +170,15 @@ def expand_implicit(tile: dict[str, Any], read: ReadUri, source: str) -> dict[st
         if children:
             out["children"] = children
         return out
+
+    def _later(level: int, coords: tuple[int, ...]) -> Callable[[], dict[str, Any]]:
+        def subtree_root() -> dict[str, Any]:
+            built = build(load_subtree(level, coords), level, coords, 0, (0,) * dims)
+            # A subtree whose root is not available (the parent said it was): an empty tile, nothing below.
+            return built or {"boundingVolume": volume(level, coords), "geometricError": error0 / (1 << level),
+                             "refine": refine}
+
+        return subtree_root
 
     root = build(load_subtree(0, (0,) * dims), 0, (0,) * dims, 0, (0,) * dims)
     if root is None:

@@ -224,9 +224,9 @@ class TileMesh:
 class Tile:
     """One tile of an opened tileset. See docs/CONTRACTS.md."""
 
-    __slots__ = ("_size", "box", "chain", "children", "content_path", "content_paths", "content_uri", "external",
-                 "geometric_error", "key", "level", "matrix", "parent", "pending", "point_count", "refine", "shift",
-                 "tileset", "triangle_count", "world")
+    __slots__ = ("_size", "base", "box", "chain", "children", "content_path", "content_paths", "content_uri",
+                 "external", "geometric_error", "key", "level", "matrix", "parent", "pending", "point_count", "refine",
+                 "shift", "source", "tileset", "triangle_count", "world")
 
     def __init__(self, tileset: Tileset, key: str, level: int, parent: Tile | None, matrix: F64, box: Box,
                  geometric_error: float, refine: str, content_uri: str | None, content_path: Path | None,
@@ -254,7 +254,7 @@ class Tile:
         self.point_count = 0
         #: External tilesets this tile refers to that are not read yet, as (child index, tileset file); None when
         #: every child is known (:meth:`Tileset.expand` reads them).
-        self.pending: list[tuple[int, Path]] | None = None
+        self.pending: list[tuple[int, Path | Callable[[], dict[str, Any]]]] | None = None
         #: Some of the tile's content is an external tileset (its root is a child): clients traverse such a tile
         #: whatever its error, as CesiumJS does, since the tile itself draws none of it.
         self.external = False
@@ -262,6 +262,8 @@ class Tile:
         # an expansion continues from.
         self.world: F64 = np.eye(4)
         self.chain: tuple[str, ...] = ()
+        self.base: Path = tileset.folder  # the folder the tile's URIs are relative to, and its tileset file
+        self.source = ""
 
     def __repr__(self) -> str:
         return f"Tile({self.key!r}, level={self.level}, error={self.geometric_error:.3g})"
@@ -409,7 +411,7 @@ class Tileset:
             if not isinstance(tj, dict) or "boundingVolume" not in tj or "geometricError" not in tj:
                 raise InputError(f"tile {key[:80]} lacks boundingVolume or geometricError", source)
             if "implicitTiling" in tj or "3DTILES_implicit_tiling" in tj.get("extensions", {}):
-                tj = expand_implicit(tj, self._reader(base, source), source)
+                tj = expand_implicit(tj, self._reader(base, source), source, self._take_eager)
             matrix = self._crs_from_world @ world
             # A region is in ECEF whatever the tile's transform; boxes and spheres live in the tile's frame.
             in_ecef = "region" in tj["boundingVolume"]
@@ -423,7 +425,11 @@ class Tileset:
             uri = None
             cpaths: list[Path] = []
             children_json = list(tj.get("children", []))
-            externals: list[tuple[int, Path]] = []  # (child index, tileset file) of the tile's external tilesets
+            # (child index, tileset file) of the tile's external tilesets; an implicit subtree not read yet is a
+            # function giving its root tile's JSON (citylod.io.tiles3d.implicit)
+            externals: list[tuple[int, Path | Callable[[], dict[str, Any]]]] = []
+            if "_subtree" in tj:
+                externals.append((len(children_json), tj["_subtree"]))
             for content in _contents(tj):
                 curi = content.get("uri", content.get("url")) if isinstance(content, dict) else None
                 if curi is not None and not isinstance(curi, str):
@@ -468,27 +474,41 @@ class Tileset:
                 stack.append((cj, world @ _tile_transform(cj, source), tile, f"{key}/{ci}", level + 1, base, source,
                               chain))
             if externals:
-                if self._eager_left >= len(externals):
+                if "_subtree" not in tj and self._eager_left >= len(externals):
                     self._eager_left -= len(externals)
-                    stack.extend(self._external_roots(tile, externals))
+                    stack.extend(self._external_roots(tile, externals, base, source))
                 else:
                     tile.pending = externals
+                    tile.base, tile.source = base, source
         # children were pushed reversed and popped in order; splices come last: restore document order
         for t in grown:
             if len(t.children) > 1:
                 t.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
         return first
 
-    def _external_roots(self, tile: Tile, externals: list[tuple[int, Path]]) -> list[_Pending]:
-        """Stack entries for the roots of ``tile``'s external tilesets, read now, last first."""
+    def _external_roots(self, tile: Tile, externals: list[tuple[int, Path | Callable[[], dict[str, Any]]]],
+                        base: Path, source: str) -> list[_Pending]:
+        """Stack entries for the roots of ``tile``'s external tilesets (read now) and implicit subtrees (built
+        now), last first; ``base`` and ``source`` are where ``tile`` itself was defined."""
         out: list[_Pending] = []
-        for ci, ext_path in reversed(externals):
-            external = str(ext_path)
-            ext = _read_json(ext_path, self.read_file)
+        for ci, where in reversed(externals):
+            if callable(where):  # an implicit subtree: its root tile, in the implicit tileset's own frame
+                root = where()
+                out.append((root, tile.world, tile, f"{tile.key}/{ci}", tile.level + 1, base, source, tile.chain))
+                continue
+            external = str(where)
+            ext = _read_json(where, self.read_file)
             root = ext["root"]
             out.append((root, tile.world @ _tile_transform(root, external), tile, f"{tile.key}/{ci}", tile.level + 1,
-                        ext_path.parent, external, (*tile.chain, external)))
+                        where.parent, external, (*tile.chain, external)))
         return out
+
+    def _take_eager(self) -> bool:
+        """Whether one more external file may be read while the tileset opens (and take it from the budget)."""
+        if self._eager_left > 0:
+            self._eager_left -= 1
+            return True
+        return False
 
     def expand(self, tile: Tile) -> bool:
         """Read the external tilesets ``tile`` refers to (``tile.pending``) and splice their trees in as its
@@ -498,7 +518,7 @@ class Tileset:
             if not externals:
                 return False
             try:
-                self._grow(self._external_roots(tile, externals))
+                self._grow(self._external_roots(tile, externals, tile.base, tile.source))
             except Exception:
                 tile.pending = externals  # nothing spliced: the next call reports the same problem
                 for c in [c for c in tile.children if int(c.key.rsplit("/", 1)[1]) in {ci for ci, _ in externals}]:
