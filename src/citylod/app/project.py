@@ -39,6 +39,7 @@ from citylod.app.models import Bookmarks, Document
 from citylod.core.camera import Camera
 from citylod.core.errors import InputError
 from citylod.core.fileio import atomic_write_text
+from citylod.io.tiles3d.package import is_url, unfold_url
 
 __all__ = ["PROJECT_SUFFIX", "Project", "apply_project", "project_dict", "read_project", "save_project"]
 
@@ -61,6 +62,8 @@ class Project:
 
 
 def _rel(path: Path, base: Path) -> str:
+    if is_url(path):  # a tileset on a web server: its URL as typed
+        return unfold_url(path)
     p = Path(os.path.abspath(path))
     try:
         return p.relative_to(Path(os.path.abspath(base))).as_posix()
@@ -131,12 +134,15 @@ def read_project(path: str | os.PathLike[str]) -> Project:
     for i, row in enumerate(layers):
         if not isinstance(row, dict) or not isinstance(row.get("path"), str):
             raise _fail(p, f"layer {i} has no path")
-        src = Path(row["path"])
-        src = src if src.is_absolute() else p.parent / src
-        if not src.exists():
-            raise _fail(p, f"layer {i}: {src} does not exist")
         clean = dict(row)
-        clean["path"] = src
+        if is_url(row["path"]):
+            clean["path"] = unfold_url(row["path"])  # fetched when the layer opens
+        else:
+            src = Path(row["path"])
+            src = src if src.is_absolute() else p.parent / src
+            if not src.exists():
+                raise _fail(p, f"layer {i}: {src} does not exist")
+            clean["path"] = src
         try:
             clean["opacity"] = float(row.get("opacity", 1.0))
             clean["visible"] = bool(row.get("visible", True))
