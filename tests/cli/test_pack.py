@@ -56,10 +56,24 @@ def test_pack_writes_an_indexed_archive_of_the_folder(tmp_path: Path, deflate: b
     assert again.read_bytes() == out.read_bytes()
 
 
-def test_3d_tiles_tools_unpack_it_and_the_validator_accepts_it(tmp_path: Path) -> None:
+def test_pack_writes_a_3dtiles_database(tmp_path: Path) -> None:
+    import sqlite3
+
+    out = tmp_path / "city.3dtiles"
+    assert run_cli(["pack", SOURCE, "-o", out]).returncode == 0
+    with sqlite3.connect(out) as db:
+        rows = dict(db.execute("SELECT key, content FROM media"))
+    assert {k: bytes(v) for k, v in rows.items()} == _files(SOURCE)
+    ts, plain = open_tileset(out), open_tileset(SOURCE)
+    for a, b in zip(ts.walk(), plain.walk(), strict=True):
+        assert np.array_equal(a.load().vertices, b.load().vertices)
+
+
+@pytest.mark.parametrize("suffix", [".3tz", ".3dtiles"])
+def test_3d_tiles_tools_unpack_it_and_the_validator_accepts_it(tmp_path: Path, suffix: str) -> None:
     if not (TOOLS.exists() and VALIDATOR.exists() and shutil.which("node")):
         pytest.skip("3d-tiles-tools / 3d-tiles-validator not built (scripts/validator.sh)")
-    out = tmp_path / "city.3tz"
+    out = tmp_path / f"city{suffix}"
     assert run_cli(["pack", SOURCE, "-o", out]).returncode == 0
     unpacked = tmp_path / "unpacked"
     proc = subprocess.run(["node", str(TOOLS), "convert", "-i", str(out), "-o", str(unpacked)],
@@ -82,5 +96,5 @@ def test_pack_refuses_what_is_not_a_tileset_folder(tmp_path: Path) -> None:
     r = run_cli(["pack", empty, "-o", tmp_path / "x.3tz"])
     assert r.returncode == 2 and "no tileset.json" in r.stderr and "Traceback" not in r.stderr
     r = run_cli(["pack", SOURCE, "-o", tmp_path / "x.zip"])
-    assert r.returncode == 2 and "*.3tz" in r.stderr
+    assert r.returncode == 2 and "*.3tz" in r.stderr and "*.3dtiles" in r.stderr
     assert not list(tmp_path.glob("x.*"))

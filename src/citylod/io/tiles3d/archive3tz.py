@@ -10,7 +10,8 @@ with Zstandard (method 93); local headers carry sizes and CRC (the format requir
 checked.
 
 :func:`write_3tz` packs a tileset folder into such an archive. Layout and index follow the format's
-specification (3D Tiles Archive Format v1.3, which 3d-tiles-tools and CesiumJS's package server implement).
+specification (3D Tiles Archive Format v1.3, which 3d-tiles-tools and CesiumJS's package server implement);
+:func:`write_3dtiles` writes the other package format, an SQLite database.
 """
 
 from __future__ import annotations
@@ -255,6 +256,34 @@ def write_3tz(folder: Path, out: Path, *, compress: bool = False, progress: Iter
             info = zipfile.ZipInfo(INDEX_NAME, date_time=(1980, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_STORED
             z.writestr(info, index.tobytes())
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return len(files)
+
+
+def write_3dtiles(folder: Path, out: Path, *, progress: Iterable[Path] | None = None) -> int:
+    """Pack every file under ``folder`` into the 3DTILES package ``out`` (SQLite, one table
+    ``media(key TEXT PRIMARY KEY, content BLOB)``, as 3d-tiles-tools writes it), under a temporary name first."""
+    import sqlite3
+
+    files = sorted(p for p in folder.rglob("*") if p.is_file())
+    names = [p.relative_to(folder).as_posix() for p in files]
+    if "tileset.json" not in names:
+        raise InputError("no tileset.json at the top of the folder", folder)
+    tmp = out.with_name(out.name + ".partial")
+    if tmp.exists():
+        tmp.unlink()
+    try:
+        db = sqlite3.connect(tmp)
+        try:
+            db.execute("CREATE TABLE media (key TEXT PRIMARY KEY, content BLOB)")
+            for p, name in zip(progress if progress is not None else files, names, strict=True):
+                db.execute("INSERT INTO media VALUES (?, ?)", (name, Path(p).read_bytes()))
+            db.commit()
+        finally:
+            db.close()
         os.replace(tmp, out)
     finally:
         if tmp.exists():
