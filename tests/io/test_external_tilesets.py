@@ -79,6 +79,19 @@ def _known(root):  # type: ignore[no-untyped-def]
     return out
 
 
+def _count_reads(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The names of the files the reader reads from now on, in order."""
+    reads: list[str] = []
+    real = tileset_mod.Tileset.read_file
+
+    def counting(self, path, *a, **k):  # type: ignore[no-untyped-def]
+        reads.append(path.name)
+        return real(self, path, *a, **k)
+
+    monkeypatch.setattr(tileset_mod.Tileset, "read_file", counting)
+    return reads
+
+
 def _contents(ts) -> dict[str, np.ndarray]:  # type: ignore[no-untyped-def]
     return {t.content_path.relative_to(ts.folder).as_posix(): t.load().vertices
             for t in ts.walk() if t.content_path is not None}
@@ -88,14 +101,7 @@ def test_opening_reads_the_root_only_and_a_walk_reads_the_rest(single, tmp_path,
     files = _split(single["tiles"], tmp_path / "split")
     assert files == 20
     monkeypatch.setattr(tileset_mod, "EAGER_EXTERNAL_FILES", 0)
-    reads: list[str] = []
-    real = tileset_mod.Tileset.read_file
-
-    def counting(self, path, *a, **k):  # type: ignore[no-untyped-def]
-        reads.append(path.name)
-        return real(self, path, *a, **k)
-
-    monkeypatch.setattr(tileset_mod.Tileset, "read_file", counting)
+    reads = _count_reads(monkeypatch)
     ts = open_tileset(tmp_path / "split")
     stubs = ts.root.children
     assert reads == [] and len(stubs) == 4
@@ -213,14 +219,7 @@ def test_implicit_subtrees_are_read_when_reached(monkeypatch) -> None:
     folder = ROOT / "tests" / "data" / "3dtiles" / "implicit" / "QuadtreeSubtrees"
     want = _contents(open_tileset(folder))
     monkeypatch.setattr(tileset_mod, "EAGER_EXTERNAL_FILES", 0)
-    reads: list[str] = []
-    real = tileset_mod.Tileset.read_file
-
-    def counting(self, path, *a, **k):  # type: ignore[no-untyped-def]
-        reads.append(path.name)
-        return real(self, path, *a, **k)
-
-    monkeypatch.setattr(tileset_mod.Tileset, "read_file", counting)
+    reads = _count_reads(monkeypatch)
     ts = open_tileset(folder)
     assert [r for r in reads if r.endswith(".subtree")] == ["0.0.0.subtree"]
     stubs = [t for t in _known(ts.root) if t.pending is not None]

@@ -203,3 +203,36 @@ def test_zstandard_entries_read_and_damage_is_caught(tmp_path: Path) -> None:
     tile = next(t for t in ts.walk() if t.content_uri == name)
     with pytest.raises(InputError, match="CRC"):
         tile.load()
+
+
+def test_zip64_archives_read_through_the_index(tmp_path: Path) -> None:
+    """More than 65,535 entries (the ZIP64 end record) and entries with ZIP64 local headers (sizes in the
+    extra field): what a large photogrammetry export is. Written by Python's zipfile, index by hand."""
+    import hashlib
+    import struct
+
+    from citylod.io.tiles3d.package import Package
+
+    folder = _unpack(PACKAGES / "tileset.3tz", tmp_path / "unpacked")
+    files = {p.name: p.read_bytes() for p in folder.iterdir() if p.name != "@3dtilesIndex1@"}
+    big = tmp_path / "big.3tz"
+    index = []
+    with zipfile.ZipFile(big, "w", allowZip64=True) as z:
+        for name, data in sorted(files.items()):
+            info = zipfile.ZipInfo(name)
+            with z.open(info, "w", force_zip64=True) as fh:  # sizes 0xFFFFFFFF in the local header
+                fh.write(data)
+            index.append((*struct.unpack("<QQ", hashlib.md5(name.encode()).digest()), z.getinfo(name).header_offset))
+        for k in range(70_000):
+            name = f"pad/{k}.bin"
+            z.writestr(name, b"")
+            index.append((*struct.unpack("<QQ", hashlib.md5(name.encode()).digest()), z.getinfo(name).header_offset))
+        z.writestr("@3dtilesIndex1@", b"".join(struct.pack("<QQQ", *e) for e in sorted(index)))
+    tail = big.read_bytes()[-200:]
+    assert b"PK\x06\x06" in tail  # the ZIP64 end record is there
+    package = Package(big, "3tz")
+    assert package._index is not None and len(package._index.index) == len(files) + 70_000
+    assert all(package.read(name) == data for name, data in files.items())
+    assert package.read("pad/69999.bin") == b""
+    got, want = _tiles(big), _tiles(folder)
+    assert all(np.array_equal(g[3], w[3]) for g, w in zip(got, want, strict=True))

@@ -102,7 +102,7 @@ class Index3tz:
                     raise NeedsCentralDirectory(name)  # sizes only in a data descriptor, against the format
                 extra = self._pread(xlen, offset + 30 + nlen)
                 if 0xFFFFFFFF in (csize, usize):
-                    usize, csize = _zip64_sizes(extra, usize, csize)
+                    usize, csize = _zip64(extra, usize, csize)
                 return offset + 30 + nlen + xlen, method, csize, usize, crc
             i += 1  # a hash collision: the next entry with the same hash
         return None
@@ -145,20 +145,21 @@ class Index3tz:
         return data
 
 
-def _zip64_sizes(extra: bytes, usize: int, csize: int) -> tuple[int, int]:
+def _zip64(extra: bytes, *fields: int) -> list[int]:
+    """``fields`` (sizes, then the local header offset) with those saturated at 0xFFFFFFFF taken, in order,
+    from the ZIP64 extra field (tag 1) of ``extra``."""
+    out = list(fields)
     pos = 0
     while pos + 4 <= len(extra):
         tag, n = struct.unpack_from("<HH", extra, pos)
         if tag == 1:
-            body = extra[pos + 4: pos + 4 + n]
-            vals = list(struct.unpack_from(f"<{len(body) // 8}Q", body))
-            if usize == 0xFFFFFFFF and vals:
-                usize = vals.pop(0)
-            if csize == 0xFFFFFFFF and vals:
-                csize = vals.pop(0)
+            vals = list(struct.unpack_from(f"<{min(n, len(extra) - pos - 4) // 8}Q", extra, pos + 4))
+            for k, v in enumerate(out):
+                if v == 0xFFFFFFFF and vals:
+                    out[k] = vals.pop(0)
             break
         pos += 4 + n
-    return usize, csize
+    return out
 
 
 def _read_index(fd: int, file_size: int) -> np.ndarray | None:
@@ -194,7 +195,7 @@ def _read_index(fd: int, file_size: int) -> np.ndarray | None:
         if name == INDEX_NAME.encode() and at + 46 + nlen + xlen + clen == len(block):
             if 0xFFFFFFFF in (csize, usize, local):
                 extra = block[at + 46 + nlen: at + 46 + nlen + xlen]
-                usize, csize, local = _zip64_central(extra, usize, csize, local)
+                usize, csize, local = _zip64(extra, usize, csize, local)
             if method != 0 or usize % 24 or usize != csize:
                 raise InputError("the 3TZ index is not stored uncompressed in 24-byte entries", "")
             head = os.pread(fd, 30, local)
@@ -211,23 +212,6 @@ def _read_index(fd: int, file_size: int) -> np.ndarray | None:
             return index
         at = block.rfind(_CENTRAL, 0, at)
     return None
-
-
-def _zip64_central(extra: bytes, usize: int, csize: int, local: int) -> tuple[int, int, int]:
-    pos = 0
-    while pos + 4 <= len(extra):
-        tag, n = struct.unpack_from("<HH", extra, pos)
-        if tag == 1:
-            vals = list(struct.unpack_from(f"<{n // 8}Q", extra, pos + 4))
-            if usize == 0xFFFFFFFF and vals:
-                usize = vals.pop(0)
-            if csize == 0xFFFFFFFF and vals:
-                csize = vals.pop(0)
-            if local == 0xFFFFFFFF and vals:
-                local = vals.pop(0)
-            break
-        pos += 4 + n
-    return usize, csize, local
 
 
 def write_3tz(folder: Path, out: Path, *, compress: bool = False, progress: Iterable[Path] | None = None) -> int:
