@@ -185,7 +185,7 @@ def test_zstandard_entries_read_and_damage_is_caught(tmp_path: Path) -> None:
     import zstandard
 
     folder = _unpack(PACKAGES / "tileset.3tz", tmp_path / "unpacked")
-    files = {p.name: p.read_bytes() for p in folder.iterdir()}
+    files = {p.name: p.read_bytes() for p in folder.iterdir() if p.name != "@3dtilesIndex1@"}
     z = zstandard.ZstdCompressor()
     archive = tmp_path / "zstd.3tz"
     archive.write_bytes(_zip_by_hand([(k, z.compress(v), 93, v) for k, v in sorted(files.items())]))
