@@ -126,6 +126,12 @@ def test_damaged_meshopt_streams_are_one_line(tmp_path: Path) -> None:
     bad["bufferViews"][0]["extensions"]["EXT_meshopt_compression"]["filter"] = "OCTAHEDRAL"
     with pytest.raises(InputError, match="not part of EXT_meshopt_compression"):
         decode(bad)
+    for view, change in ((0, {"count": 4}), (1, {"byteStride": 12, "filter": "OCTAHEDRAL"}),
+                         (1, {"byteStride": 12, "filter": "QUATERNION"}), (1, {"byteStride": 6})):
+        odd = json.loads(json.dumps(doc))  # indices not in triangles; strides the decoders assert on
+        odd["bufferViews"][view]["extensions"]["EXT_meshopt_compression"].update(change)
+        with pytest.raises(InputError, match="rules"):
+            decode(odd)
     huge = json.loads(json.dumps(doc))
     huge["bufferViews"][1]["extensions"]["EXT_meshopt_compression"]["count"] = 10 ** 9
     with pytest.raises(InputError, match="meshopt"):

@@ -209,6 +209,12 @@ def _meshopt_view(ext: dict[str, Any], buffers: list[bytes], index: int, source:
     if filt not in _MESHOPT_FILTERS or (filt != "NONE" and mode != "ATTRIBUTES"):
         raise InputError(f"buffer view {index}: meshopt filter {filt!r} with mode {mode!r} is not part of "
                          "EXT_meshopt_compression", source)
+    # The extension's constraints, checked here: the C decoders assert them (an abort, not an error).
+    if (mode == "ATTRIBUTES" and not (0 < stride <= 256 and stride % 4 == 0)) or (mode == "TRIANGLES" and count % 3) \
+            or (filt == "OCTAHEDRAL" and stride not in (4, 8)) or (filt == "QUATERNION" and stride != 8) \
+            or count < 0:
+        raise InputError(f"buffer view {index}: meshopt {mode} {filt} with byteStride {stride} and count {count} "
+                         "breaks EXT_meshopt_compression's rules", source)
     stream = np.frombuffer(data, np.uint8, count=n, offset=start)
     try:
         if mode == "ATTRIBUTES":

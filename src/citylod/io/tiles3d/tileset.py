@@ -252,8 +252,8 @@ class Tile:
         # Cost hints for budgets before a tile is loaded (written by citylod builders in tile extras).
         self.triangle_count = 0
         self.point_count = 0
-        #: External tilesets this tile refers to that are not read yet, as (child index, tileset file); None when
-        #: every child is known (:meth:`Tileset.expand` reads them).
+        #: Children not read yet, as (child index, external tileset file, or a function building an implicit
+        #: subtree's root tile); None when every child is known (:meth:`Tileset.expand` reads them).
         self.pending: list[tuple[int, Path | Callable[[], dict[str, Any]]]] | None = None
         #: Some of the tile's content is an external tileset (its root is a child): clients traverse such a tile
         #: whatever its error, as CesiumJS does, since the tile itself draws none of it.
