@@ -46,6 +46,7 @@ from citylod.core.camera import Camera, View
 from citylod.core.errors import CitylodError
 from citylod.core.geometry import F64, Box, translation
 from citylod.io.tiles3d import Tile, Tileset, open_tileset
+from citylod.io.tiles3d.package import is_url
 from citylod.lod.runtime.cache import TauController, TileCache
 from citylod.lod.runtime.loader import TileLoader, resolve_layers
 from citylod.lod.runtime.selection import Budget, Selection, select
@@ -781,6 +782,8 @@ class TilesetLayer:
 
 
 _EMPTY = _vtk.vtkPolyData()
+#: Loader threads of a scene with a layer on a web server (Scene.add): they mostly wait on the network.
+REMOTE_LOADER_WORKERS = 8
 
 
 def fade_fraction(age_s: float, fade_s: float, start: float) -> float:
@@ -909,6 +912,8 @@ class Scene:
             self.origin = np.round(ts.root.box.center)
         layer = TilesetLayer(self, ts, len(self.layers), reprojection)
         self.layers.append(layer)
+        if is_url(ts.source):
+            self.loader.ensure_workers(REMOTE_LOADER_WORKERS)
         lo = min(lay.bounds[0][2] for lay in self.layers)
         hi = max(lay.bounds[1][2] for lay in self.layers)
         self.elevation_range = (float(lo), float(hi if hi > lo else lo + 1.0))

@@ -101,6 +101,16 @@ class TileLoader:
         for t in self._threads:
             t.start()
 
+    def ensure_workers(self, workers: int) -> None:
+        """At least ``workers`` loader threads: tiles fetched over a network wait on it, not on the CPU, so
+        more requests in flight fill the view sooner (3D Tiles clients keep a dozen or more)."""
+        with self._cond:
+            while len(self._threads) < workers and not self._closed:
+                t = threading.Thread(target=self._work, name=f"citylod-tile-loader-{len(self._threads)}",
+                                     daemon=True)
+                self._threads.append(t)
+                t.start()
+
     # -- render-thread API ------------------------------------------------------------------------
 
     @property
