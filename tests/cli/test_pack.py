@@ -98,3 +98,20 @@ def test_pack_refuses_what_is_not_a_tileset_folder(tmp_path: Path) -> None:
     r = run_cli(["pack", SOURCE, "-o", tmp_path / "x.zip"])
     assert r.returncode == 2 and "*.3tz" in r.stderr and "*.3dtiles" in r.stderr
     assert not list(tmp_path.glob("x.*"))
+
+
+def test_build_writes_a_package_when_the_output_is_named_so(tmp_path: Path) -> None:
+    """``build dsm RASTER -o CITY.3tz``: the build runs in CITY.3tz.build/ and is packed when complete; the
+    package holds the files a folder build writes."""
+    from citylod.sample.files import make_sample
+
+    info = make_sample(tmp_path / "src", size=65)
+    dsm = str(info.files["dsm"])
+    assert run_cli(["build", "dsm", dsm, "-o", tmp_path / "folder", "--tile-size", "33"],
+                   timeout_s=300).returncode == 0
+    r = run_cli(["build", "dsm", dsm, "-o", tmp_path / "city.3tz", "--tile-size", "33"], timeout_s=300)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "city.3tz").is_file() and not (tmp_path / "city.3tz.build").exists()
+    with zipfile.ZipFile(tmp_path / "city.3tz") as z:
+        packed = {i.filename: z.read(i) for i in z.infolist() if i.filename != "@3dtilesIndex1@"}
+    assert packed == _files(tmp_path / "folder")

@@ -95,6 +95,28 @@ def add_slf_parser(bsub: argparse._SubParsersAction) -> None:
     f.add_argument("--workers", type=int, help="threads that bake and compress (default: one per CPU)")
 
 
+def _packaged(output: Path) -> tuple[Path, Path | None]:
+    """(the folder to build into, the package to write from it) for an output named ``*.3tz`` or ``*.3dtiles``:
+    the build runs in ``OUT.build/`` (resumable as any folder build) and is packed when complete."""
+    from citylod.io.tiles3d.package import PACKAGE_SUFFIXES
+
+    if output.suffix.lower() in PACKAGE_SUFFIXES:
+        return output.with_name(output.name + ".build"), output
+    return output, None
+
+
+def _pack(folder: Path, package: Path | None) -> None:
+    if package is None:
+        return
+    import shutil
+
+    from citylod.io.tiles3d.archive3tz import write_3dtiles, write_3tz
+
+    (write_3tz if package.suffix.lower() == ".3tz" else write_3dtiles)(folder, package)
+    shutil.rmtree(folder)
+    print(f"{package}: packed from {folder.name}/")
+
+
 def run(args: argparse.Namespace, progress: bool) -> int:
     if args.kind == "slf":
         from citylod.lod.build.slf import build_slf
@@ -106,11 +128,13 @@ def run(args: argparse.Namespace, progress: bool) -> int:
     if args.kind == "dsm":
         from citylod.lod.build.dsm import build_dsm
 
+        folder, package = _packaged(args.output)
         report = build_dsm(
-            args.raster, args.output, ortho=args.ortho, max_error=args.max_error, tile_size=args.tile_size,
+            args.raster, folder, ortho=args.ortho, max_error=args.max_error, tile_size=args.tile_size,
             workers=args.workers, scheduler=args.scheduler, progress=progress, certify_leaves=args.certify_leaves,
             metric=args.metric,
         )
+        _pack(folder, package)
     elif args.kind == "points":
         from citylod.lod.build.complete import CompleteOptions
         from citylod.lod.build.points import build_points
@@ -123,10 +147,12 @@ def run(args: argparse.Namespace, progress: bool) -> int:
                     else CompleteOptions(walls=args.complete, ground=not args.no_ground_fill,
                                          footprints=None if args.footprints is None else str(args.footprints),
                                          eave_m=args.eaves, roof_fill=args.roof_fill))
+        folder, package = _packaged(args.output)
         report = build_points(
-            args.files, args.output, crs=args.crs, hybrid=not args.no_hybrid, workers=args.workers,
+            args.files, folder, crs=args.crs, hybrid=not args.no_hybrid, workers=args.workers,
             scheduler=args.scheduler, progress=progress, complete=complete, refine_roofs=args.refine_roofs,
         )
+        _pack(folder, package)
     elif args.kind == "model":
         from citylod.lod.build.model import build_model
 
@@ -146,10 +172,12 @@ def run(args: argparse.Namespace, progress: bool) -> int:
             from citylod.lod.build.city import build_city_tiles, default_tiles_dir
 
             print(report.summary())
-            report = build_city_tiles(raw, args.tiles or default_tiles_dir(args.output), crs=args.crs,
+            folder, package = _packaged(args.tiles or default_tiles_dir(args.output))
+            report = build_city_tiles(raw, folder, crs=args.crs,
                                       leaf_triangles=args.leaf_triangles, atlas_px=args.atlas_px,
                                       textures=not args.no_textures,
                                       texture_blocks=args.texture_blocks, progress=progress)
+            _pack(folder, package)
             for w in report.warnings:
                 if "texture" in w:
                     print(f"citylod: warning: {w}")
