@@ -6,6 +6,7 @@ CesiumJS does."""
 from __future__ import annotations
 
 import copy
+import itertools
 import json
 import shutil
 import warnings
@@ -235,3 +236,55 @@ def test_implicit_subtrees_are_read_when_reached(monkeypatch) -> None:
     monkeypatch.setattr(tileset_mod, "EAGER_EXTERNAL_FILES", 1000)
     (b, _), = render_images([folder], [cam], size=(200, 200), tau_px=0.5)
     assert (b != b[0, 0]).any(axis=-1).sum() > 500 and np.array_equal(a, b)
+
+
+def test_interactive_frames_read_in_the_background_without_holes(single, tmp_path, monkeypatch) -> None:
+    """With the scene's background reader (what the app turns on), a frame never reads a file: the tiles above
+    a tileset being read stay drawn, so no frame shows less of the city than the one before; the frames end
+    complete, with the picture the one-file tileset gives."""
+    import time
+
+    from citylod.render.offscreen import OffscreenRenderer, render_images
+
+    _split(single["tiles"], tmp_path / "split")
+    monkeypatch.setattr(tileset_mod, "EAGER_EXTERNAL_FILES", 0)
+    lo, hi = open_tileset(single["tiles"]).bounds
+    near = citylod.Camera(position=(lo[0] + 10, lo[1] + 10, hi[2] + 25), focal_point=(lo[0] + 30, lo[1] + 30, lo[2]),
+                          view_up=(0, 0, 1))
+    import threading
+
+    on_frame_thread: list[str] = []
+    real = tileset_mod.Tileset.read_file
+
+    def watched(self, path, *a, **k):  # type: ignore[no-untyped-def]
+        if threading.current_thread() is threading.main_thread():
+            on_frame_thread.append(path.name)
+        return real(self, path, *a, **k)
+
+    with OffscreenRenderer([tmp_path / "split"], size=(320, 240), tau_px=1.0) as r:
+        monkeypatch.setattr(tileset_mod.Tileset, "read_file", watched)  # after the tileset JSON is read
+        scene = r.scene
+        scene.expand_in_background()
+        with r.gl:
+            scene.set_camera(near)
+        view = scene.view(near, r.size)
+        covered, frames, background = [], 0, None
+        deadline = time.monotonic() + 60
+        while True:
+            with r.gl:
+                stats = scene.update(view)
+                r.renderer.ResetCameraClippingRange()
+            r.draw()
+            rgb = r.grab_rgb()
+            background = rgb[0, 0] if background is None else background
+            if scene.layers[0].root.key in scene.cache:  # from the frame the root is in, nothing may vanish
+                covered.append(int((rgb != background).any(axis=-1).sum()))
+            frames += 1
+            if stats.complete:
+                break
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+    (want, _), = render_images([single["tiles"]], [near], size=(320, 240), tau_px=1.0)
+    assert frames > 2 and np.array_equal(rgb, want)
+    assert [n for n in on_frame_thread if n.endswith(".json")] == []  # every tileset file was read off the frame
+    assert covered[0] > 0 and all(b >= a * 0.98 for a, b in itertools.pairwise(covered)), covered

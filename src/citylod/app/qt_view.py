@@ -123,6 +123,8 @@ class SceneView(QWidget):
         # triangles per frame, adapted to the measured upload time (see _frame_end): a burst of finished
         # tiles becomes several short frames instead of one long one that holds the GUI thread.
         self.scene.admit_cost = self.ADMIT_START
+        # External tilesets a view reaches are read on background threads: no frame waits on a file or server.
+        self.scene.expand_in_background()
         #: Full garbage collections only while idle (core/gc_policy.py); set by the main window.
         self.gc_policy: Any = None
         self._uploads = self.scene.uploads
@@ -217,7 +219,8 @@ class SceneView(QWidget):
         if self._store_future is not None and self._store_future.done():
             self._attach_store_actor()
         # Finished tiles are admitted by the scene's update inside the render, a bounded amount a frame.
-        newly = (self.scene.layers and self.scene.loader.stats().ready > 0) or self.document.far_loads_ready()
+        newly = ((self.scene.layers and (self.scene.loader.stats().ready > 0 or self.scene.expansions_done() > 0))
+                 or self.document.far_loads_ready())
         if self.document.poll_semantics():
             self._dirty = True
         mtime = self.renderer.GetActiveCamera().GetMTime()
@@ -235,9 +238,10 @@ class SceneView(QWidget):
                 self.gc_policy.tick(busy)
 
     def pending(self) -> int:
-        """Tile requests queued or being decoded, and city tiles the far-field layers are reading."""
+        """Tile requests queued or being decoded, external tilesets being read, and city tiles the far-field
+        layers are reading."""
         st = self.scene.loader.stats()
-        return int(st.pending + st.in_flight + st.ready) + self.document.far_pending()
+        return int(st.pending + st.in_flight + st.ready) + self.document.far_pending() + self.scene.expanding()
 
     def is_resolved(self) -> bool:
         """The last frame drew everything selection wanted and nothing is loading."""

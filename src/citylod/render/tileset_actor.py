@@ -35,6 +35,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -106,43 +107,72 @@ class _Node:
 
     @property
     def pending(self) -> bool:
-        """Children not proxied yet: external tilesets not read, or read through another path (a walk)."""
-        if self.tree is not None and self.key in self.tree.failed:
+        """Children not proxied yet: external tilesets not read (or being read in the background), or read
+        through another path (a walk)."""
+        tree = self.tree
+        if tree is not None and self.key in tree.failed:
             return False
+        if tree is not None and self.key in tree.expanding:
+            return True
         return self.tile.pending is not None or len(self.children) != len(self.tile.children)
 
-    def expand(self) -> bool:
-        """Read this tile's external tilesets (selection refines into them) and proxy the new children. A
-        tileset that cannot be read is one warning; the tile then stays without those children."""
-        assert self.tree is not None
-        if self.tile.pending is not None:
+    def expand(self, wait: bool = False) -> bool:
+        """Read this tile's external tilesets (selection refines into them) and proxy the new children; True
+        when children were added. With the scene's background reader (an interactive view), the files are read
+        on its threads and this returns False until they are: the frame goes on with what it has. A tileset
+        that cannot be read is one warning; the tile then stays without those children."""
+        tree = self.tree
+        assert tree is not None
+        pool = tree.scene.expander if tree.scene is not None else None
+        wait = wait or pool is None  # without a background reader (Scene.resolve), read it in this frame
+        future = tree.expanding.get(self.key)
+        if future is not None:
+            if not future.done() and not wait:
+                return False
+            future.exception()  # waits when asked to
+            del tree.expanding[self.key]
+            exc = future.exception()
+            if exc is not None:
+                return self._failed(exc)
+        elif self.tile.pending is not None:
+            if pool is not None and not wait:
+                tree.expanding[self.key] = pool.submit(self.tile.tileset.expand, self.tile)
+                return False
             try:
                 self.tile.tileset.expand(self.tile)
             except CitylodError as exc:
-                self.tree.failed[self.key] = str(exc)
-                warnings.warn(f"{exc}; the tiles below it are not drawn", stacklevel=2)
-                return False
+                return self._failed(exc)
         known = {id(c.tile): c for c in self.children}
         new = [c for c in self.tile.children if id(c) not in known]
         if not new:
             return False
-        _grow_proxies(self, new, self.tree)
+        _grow_proxies(self, new, tree)
         order = {id(t): i for i, t in enumerate(self.tile.children)}
         self.children.sort(key=lambda c: order[id(c.tile)])
         return True
+
+    def _failed(self, exc: BaseException) -> bool:
+        assert self.tree is not None
+        if not isinstance(exc, CitylodError):
+            raise exc
+        self.tree.failed[self.key] = str(exc)
+        warnings.warn(f"{exc}; the tiles below it are not drawn", stacklevel=3)
+        return False
 
 
 class _Tree:
     """What a layer's proxies share: their index by key, the layer's key prefix, its reprojection, and the
     tiles whose external tilesets could not be read."""
 
-    __slots__ = ("failed", "index", "prefix", "reprojection")
+    __slots__ = ("expanding", "failed", "index", "prefix", "reprojection", "scene")
 
     def __init__(self, prefix: str, reprojection: Reprojection | None) -> None:
         self.index: dict[str, _Node] = {}
         self.prefix = prefix
         self.reprojection = reprojection
         self.failed: dict[str, str] = {}
+        self.expanding: dict[str, Future[bool]] = {}  # key -> expansion running on the scene's reader
+        self.scene: Scene | None = None
 
 
 def _grow_proxies(parent: _Node | None, tiles: list[Tile], tree: _Tree) -> list[_Node]:
@@ -168,10 +198,10 @@ def _grow_proxies(parent: _Node | None, tiles: list[Tile], tree: _Tree) -> list[
     return made
 
 
-def _proxy_tree(root: Tile, prefix: str, reprojection: Reprojection | None = None) -> tuple[_Node, dict[str, _Node]]:
+def _proxy_tree(root: Tile, prefix: str, reprojection: Reprojection | None = None) -> tuple[_Node, _Tree]:
     tree = _Tree(prefix, reprojection)
     top = _grow_proxies(None, [root], tree)[0]
-    return top, tree.index
+    return top, tree
 
 
 def _load_node(node: _Node) -> tuple[PreparedTile, int]:
@@ -486,7 +516,9 @@ class TilesetLayer:
         self.prefix = f"{index}:"
         #: How the layer's coordinates reach the scene's CRS; None when the layer is in the scene's CRS.
         self.reprojection = reprojection
-        self.root, self._nodes = _proxy_tree(tileset.root, self.prefix, reprojection)
+        self.root, self._tree = _proxy_tree(tileset.root, self.prefix, reprojection)
+        self._tree.scene = scene
+        self._nodes = self._tree.index
         self.visible = True
         self.tau_px: float | None = None
         cl = tileset.extras.get("citylod", {}) if isinstance(tileset.extras, dict) else {}
@@ -542,7 +574,7 @@ class TilesetLayer:
         while stack:
             node = stack.pop()
             if node.pending:
-                node.expand()
+                node.expand(wait=True)
             stack.extend(node.children)
         out = []
         for node in list(self._nodes.values()):
@@ -845,6 +877,9 @@ class Scene:
         self.origin: F64 | None = None if origin is None else np.asarray(origin, np.float64)
         self.cache = TileCache(cache_bytes)
         self.loader = TileLoader(_load_node, self.cache, workers=workers)
+        # Reads external tilesets in the background (expand_in_background); None reads them in the frame that
+        # reaches them, which off-screen renders want (they resolve until nothing is missing).
+        self.expander: ThreadPoolExecutor | None = None
         self.tau_px = float(tau_px)
         self.color_by = color_by
         self.layers: list[TilesetLayer] = []
@@ -918,6 +953,21 @@ class Scene:
         hi = max(lay.bounds[1][2] for lay in self.layers)
         self.elevation_range = (float(lo), float(hi if hi > lo else lo + 1.0))
         return layer
+
+    def expand_in_background(self, workers: int = 4) -> None:
+        """Read external tilesets (and implicit subtrees) that views reach on background threads: a frame
+        never waits on a file or a web server; until they are read, the tiles above them stay drawn. For
+        interactive views; :meth:`expanding` says how many are being read."""
+        if self.expander is None:
+            self.expander = ThreadPoolExecutor(workers, thread_name_prefix="citylod-expand")
+
+    def expanding(self) -> int:
+        """External tilesets being read in the background, and read but not yet taken into the tree."""
+        return sum(len(layer._tree.expanding) for layer in self.layers)
+
+    def expansions_done(self) -> int:
+        """External tilesets read in the background that the next frame takes into the tree."""
+        return sum(f.done() for layer in self.layers for f in layer._tree.expanding.values())
 
     @property
     def bounds(self) -> tuple[F64, F64]:
@@ -1069,7 +1119,8 @@ class Scene:
         return self.loader.request(merged)
 
     def update(self, view: View | None = None) -> FrameStats:
-        """Select and show tiles for ``view`` (default: the renderer's camera); never blocks on I/O.
+        """Select and show tiles for ``view`` (default: the renderer's camera); never blocks on I/O once the
+        scene reads external tilesets in the background (:meth:`expand_in_background`, as the app does).
 
         Finished loads enter the cache, missing tiles are requested, and the tiles already resident are
         shown. Call before every render (or use :meth:`attach`). In frozen mode the shown tiles stay.
@@ -1108,11 +1159,15 @@ class Scene:
         if not self.layers:
             return FrameStats()
         self._frame_view = view
+        # External tilesets are read in the frame that reaches them here, so "complete" means complete.
+        pool, self.expander = self.expander, None
         try:
             sels = resolve_layers(lambda _frame: self.select_all(view), self.loader,
                                   request=self._pin_and_request, max_iterations=max_rounds, timeout_s=timeout_s)
         except TimeoutError as exc:
             raise CitylodError(str(exc)) from None
+        finally:
+            self.expander = pool
         self._release_evicted()
         for layer, sel in zip(self.layers, sels, strict=True):
             layer.selection = sel
@@ -1176,7 +1231,7 @@ class Scene:
             st.requested += len(sel.request)
             for n in sel.render:
                 st.levels[n.level] = st.levels.get(n.level, 0) + 1
-        st.complete = st.requested == 0
+        st.complete = st.requested == 0 and self.expanding() == 0
         return st
 
     # -- renderer hook ----------------------------------------------------------------------------

@@ -512,20 +512,25 @@ class Tileset:
 
     def expand(self, tile: Tile) -> bool:
         """Read the external tilesets ``tile`` refers to (``tile.pending``) and splice their trees in as its
-        children; False when there were none. Safe to call from several threads."""
+        children; False when there were none. Threads may expand different tiles at once: the files are read
+        outside the tree's lock, the tiles built under it."""
         with self._expand_lock:
             externals, tile.pending = tile.pending, None
-            if not externals:
-                return False
-            try:
-                self._grow(self._external_roots(tile, externals, tile.base, tile.source))
-            except Exception:
+        if not externals:
+            return False
+        try:
+            roots = self._external_roots(tile, externals, tile.base, tile.source)
+            with self._expand_lock:
+                self._grow(roots)
+        except Exception:
+            with self._expand_lock:
                 tile.pending = externals  # nothing spliced: the next call reports the same problem
-                for c in [c for c in tile.children if int(c.key.rsplit("/", 1)[1]) in {ci for ci, _ in externals}]:
-                    tile.children.remove(c)
-                raise
+                spliced = {ci for ci, _ in externals}
+                tile.children[:] = [c for c in tile.children if int(c.key.rsplit("/", 1)[1]) not in spliced]
+            raise
+        with self._expand_lock:
             tile.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
-            return True
+        return True
 
     def read_file(self, path: Path, what: str = "file", source: str | None = None) -> bytes:
         """The bytes of a file of this tileset (``path`` from :func:`safe_resolve`), in its folder or package."""

@@ -392,6 +392,8 @@ def _fill_set(child: TileNode, fr: _Frame, tau_px: float) -> tuple[list[TileNode
             fill.append(node)
             continue
         if not fr.refines(node, tau_px):
+            if getattr(node, "pending", False):
+                fill.append(node)  # its tileset is being read: not ready, as a tile not loaded (no hole)
             continue  # an empty tile that stops here draws nothing, legitimately
         through.append(node)
         for grandchild in node.children:
