@@ -1,11 +1,11 @@
 """Tilesets served over HTTP(S), read file by file as a 3D Tiles client reads them.
 
 ``open_tileset("https://host/data/tileset.json")`` reads the tileset JSON, then each tile's content when a view
-needs it, with one GET per file (urllib; HTTP keep-alive is not needed at these request rates). The tileset's
-folder on the server stands where a local folder would: content URIs are resolved against it and must stay
-inside it, as for files (:func:`citylod.io.tiles3d.tileset.safe_resolve`), so a tileset cannot make citylod
-fetch from another host or path. The tileset URL's query string (an access token, a version) is sent with every
-request, as CesiumJS's resources pass their query parameters on to derived ones.
+needs it, with one GET per file (urllib; HTTP keep-alive is not needed at these request rates). Content URIs are
+resolved as a browser resolves them (relative, root-relative ``/x``, or absolute), and must stay on the same
+server (scheme, host and port): a tileset cannot make citylod fetch from anywhere else, and a redirect to
+another server is refused too. A URI's own query string (``?v=2``, a session) is kept, and the tileset URL's
+(an access token) is added to every request, as CesiumJS's resources pass their query parameters on.
 
 Every request has a time-out and a size cap; an HTTP error, a refused connection or a time-out is one
 :class:`~citylod.core.errors.InputError` naming the URL. Nothing is cached on disk: the renderer's memory cache
@@ -18,10 +18,10 @@ import posixpath
 import urllib.error
 import urllib.parse
 import urllib.request
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 from citylod._version import __version__
-from citylod.core.errors import InputError
+from citylod.core.errors import InputError, UnsafePathError
 from citylod.io.tiles3d.package import MAX_ENTRY_BYTES, is_url, unfold_url
 
 __all__ = ["Remote", "is_url"]
@@ -31,10 +31,11 @@ _CHUNK = 1 << 20
 
 
 class Remote:
-    """One tileset's folder on an HTTP(S) server; :meth:`read` fetches a file by its path inside that folder.
+    """A tileset on an HTTP(S) server; :meth:`read` fetches a file by its path on the server.
 
-    ``root`` is a local stand-in path for the folder (nothing is written there): the tileset's files get paths
-    below it, so the reader's path checks work unchanged.
+    ``root`` is a local stand-in path for the server's root (nothing is written there): the tileset's files get
+    paths below it (a URI's query string kept in the last part of the name), so the reader's path checks work
+    unchanged; :meth:`resolve` turns a content URI into such a path.
     """
 
     def __init__(self, url: str, timeout_s: float | None = None) -> None:
@@ -49,17 +50,40 @@ class Remote:
         if not path.startswith("/"):
             path = "/" + path
         self.url = url
-        self.folder_url = urllib.parse.urlunsplit((parts.scheme, parts.netloc, posixpath.dirname(path) + "/", "", ""))
-        self.entry = posixpath.basename(path)
+        self.scheme, self.netloc = parts.scheme, parts.netloc
+        self.origin = f"{parts.scheme}://{parts.netloc}"
         self.query = parts.query
         self.timeout_s = TIMEOUT_S if timeout_s is None else timeout_s
-        host = parts.netloc.replace(":", "_")
-        self.root = Path("/citylod-remote") / parts.scheme / host / PurePosixPath(posixpath.dirname(path)).relative_to("/")
+        self.root = Path("/citylod-remote") / parts.scheme / parts.netloc.replace(":", "_")
+        #: Where the tileset JSON stands under :attr:`root`.
+        self.entry = self.root / path.lstrip("/")
+
+    def resolve(self, base: Path, uri: str, source: str) -> Path:
+        """The stand-in path of content ``uri`` referred to from folder ``base``; UnsafePathError when it is on
+        another server."""
+        parsed = urllib.parse.urlsplit(uri)
+        if "\x00" in uri:
+            raise UnsafePathError(f"content URI {uri!r} holds a NUL byte", source)
+        if parsed.scheme or parsed.netloc:
+            if (parsed.scheme, parsed.netloc) != (self.scheme, self.netloc):
+                raise UnsafePathError(f"content URI {uri!r} is on another server than the tileset "
+                                      f"({self.origin}); only that server is read", source)
+        path = urllib.parse.unquote(parsed.path)
+        if not path:
+            raise UnsafePathError(f"content URI {uri!r} has no path", source)
+        here = "/" + base.relative_to(self.root).as_posix() if base != self.root else "/"
+        # As a browser resolves it: ".." stops at the server's root.
+        full = "/" + posixpath.normpath(path if path.startswith("/") else posixpath.join(here, path)).lstrip("/")
+        if full == "/":
+            raise UnsafePathError(f"content URI {uri!r} names the server's root, not a file", source)
+        target = self.root / full.lstrip("/")
+        return target.with_name(f"{target.name}?{parsed.query}") if parsed.query else target
 
     def url_of(self, name: str) -> str:
-        """The URL of the file ``name`` (a relative POSIX path inside the folder)."""
-        quoted = urllib.parse.quote(name, safe="/")
-        return self.folder_url + quoted + (f"?{self.query}" if self.query else "")
+        """The URL of the file ``name`` (its path on the server, relative to the root, its query at the end)."""
+        path, _, query = name.partition("?")
+        extra = [q for q in (query, self.query) if q]
+        return f"{self.origin}/{urllib.parse.quote(path, safe='/')}" + (f"?{'&'.join(extra)}" if extra else "")
 
     def read(self, name: str) -> bytes:
         """The file's bytes; :class:`InputError` naming the URL when the server does not give them."""
@@ -91,15 +115,16 @@ class Remote:
         return 0
 
     def _opener(self) -> urllib.request.OpenerDirector:
-        folder = self.folder_url
+        origin = self.origin
 
-        class _StayInside(urllib.request.HTTPRedirectHandler):
-            """Follows a redirect only within the tileset's folder (a renamed file, a trailing slash)."""
+        class _SameServer(urllib.request.HTTPRedirectHandler):
+            """Follows a redirect only on the tileset's server (a renamed file, a trailing slash)."""
 
             def redirect_request(self, req, fp, code, msg, headers, newurl):  # type: ignore[no-untyped-def]
-                parts = urllib.parse.urlsplit(newurl)
-                if not urllib.parse.urlunsplit((parts.scheme, parts.netloc, parts.path, "", "")).startswith(folder):
-                    raise InputError(f"the server redirects to {newurl}, outside the tileset's folder", req.full_url)
+                parts = urllib.parse.urlsplit(urllib.parse.urljoin(req.full_url, newurl))
+                if f"{parts.scheme}://{parts.netloc}" != origin:
+                    raise InputError(f"the server redirects to {newurl}, another server than the tileset's",
+                                     req.full_url)
                 return super().redirect_request(req, fp, code, msg, headers, newurl)
 
-        return urllib.request.build_opener(_StayInside)
+        return urllib.request.build_opener(_SameServer)

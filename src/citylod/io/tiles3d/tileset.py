@@ -9,8 +9,9 @@ source CRS.
 What citylod reads: any 3D Tiles 1.x tileset — glb, glTF, b3dm, i3dm, cmpt and pnts content (gzip or not),
 several contents per tile, implicit tiling (:mod:`.implicit`), box / region / sphere bounding volumes, tile
 transforms, external tilesets, gzip-compressed tileset JSON, and all of it inside a ``.3tz`` or ``.3dtiles`` package
-(:mod:`.package`), read in place, or on a web server (:mod:`.remote`). URIs that leave the tileset's folder, package
-or server folder (``../``, absolute paths, URLs) are refused with :class:`~citylod.core.errors.UnsafePathError`.
+(:mod:`.package`), read in place, or on a web server (:mod:`.remote`). URIs that leave the tileset's folder or
+package (``../``, absolute paths, URLs), or for a web server its server, are refused with
+:class:`~citylod.core.errors.UnsafePathError`.
 
 No VTK and no Qt here.
 """
@@ -294,7 +295,7 @@ class Tile:
         data = ts.read_file(path, "tile content", str(path))
 
         def resolve(uri: str) -> bytes:
-            return ts.read_file(safe_resolve(path.parent, uri, ts.folder, str(path)), repr(uri), str(path))
+            return ts.read_file(ts.resolve(path.parent, uri, str(path)), repr(uri), str(path))
 
         content = decode_content(data, str(path), y_up=self.tileset.y_up, resolve=resolve)
         if self.tileset.up_axis == "X":  # CesiumJS's Axis.X_UP_TO_Z_UP, a −90° turn about y; RTC is z-up already
@@ -437,7 +438,7 @@ class Tileset:
                 if not curi:
                     continue
                 if curi.lower().split("?")[0].endswith(".json"):
-                    ext_path = safe_resolve(base, curi, self.folder, source)
+                    ext_path = self.resolve(base, curi, source)
                     external = str(ext_path)
                     if external in chain:
                         raise InputError(f"tileset refers to itself through {curi!r} (a cycle of external "
@@ -453,7 +454,7 @@ class Tileset:
                     externals.append((len(children_json) + len(externals), ext_path))
                 else:
                     uri = uri or curi
-                    cpaths.append(safe_resolve(base, curi, self.folder, source))
+                    cpaths.append(self.resolve(base, curi, source))
             tile = Tile(self, key, level, parent, matrix @ translation(shift), box, float(tj["geometricError"]),
                         refine, uri, cpaths[0] if cpaths else None, cpaths)
             tile.shift = shift
@@ -532,10 +533,21 @@ class Tileset:
             tile.children.sort(key=lambda c: int(c.key.rsplit("/", 1)[1]))
         return True
 
+    def resolve(self, base: Path, uri: str, source: str) -> Path:
+        """The path of ``uri`` referred to from folder ``base``: inside the tileset's folder or package
+        (:func:`safe_resolve`), or on the same web server (:meth:`Remote.resolve`)."""
+        if isinstance(self.store, Remote):
+            return self.store.resolve(base, uri, source)
+        return safe_resolve(base, uri, self.folder, source)
+
+    def _store_name(self, path: Path) -> str:
+        root = self.store.root if isinstance(self.store, Remote) else self.folder
+        return path.relative_to(root).as_posix()
+
     def read_file(self, path: Path, what: str = "file", source: str | None = None) -> bytes:
-        """The bytes of a file of this tileset (``path`` from :func:`safe_resolve`), in its folder or package."""
+        """The bytes of a file of this tileset (``path`` from :meth:`resolve`), in its folder, package or server."""
         if self.store is not None:
-            return self.store.read(path.relative_to(self.folder).as_posix())
+            return self.store.read(self._store_name(path))
         try:
             return path.read_bytes()
         except OSError as exc:
@@ -544,7 +556,7 @@ class Tileset:
     def file_size(self, path: Path) -> int:
         """A file's size in bytes, 0 when it cannot be found."""
         if self.store is not None:
-            return self.store.size(path.relative_to(self.folder).as_posix())
+            return self.store.size(self._store_name(path))
         try:
             return path.stat().st_size
         except OSError:
@@ -554,7 +566,7 @@ class Tileset:
         """Reads URIs relative to ``base`` that stay inside the tileset (implicit tiling's subtrees)."""
 
         def read(uri: str) -> bytes:
-            return self.read_file(safe_resolve(base, uri, self.folder, source), repr(uri), source)
+            return self.read_file(self.resolve(base, uri, source), repr(uri), source)
 
         return read
 
@@ -667,7 +679,7 @@ def open_tileset(path: str | os.PathLike[str]) -> Tileset:
     store: Package | Remote | None = None
     if is_url(path):
         store = Remote(str(path))
-        p = store.root / store.entry
+        p = store.entry
     else:
         p = Path(path)
         kind = package_kind(p)
@@ -676,7 +688,13 @@ def open_tileset(path: str | os.PathLike[str]) -> Tileset:
             p = store.path / "tileset.json"
         elif p.is_dir():
             p = p / "tileset.json"
-    read = None if store is None else (lambda q: store.read(q.name))  # type: ignore[union-attr]
+    read: Callable[[Path], bytes] | None = None
+    if isinstance(store, Remote):
+        remote = store
+        read = lambda q: remote.read(q.relative_to(remote.root).as_posix())  # noqa: E731
+    elif store is not None:
+        package = store
+        read = lambda q: package.read(q.name)  # noqa: E731
     doc = _read_json(p, read)
     try:
         return Tileset(p if store is not None else p.resolve(), doc, store)
