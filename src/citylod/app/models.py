@@ -35,7 +35,8 @@ import numpy.typing as npt
 
 from citylod.core.camera import Camera, enu_axes, framing_camera, local_up, overview_camera
 from citylod.core.errors import CitylodError, InputError
-from citylod.io.tiles3d.package import PACKAGE_SUFFIXES, is_url
+from citylod.io.tiles3d.package import PACKAGE_SUFFIXES
+from citylod.io.tiles3d.remote import is_url
 
 __all__ = [
     "ASPRS_CLASSES",

@@ -39,7 +39,7 @@ from citylod.app.models import Bookmarks, Document
 from citylod.core.camera import Camera
 from citylod.core.errors import InputError
 from citylod.core.fileio import atomic_write_text
-from citylod.io.tiles3d.package import is_url, unfold_url
+from citylod.io.tiles3d.remote import is_url, unfold_url
 
 __all__ = ["PROJECT_SUFFIX", "Project", "apply_project", "project_dict", "read_project", "save_project"]
 

@@ -61,7 +61,7 @@ from citylod.app.qt_tools import ClipPanel, PointPanel
 from citylod.app.qt_view import SceneView
 from citylod.core.errors import CitylodError
 from citylod.core.gc_policy import GcPolicy
-from citylod.io.tiles3d.package import is_url, unfold_url
+from citylod.io.tiles3d.remote import is_url, unfold_url
 
 __all__ = ["MainWindow", "settings"]
 

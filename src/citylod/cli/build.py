@@ -110,9 +110,9 @@ def _pack(folder: Path, package: Path | None) -> None:
         return
     import shutil
 
-    from citylod.io.tiles3d.archive3tz import write_3dtiles, write_3tz
+    from citylod.io.tiles3d.archive3tz import write_package
 
-    (write_3tz if package.suffix.lower() == ".3tz" else write_3dtiles)(folder, package)
+    write_package(folder, package)
     shutil.rmtree(folder)
     print(f"{package}: packed from {folder.name}/")
 

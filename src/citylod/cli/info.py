@@ -8,7 +8,8 @@ from collections import Counter
 from pathlib import Path
 
 from citylod.core.errors import InputError
-from citylod.io.tiles3d.package import is_tileset_path, is_url
+from citylod.io.tiles3d.package import is_tileset_path
+from citylod.io.tiles3d.remote import is_url
 
 
 def describe(source: str | os.PathLike[str]) -> str:

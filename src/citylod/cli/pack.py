@@ -19,7 +19,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace, progress: bool) -> int:
     from citylod.core.errors import InputError
-    from citylod.io.tiles3d.archive3tz import write_3dtiles, write_3tz
+    from citylod.io.tiles3d.archive3tz import write_package
 
     folder = args.tiles.parent if args.tiles.name == "tileset.json" else args.tiles
     if not folder.is_dir():
@@ -30,16 +30,12 @@ def run(args: argparse.Namespace, progress: bool) -> int:
     if suffix == ".3dtiles" and args.deflate:
         raise InputError("--deflate is for .3tz archives", args.output)
     t0 = time.perf_counter()
-    files = sorted(p for p in folder.rglob("*") if p.is_file())
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(files, desc="pack", unit="file", leave=False)
-    if suffix == ".3tz":
-        n = write_3tz(folder, args.output, compress=args.deflate, progress=bar)
-    else:
-        n = write_3dtiles(folder, args.output, progress=bar)
+        bar = lambda files: tqdm(files, desc="pack", unit="file", leave=False)  # noqa: E731
+    n = write_package(folder, args.output, compress=args.deflate, progress=bar)
     size = args.output.stat().st_size
     print(f"{args.output}: {n} files, {size / 1e6:.1f} MB, {time.perf_counter() - t0:.1f} s")
     return 0

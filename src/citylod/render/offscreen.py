@@ -27,7 +27,8 @@ import numpy.typing as npt
 from citylod.core.camera import Camera, built_in_camera, cameras_for, load_cameras, local_up
 from citylod.core.errors import CitylodError, InputError
 from citylod.core.fileio import atomic_write, atomic_write_bytes
-from citylod.io.tiles3d.package import is_tileset_path, is_url
+from citylod.io.tiles3d.package import is_tileset_path
+from citylod.io.tiles3d.remote import is_url
 from citylod.render import _vtk
 from citylod.render.depth import zbuffer_to_distance
 from citylod.render.gl_context import guard

@@ -47,7 +47,7 @@ from citylod.core.camera import Camera, View
 from citylod.core.errors import CitylodError
 from citylod.core.geometry import F64, Box, translation
 from citylod.io.tiles3d import Tile, Tileset, open_tileset
-from citylod.io.tiles3d.package import is_url
+from citylod.io.tiles3d.remote import is_url
 from citylod.lod.runtime.cache import TauController, TileCache
 from citylod.lod.runtime.loader import TileLoader, resolve_layers
 from citylod.lod.runtime.selection import Budget, Selection, select

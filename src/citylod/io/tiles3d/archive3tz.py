@@ -11,7 +11,8 @@ checked.
 
 :func:`write_3tz` packs a tileset folder into such an archive. Layout and index follow the format's
 specification (3D Tiles Archive Format v1.3, which 3d-tiles-tools and CesiumJS's package server implement);
-:func:`write_3dtiles` writes the other package format, an SQLite database.
+:func:`write_3dtiles` writes the other package format, an SQLite database; :func:`write_package` picks one by the
+output's suffix.
 """
 
 from __future__ import annotations
@@ -21,12 +22,13 @@ import os
 import struct
 import zipfile
 import zlib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
 
 from citylod.core.errors import InputError
+from citylod.core.fileio import atomic_write
 
 INDEX_NAME = "@3dtilesIndex1@"
 _EOCD = b"PK\x05\x06"
@@ -214,62 +216,69 @@ def _read_index(fd: int, file_size: int) -> np.ndarray | None:
     return None
 
 
-def write_3tz(folder: Path, out: Path, *, compress: bool = False, progress: Iterable[Path] | None = None) -> int:
-    """Pack every file under ``folder`` into the 3TZ ``out`` (written under a temporary name, then renamed);
-    returns the number of files. ``compress`` deflates the entries (smaller, slower to read); by default they
-    are stored, as the format recommends for read speed."""
+#: Wraps the list of files a writer packs, to show progress (``lambda files: tqdm(files)``); None: nothing.
+Progress = Callable[[list[Path]], Iterable[Path]] | None
+
+
+def _tileset_files(folder: Path) -> tuple[list[Path], list[str]]:
+    """Every file under ``folder`` and its name in a package, sorted; InputError without a tileset.json."""
     files = sorted(p for p in folder.rglob("*") if p.is_file())
     names = [p.relative_to(folder).as_posix() for p in files]
     if "tileset.json" not in names:
         raise InputError("no tileset.json at the top of the folder", folder)
+    return files, names
+
+
+def write_package(folder: Path, out: Path, *, compress: bool = False, progress: Progress = None) -> int:
+    """Pack the tileset folder ``folder`` into ``out``, a ``.3tz`` (:func:`write_3tz`) or ``.3dtiles``
+    (:func:`write_3dtiles`) by its suffix; returns the number of files."""
+    if out.suffix.lower() == ".3dtiles":
+        return write_3dtiles(folder, out, progress=progress)
+    return write_3tz(folder, out, compress=compress, progress=progress)
+
+
+def write_3tz(folder: Path, out: Path, *, compress: bool = False, progress: Progress = None) -> int:
+    """Pack every file under ``folder`` into the 3TZ ``out``, atomically; returns the number of files.
+    ``compress`` deflates the entries (smaller, slower to read); by default they are stored, as the format
+    recommends for read speed."""
+    files, names = _tileset_files(folder)
     bad = [n for n in names if ".3tz" in n or n == INDEX_NAME]
     if bad:
         raise InputError(f"{bad[0]!r}: a 3TZ may not hold names containing '.3tz' or its index's name", folder)
-    tmp = out.with_name(out.name + ".partial")
     method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
-    try:
+
+    def write(tmp: Path) -> None:
         with zipfile.ZipFile(tmp, "w", compression=method, allowZip64=True) as z:
             entries = []
-            for p, name in zip(progress if progress is not None else files, names, strict=True):
+            for p, name in zip(files if progress is None else progress(files), names, strict=True):
                 info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))  # reproducible bytes
                 info.compress_type = method
-                z.writestr(info, Path(p).read_bytes())
-                hi, lo = _hash(name)
-                entries.append((hi, lo, z.getinfo(name).header_offset))
-            index = np.array(sorted(entries), _INDEX_DTYPE)
+                z.writestr(info, p.read_bytes())
+                entries.append((*_hash(name), z.getinfo(name).header_offset))
             info = zipfile.ZipInfo(INDEX_NAME, date_time=(1980, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_STORED
-            z.writestr(info, index.tobytes())
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+            z.writestr(info, np.array(sorted(entries), _INDEX_DTYPE).tobytes())
+
+    atomic_write(out, write)
     return len(files)
 
 
-def write_3dtiles(folder: Path, out: Path, *, progress: Iterable[Path] | None = None) -> int:
+def write_3dtiles(folder: Path, out: Path, *, progress: Progress = None) -> int:
     """Pack every file under ``folder`` into the 3DTILES package ``out`` (SQLite, one table
-    ``media(key TEXT PRIMARY KEY, content BLOB)``, as 3d-tiles-tools writes it), under a temporary name first."""
+    ``media(key TEXT PRIMARY KEY, content BLOB)``, as 3d-tiles-tools writes it), atomically."""
     import sqlite3
 
-    files = sorted(p for p in folder.rglob("*") if p.is_file())
-    names = [p.relative_to(folder).as_posix() for p in files]
-    if "tileset.json" not in names:
-        raise InputError("no tileset.json at the top of the folder", folder)
-    tmp = out.with_name(out.name + ".partial")
-    if tmp.exists():
-        tmp.unlink()
-    try:
+    files, names = _tileset_files(folder)
+
+    def write(tmp: Path) -> None:
         db = sqlite3.connect(tmp)
         try:
             db.execute("CREATE TABLE media (key TEXT PRIMARY KEY, content BLOB)")
-            for p, name in zip(progress if progress is not None else files, names, strict=True):
-                db.execute("INSERT INTO media VALUES (?, ?)", (name, Path(p).read_bytes()))
+            for p, name in zip(files if progress is None else progress(files), names, strict=True):
+                db.execute("INSERT INTO media VALUES (?, ?)", (name, p.read_bytes()))
             db.commit()
         finally:
             db.close()
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+
+    atomic_write(out, write)
     return len(files)

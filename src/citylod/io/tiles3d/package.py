@@ -28,26 +28,13 @@ from pathlib import Path
 from typing import Any
 
 from citylod.core.errors import InputError
-from citylod.io.tiles3d.archive3tz import MAX_ENTRY_BYTES, Index3tz, NeedsCentralDirectory
+from citylod.io.tiles3d.archive3tz import MAX_ENTRY_BYTES, Index3tz, NeedsCentralDirectory, normalise
+from citylod.io.tiles3d.remote import is_url
 
 PACKAGE_SUFFIXES = (".3tz", ".3dtiles")
 
 _ZIP_MAGIC = b"PK\x03\x04"
 _SQLITE_MAGIC = b"SQLite format 3\x00"
-
-
-def is_url(source: object) -> bool:
-    """Whether ``source`` is an http(s) URL, also after ``pathlib.Path`` folded its ``//`` into ``/``."""
-    return str(source).startswith(("http://", "https://", "http:/", "https:/"))
-
-
-def unfold_url(source: object) -> str:
-    """A URL as typed, after ``pathlib.Path`` folded its ``//`` (``https:/host`` → ``https://host``)."""
-    s = str(source)
-    for scheme in ("http:", "https:"):
-        if s.startswith(scheme + "/") and not s.startswith(scheme + "//"):
-            return scheme + "/" + s[len(scheme):]
-    return s
 
 
 def is_tileset_path(path: str | os.PathLike[str]) -> bool:
@@ -85,6 +72,7 @@ class Package:
 
     def __init__(self, path: Path, kind: str) -> None:
         self.path = path
+        self.root = path  # the tileset's files get paths below the package's own (Tileset.read_file)
         self.kind = kind
         self._lock = threading.Lock()
         self._pid = -1
@@ -201,8 +189,8 @@ class Package:
 
 
 def _norm(name: str) -> str:
-    """An entry name as a relative POSIX path without ``./`` (both tools and hand-made ZIPs vary)."""
-    name = name.replace("\\", "/")
+    """An entry name as the 3TZ index hashes it, without a leading ``./`` (both tools and hand-made ZIPs vary)."""
+    name = normalise(name)
     while name.startswith("./"):
         name = name[2:]
-    return name.lstrip("/")
+    return name

@@ -22,12 +22,26 @@ from pathlib import Path
 
 from citylod._version import __version__
 from citylod.core.errors import InputError, UnsafePathError
-from citylod.io.tiles3d.package import MAX_ENTRY_BYTES, is_url, unfold_url
+from citylod.io.tiles3d.archive3tz import MAX_ENTRY_BYTES
 
-__all__ = ["Remote", "is_url"]
+__all__ = ["Remote", "is_url", "unfold_url"]
 
 TIMEOUT_S = 30.0
 _CHUNK = 1 << 20
+
+
+def is_url(source: object) -> bool:
+    """Whether ``source`` is an http(s) URL, also after ``pathlib.Path`` folded its ``//`` into ``/``."""
+    return str(source).startswith(("http://", "https://", "http:/", "https:/"))
+
+
+def unfold_url(source: object) -> str:
+    """A URL as typed, after ``pathlib.Path`` folded its ``//`` (``https:/host`` → ``https://host``)."""
+    s = str(source)
+    for scheme in ("http:", "https:"):
+        if s.startswith(scheme + "/") and not s.startswith(scheme + "//"):
+            return scheme + "/" + s[len(scheme):]
+    return s
 
 
 class Remote:

@@ -540,14 +540,10 @@ class Tileset:
             return self.store.resolve(base, uri, source)
         return safe_resolve(base, uri, self.folder, source)
 
-    def _store_name(self, path: Path) -> str:
-        root = self.store.root if isinstance(self.store, Remote) else self.folder
-        return path.relative_to(root).as_posix()
-
     def read_file(self, path: Path, what: str = "file", source: str | None = None) -> bytes:
         """The bytes of a file of this tileset (``path`` from :meth:`resolve`), in its folder, package or server."""
         if self.store is not None:
-            return self.store.read(self._store_name(path))
+            return self.store.read(path.relative_to(self.store.root).as_posix())
         try:
             return path.read_bytes()
         except OSError as exc:
@@ -556,7 +552,7 @@ class Tileset:
     def file_size(self, path: Path) -> int:
         """A file's size in bytes, 0 when it cannot be found."""
         if self.store is not None:
-            return self.store.size(self._store_name(path))
+            return self.store.size(path.relative_to(self.store.root).as_posix())
         try:
             return path.stat().st_size
         except OSError:
@@ -688,14 +684,7 @@ def open_tileset(path: str | os.PathLike[str]) -> Tileset:
             p = store.path / "tileset.json"
         elif p.is_dir():
             p = p / "tileset.json"
-    read: Callable[[Path], bytes] | None = None
-    if isinstance(store, Remote):
-        remote = store
-        read = lambda q: remote.read(q.relative_to(remote.root).as_posix())  # noqa: E731
-    elif store is not None:
-        package = store
-        read = lambda q: package.read(q.name)  # noqa: E731
-    doc = _read_json(p, read)
+    doc = _read_json(p, None if store is None else (lambda q: store.read(q.relative_to(store.root).as_posix())))
     try:
         return Tileset(p if store is not None else p.resolve(), doc, store)
     except (KeyError, TypeError, AttributeError, ValueError, OverflowError, IndexError) as exc:

@@ -268,7 +268,6 @@ class _Frame:
         self._cover: dict[tuple[int, int], int] = {}
         self._frustum: dict[int, tuple[bool, bool]] = {}
         self.refine_to_cull = False
-        self.expanded = 0
 
     def evaluate(self, node: TileNode) -> tuple[bool, float, float]:
         """(culled, sse_px, distance) of ``node``, computed once per call."""
@@ -316,7 +315,6 @@ class _Frame:
             # Children in external tilesets not read yet: read them now that the view refines into them
             # (optional hook ``expand()``; citylod's tileset proxies have it).
             node.expand()  # type: ignore[attr-defined]
-            self.expanded += 1
         if not node.children:
             return False
         if sse > tau_px or external:
