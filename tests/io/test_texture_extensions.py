@@ -1,20 +1,24 @@
 """Texture extensions of glTF content, rendered as ``citylod render`` draws them: ``EXT_texture_webp`` (an image
 libwebp wrote), ``KHR_texture_transform`` (the quadrant its transform selects, reasoned from the extension's
-definition) and ``KHR_texture_basisu`` (no KTX2 decoder here: the material's colour and one warning)."""
+definition) and ``KHR_texture_basisu`` (KTX2 files Binomial's ``basisu`` encoder wrote, ETC1S and UASTC, against
+the PNG they were encoded from)."""
 
 from __future__ import annotations
 
 import base64
 import json
-import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from citylod.io.image import encode_image
+from citylod.core.errors import InputError
+from citylod.io.image import decode_image, encode_image
 from citylod.io.tiles3d import TileSpec, decode_content, write_tileset
+
+# KTX2 files written by basisu (Basis Universal 2.x) from quadrants.png, which is _texture() (SOURCE.md there).
+KTX2_DIR = Path(__file__).resolve().parents[1] / "data" / "ktx2"
 
 # The texture's quadrants, row 0 (v = 0) at the top: red | green over blue | yellow.
 QUADRANTS = {"red": (230, 20, 20), "green": (20, 200, 20), "blue": (20, 20, 230), "yellow": (230, 230, 20)}
@@ -65,8 +69,9 @@ def _data_uri(mime: str, data: bytes) -> str:
     return f"data:{mime};base64," + base64.b64encode(data).decode()
 
 
-def _render(doc: dict[str, Any], tmp_path: Path) -> dict[str, int]:
-    """Pixels of each colour in a view from straight above the quad (the tile as its own tileset)."""
+def _labels(doc: dict[str, Any], tmp_path: Path) -> np.ndarray:
+    """The nearest of the quadrant colours and magenta (indices 0–4, 5 for none) at each pixel of a view from
+    straight above the quad (the tile as its own tileset)."""
     from citylod.core.camera import Camera
     from citylod.render.offscreen import render_images
 
@@ -77,13 +82,16 @@ def _render(doc: dict[str, Any], tmp_path: Path) -> dict[str, int]:
     write_tileset(out, TileSpec("0", 0, c, c - [50, 50, 1], c + [50, 50, 1], 0.0, content="quad.gltf"), "EPSG:32632")
     cam = Camera(position=tuple(c + [0, 0, 300]), focal_point=tuple(c), view_up=(0, 1, 0))
     (rgb, _), = render_images([out], [cam], size=(160, 160))
-    colours = {**QUADRANTS, "magenta": (255, 0, 255)}
-    names = list(colours)
-    ref = np.array([colours[n] for n in names], float)
+    ref = np.array([*QUADRANTS.values(), (255, 0, 255)], float)
     d = np.linalg.norm(rgb.reshape(-1, 1, 3).astype(float) - ref[None], axis=2)
     near = d.min(axis=1) < 80  # shading darkens an untextured face by up to about a fifth
-    counts = np.bincount(d.argmin(axis=1)[near], minlength=len(names))
-    return {n: int(k) for n, k in zip(names, counts, strict=True)}
+    return np.where(near, d.argmin(axis=1), len(ref)).reshape(rgb.shape[:2])
+
+
+def _render(doc: dict[str, Any], tmp_path: Path) -> dict[str, int]:
+    """Pixels of each colour in the view of :func:`_labels`."""
+    counts = np.bincount(_labels(doc, tmp_path).reshape(-1), minlength=len(QUADRANTS) + 2)
+    return {n: int(k) for n, k in zip([*QUADRANTS, "magenta"], counts, strict=False)}
 
 
 def test_plain_png_shows_the_four_quadrants(tmp_path: Path) -> None:
@@ -119,14 +127,39 @@ def test_texture_transform_selects_the_quadrant_it_names(tmp_path: Path) -> None
     assert counts["red"] > 0.95 * sum(counts[n] for n in QUADRANTS)
 
 
-def test_ktx2_texture_draws_the_material_colour_with_a_warning(tmp_path: Path) -> None:
-    ktx2 = b"\xabKTX 20\xbb\r\n\x1a\n" + bytes(64)  # the KTX2 identifier; no decoder reads further
+@pytest.mark.parametrize("codec", ["etc1s", "uastc"])
+def test_ktx2_texture_decodes_to_its_source_image(codec: str) -> None:
+    """The transcoded pixels against the PNG basisu encoded: every quadrant's colour within a few levels (both
+    codecs are lossy, but a flat 32×32 block is what they keep best), rows in the same order."""
+    data = (KTX2_DIR / f"quadrants_{codec}.ktx2").read_bytes()
+    px = decode_image(data, "quadrants.ktx2")
+    truth = decode_image((KTX2_DIR / "quadrants.png").read_bytes())
+    assert px.shape == truth.shape == (64, 64, 3)
+    assert np.abs(px.astype(int) - truth.astype(int)).max() <= 12
+    assert np.abs(px.astype(int) - _texture().astype(int)).mean() <= 3
+
+
+@pytest.mark.parametrize("codec", ["etc1s", "uastc"])
+def test_ktx2_texture_is_drawn_as_its_png_is(codec: str, tmp_path: Path) -> None:
+    """The quad textured through ``KHR_texture_basisu`` (the extension required, no fallback source) is the
+    picture of the same quad with the PNG: the same quadrant under each pixel, none in the material's colour."""
+    png = (KTX2_DIR / "quadrants.png").read_bytes()
+    control = _labels(_quad_gltf({"source": 0}, {"uri": _data_uri("image/png", png)}), tmp_path / "png")
+    ktx2 = (KTX2_DIR / f"quadrants_{codec}.ktx2").read_bytes()
     doc = _quad_gltf({"extensions": {"KHR_texture_basisu": {"source": 0}}},
                      {"uri": _data_uri("image/ktx2", ktx2)}, required=("KHR_texture_basisu",))
-    with pytest.warns(UserWarning, match="KTX2"):
-        content = decode_content(json.dumps(doc).encode(), "quad.gltf")
-    assert content.triangle_count == 2 and content.meshes[0].texture is None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        counts = _render(doc, tmp_path)
-    assert counts["magenta"] > 1000 and sum(counts[n] for n in QUADRANTS) == 0
+    content = decode_content(json.dumps(doc).encode(), "quad.gltf")
+    assert content.triangle_count == 2 and content.meshes[0].texture == ktx2
+    labels = _labels(doc, tmp_path / "ktx2")
+    textured = control < len(QUADRANTS)
+    assert textured.sum() > 0.1 * control.size and set(np.unique(control[textured])) == set(range(len(QUADRANTS)))
+    assert (labels[textured] == control[textured]).mean() > 0.99 and not (labels == len(QUADRANTS)).any()
+
+
+def test_broken_ktx2_is_one_clear_error() -> None:
+    """A cut file, or the KTX2 identifier followed by nothing valid, is an InputError naming the file."""
+    data = (KTX2_DIR / "quadrants_etc1s.ktx2").read_bytes()
+    for bad in (data[:100], data[:12] + bytes(200)):
+        with pytest.raises(InputError, match="KTX2") as info:
+            decode_image(bad, "bad.ktx2")
+        assert "bad.ktx2" in str(info.value)

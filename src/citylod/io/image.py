@@ -2,7 +2,9 @@
 
 JPEG and decoding go through OpenImageIO, whose Python API works on files, so they pass through a private
 temporary file (tiles are a few hundred kB; about a millisecond). PNG is written by :func:`encode_png`, a
-minimal zlib writer: twice as fast as OpenImageIO on the sparse quad atlases, for files no larger.
+minimal zlib writer: twice as fast as OpenImageIO on the sparse quad atlases, for files no larger. KTX2
+textures (glTF's ``KHR_texture_basisu``) are transcoded to RGBA8 by Binomial's Basis Universal transcoder
+(:func:`decode_ktx2`, through ``opengl_basisu``), which OpenImageIO does not read.
 """
 
 from __future__ import annotations
@@ -46,8 +48,36 @@ def encode_image(pixels: npt.NDArray[np.uint8], fmt: str = "jpg", quality: int =
         os.unlink(tmp)
 
 
+#: The first 12 bytes of every KTX 2 file (KTX 2.0 specification, section 3.1).
+KTX2_MAGIC = b"\xabKTX 20\xbb\r\n\x1a\n"
+
+
+def decode_ktx2(data: bytes, source: str = "") -> npt.NDArray[np.uint8]:
+    """Decode a KTX2 texture with a Basis Universal payload (ETC1S or UASTC, what ``KHR_texture_basisu``
+    allows) to (H, W, 3|4) uint8, row 0 at the top: its largest mip level, transcoded to RGBA8 (the alpha
+    channel kept only where the file has one). The values are the file's (sRGB for a colour texture), as a
+    PNG of the same image would decode.
+
+    Raises
+    ------
+    InputError
+        If the bytes are not such a file (truncated, corrupt, another vkFormat, a high dynamic range codec).
+    """
+    import opengl_basisu
+
+    try:
+        texture = opengl_basisu.open(bytes(data))
+        image = texture.transcode(opengl_basisu.Target.RGBA8, level=0)
+    except opengl_basisu.BasisuError as exc:
+        raise InputError(f"cannot decode KTX2 texture ({exc})", source) from exc
+    pixels = np.asarray(image.data, np.uint8).reshape(image.height, image.width, 4)
+    return pixels if texture.has_alpha else np.ascontiguousarray(pixels[:, :, :3])
+
+
 def decode_image(data: bytes, source: str = "") -> npt.NDArray[np.uint8]:
-    """Decode JPEG, PNG or WebP bytes to (H, W, C) uint8, row 0 at the top."""
+    """Decode JPEG, PNG, WebP or KTX2 (Basis Universal) bytes to (H, W, C) uint8, row 0 at the top."""
+    if data[:12] == KTX2_MAGIC:
+        return decode_ktx2(data, source)
     import OpenImageIO as oiio
 
     suffix = (".png" if data[:8] == b"\x89PNG\r\n\x1a\n" else

@@ -83,10 +83,11 @@ class PreparedTile:
 
 
 def decode_image(data: bytes, source: str = "") -> npt.NDArray[np.uint8]:
-    """Decode JPEG, PNG or WebP bytes into (H, W, C) uint8 with rows bottom-up (VTK's image order).
+    """Decode JPEG, PNG, WebP or KTX2 bytes into (H, W, C) uint8 with rows bottom-up (VTK's image order).
 
     JPEG and PNG go through VTK's readers straight from memory; WebP (``EXT_texture_webp``), which VTK does
-    not read, through OpenImageIO.
+    not read, through OpenImageIO; KTX2 (``KHR_texture_basisu``) through the Basis Universal transcoder
+    (:func:`citylod.io.image.decode_ktx2`).
 
     Raises
     ------
@@ -97,10 +98,10 @@ def decode_image(data: bytes, source: str = "") -> npt.NDArray[np.uint8]:
         reader: Any = _vtk.vtkPNGReader()
     elif data[:3] == b"\xff\xd8\xff":
         reader = _vtk.vtkJPEGReader()
-    elif data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+    elif (data[:4] == b"RIFF" and data[8:12] == b"WEBP") or data[:12] == image_io.KTX2_MAGIC:
         return np.ascontiguousarray(image_io.decode_image(bytes(data), source)[::-1])
     else:
-        raise InputError("tile texture is neither JPEG, PNG nor WebP", source)
+        raise InputError("tile texture is neither JPEG, PNG, WebP nor KTX2", source)
     stream = _vtk.vtkMemoryResourceStream()
     stream.SetBuffer(bytes(data), len(data), True)  # copy: the stream must not outlive a Python buffer
     reader.SetStream(stream)

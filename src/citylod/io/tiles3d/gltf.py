@@ -5,9 +5,8 @@ Produces :class:`~citylod.io.tiles3d.content.TileContent` with z-up positions re
 are applied; vertex colours (linear in glTF) and material base colours come back as sRGB bytes
 (:mod:`.colour`). ``KHR_draco_mesh_compression`` is decoded with DracoPy (Google's Draco decoder),
 ``KHR_mesh_quantization`` by the accessors' own normalisation, ``EXT_meshopt_compression`` by meshoptimizer's
-decoders, ``EXT_texture_webp`` by OpenImageIO, ``KHR_texture_transform`` on the UVs; KTX2 textures
-(``KHR_texture_basisu``) have no decoder here and are drawn in the material's colour, with a warning. Any
-other required extension is one :class:`~citylod.core.errors.InputError` naming it, never geometry read wrong.
+decoders, ``EXT_texture_webp`` by OpenImageIO, ``KHR_texture_basisu`` (KTX2) by Binomial's Basis Universal
+transcoder, ``KHR_texture_transform`` on the UVs. Any other required extension is one :class:`~citylod.core.errors.InputError` naming it, never geometry read wrong.
 
 glTF 1.0 (3D Tiles 1.0 b3dm) is read by lifting its document to the 2.0 layout first, the way CesiumJS and
 gltf-pipeline's ``updateVersion`` do (id-keyed objects become arrays, ``KHR_binary_glTF`` becomes buffer 0,
@@ -23,7 +22,6 @@ import json
 import math
 import struct
 import urllib.parse
-import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -49,7 +47,7 @@ _HONOURED = {
     "KHR_materials_unlit", "KHR_materials_pbrSpecularGlossiness", "KHR_materials_emissive_strength",
     "EXT_mesh_features", "EXT_structural_metadata", "EXT_instance_features", "CESIUM_primitive_outline",
     "KHR_binary_glTF", "KHR_techniques_webgl", "EXT_meshopt_compression", "EXT_texture_webp",
-    "KHR_texture_transform", "KHR_texture_basisu",  # the last drawn in the material's colour, with a warning
+    "KHR_texture_transform", "KHR_texture_basisu",
 }
 
 
@@ -543,9 +541,9 @@ def _material_texture(gltf: dict[str, Any], prim: dict[str, Any], images: list[b
     """The base colour texture's image bytes (None when there is none or it cannot be decoded) and its
     ``textureInfo`` (``texCoord``, ``KHR_texture_transform``).
 
-    The image is the texture's ``source``, else its ``EXT_texture_webp`` source (OpenImageIO reads WebP). A
-    texture only in ``KHR_texture_basisu`` (KTX2) has no decoder here: the mesh is drawn in its material's
-    colour, with one warning.
+    The image is the texture's ``source`` (the fallback a writer must give when the extension is optional),
+    else its ``EXT_texture_webp`` source (OpenImageIO reads WebP) or its ``KHR_texture_basisu`` source (a KTX2
+    file, transcoded by Basis Universal: `citylod.io.image.decode_ktx2`).
     """
     try:
         mat = gltf["materials"][prim["material"]]
@@ -560,10 +558,7 @@ def _material_texture(gltf: dict[str, Any], prim: dict[str, Any], images: list[b
     try:
         tex = gltf["textures"][index] if index is not None else {}
         ext = tex.get("extensions", {})
-        src = tex.get("source", ext.get("EXT_texture_webp", {}).get("source"))
-        if src is None and "KHR_texture_basisu" in ext:
-            warnings.warn("KTX2 (Basis Universal) textures cannot be decoded here; their meshes are drawn in their "
-                          "material's colour", stacklevel=2)  # one message, so shown once however many tiles
+        src = tex.get("source", ext.get("EXT_texture_webp", ext.get("KHR_texture_basisu", {})).get("source"))
         return (None if src is None else images[src]), info
     except (KeyError, IndexError, TypeError, AttributeError):
         return None, {}
