@@ -70,3 +70,36 @@ def test_open_url_from_the_file_menu_and_reopen_it_from_a_project(qtbot, window,
         assert other.document.scene.last_stats.triangles > 500 and _drawn_share(other) > 0.05
     finally:
         other.close()
+
+
+@pytest.fixture()
+def ion_asset(monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
+    """A Cesium ion stand-in (tests/io/test_tiles3d_ion.py) whose asset 7 is the meshopt DSM tileset."""
+    from tests.io import test_tiles3d_ion as ion
+
+    api, api_url = ion._serve(ion._Api)
+    assets, assets_url = ion._serve(ion._Assets)
+    ion._State.asset_url = f"{assets_url}/meshopt/dsm_tileset/tileset.json"
+    ion._State.log.clear()
+    monkeypatch.setenv("CESIUM_ION_API", api_url)
+    monkeypatch.setenv("CESIUM_ION_TOKEN", ion.USER_TOKEN)
+    yield "ion:7"
+    api.shutdown()
+    assets.shutdown()
+
+
+def test_ion_asset_from_the_file_menu_shows_its_credit(qtbot, window, xin, ion_asset) -> None:  # noqa: F811
+    """``ion:7`` typed into File > Open tileset URL…: the tiles come with renewed tokens, and the asset's
+    attribution stands in the view's bottom left corner."""
+    _menu_then_type(xin, window, ["alt+f", "u"], ion_asset)
+    qtbot.waitUntil(lambda: bool(window.document.entries), timeout=15000)
+    _wait_resolved(qtbot, window)
+    assert window.document.scene.last_stats.triangles > 500 and _drawn_share(window) > 0.05
+    assert window.document.entries[0].name == "ion:7"
+    qtbot.waitUntil(lambda: window.view.hud.credit_text.GetVisibility(), timeout=5000)
+    assert window.view.hud.credit_text.GetInput() == "Data © Example City"
+    rgb = _rgb(window.grab_window())
+    pos, size = window.view.origin_in(window), window.view.vtk.size()
+    corner = rgb[pos.y() + size.height() - 20: pos.y() + size.height() - 8, pos.x() + 10: pos.x() + 120].astype(int)
+    assert (corner.sum(axis=2) < 200).any()  # the credit's dark letters
+    assert ion_asset in window.recent_files()

@@ -36,7 +36,7 @@ import numpy.typing as npt
 from citylod.core.camera import Camera, enu_axes, framing_camera, local_up, overview_camera
 from citylod.core.errors import CitylodError, InputError
 from citylod.io.tiles3d.package import PACKAGE_SUFFIXES
-from citylod.io.tiles3d.remote import is_url
+from citylod.io.tiles3d.remote import is_ion, is_url
 
 __all__ = [
     "ASPRS_CLASSES",
@@ -639,7 +639,8 @@ class Document:
             if self.lod.target_ms > 0:
                 self._restart_frame_budget()  # the new layer is steered too
             entry = LayerEntry(layer.name if p.is_dir() else p.name if p.suffix.lower() in PACKAGE_SUFFIXES
-                               else p.parent.name, "tileset", p, layer)
+                               else layer.tileset.source if is_ion(layer.tileset.source) else p.parent.name,
+                               "tileset", p, layer)
             if p.is_dir():
                 entry.name = p.name
             self.entries.append(entry)

@@ -493,13 +493,15 @@ class MainWindow(QMainWindow):
         """A tileset on a web server: the URL of its tileset JSON (tiles are fetched as views need them)."""
         from PySide6.QtWidgets import QInputDialog
 
-        url, ok = QInputDialog.getText(self, "Open tileset URL", "URL of a 3D Tiles tileset JSON (http or https):",
+        url, ok = QInputDialog.getText(self, "Open tileset URL",
+                                       "URL of a 3D Tiles tileset JSON (http or https), or ion:ASSET_ID for a Cesium "
+                                       "ion asset (token in CESIUM_ION_TOKEN):",
                                        text=str(self.settings.value("last_url", "https://")))
         url = url.strip()
         if not ok or not url:
             return
         if not is_url(url):
-            self._error(f"{url}: not an http(s) URL")
+            self._error(f"{url}: not an http(s) URL or ion:ASSET_ID")
             return
         self.settings.setValue("last_url", url)
         QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)  # the tileset JSON is fetched on this thread

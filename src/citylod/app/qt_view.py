@@ -198,6 +198,9 @@ class SceneView(QWidget):
             dist = float(np.linalg.norm(np.subtract(cam.position, cam.focal_point)))
             self.hud.update(cam, 2.0 * dist * np.tan(np.radians(cam.fovy_deg) / 2.0) / max(h, 1), (w, h),
                             self.document.north())
+            credits = [c for layer in self.scene.layers for c in layer.tileset.attributions]
+            if tuple(dict.fromkeys(credits)) != self.hud.credits:
+                self.hud.set_credits(credits)
             self._measure_text.SetPosition(12, max(h - 40, 12))  # top left: the scale bar is bottom right
 
     def request_render(self) -> None:
@@ -604,7 +607,7 @@ class SceneView(QWidget):
         scale = int(min(max(scale, 1), 8))
         self.render_now()
         huds = [self.hud.bar_shadow, self.hud.bar, self.hud.arrow, self.hud.bar_text, self.hud.north_text,
-                self._measure_text]
+                self.hud.credit_text, self._measure_text]
         shown = [p.GetVisibility() for p in huds]
         frozen = self.scene.frozen
         self._exporting = True

@@ -53,6 +53,7 @@ def _describe_tileset(p: Path) -> str:
         f"  tiles    {tiles} on {len(levels)} levels, "
         + ("content on a web server" if is_url(ts.source) else f"{nbytes / 1e6:.1f} MB content"),
     ]
+    lines += [f"  credit   {text}" for text in ts.attributions]
     if ts.kind == "slf":  # a far field (citylod build slf): its light fields beside the average textures
         meta = ts.citylod
         fields = Path(ts.folder) / "slf"

@@ -158,7 +158,8 @@ class ClipBox:
 
 
 class Hud:
-    """Scale bar (bottom right) and north arrow (top right) as 2D actors, updated by :meth:`update`."""
+    """Scale bar (bottom right), north arrow (top right) and the data's credits (bottom left) as 2D actors,
+    updated by :meth:`update` and :meth:`set_credits`."""
 
     def __init__(self, renderer: Any) -> None:
         self.renderer = renderer
@@ -169,6 +170,10 @@ class Hud:
         self.bar_text = self._text(14)
         self.north_text = self._text(16)
         self.north_text.SetInput("N")
+        # Bottom left: the data's credits (a Cesium ion asset's attributions), shown while there are any.
+        self.credit_text = self._text(12)
+        self.credit_text.GetTextProperty().SetJustificationToLeft()
+        self.credits: tuple[str, ...] = ()
         self.length_m = 0.0
 
     def _lines_actor(self, rgb: tuple[float, float, float], width: float) -> Any:
@@ -208,6 +213,13 @@ class Hud:
                       _vtk.numpy_to_vtkIdTypeArray(seg.copy(), deep=True))
         data.SetLines(cells)
         actor.GetMapper().SetInputData(data)
+
+    def set_credits(self, lines: list[str] | tuple[str, ...]) -> None:
+        """Show ``lines`` (credits the data's servers ask for) bottom left; none hides the text."""
+        self.credits = tuple(dict.fromkeys(line for line in lines if line))  # once each, in order
+        self.credit_text.SetInput("\n".join(self.credits))
+        self.credit_text.SetPosition(8, 6)
+        self.credit_text.SetVisibility(bool(self.credits))
 
     def update(self, camera: Camera, metres_per_px: float, size: tuple[int, int],
                north: npt.ArrayLike = (0.0, 1.0, 0.0)) -> None:

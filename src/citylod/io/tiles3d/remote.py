@@ -10,29 +10,52 @@ another server is refused too. A URI's own query string (``?v=2``, a session) is
 Every request has a time-out and a size cap; an HTTP error, a refused connection or a time-out is one
 :class:`~citylod.core.errors.InputError` naming the URL. Nothing is cached on disk: the renderer's memory cache
 keeps what a view uses.
+
+**Cesium ion.** ``ion:ASSET_ID`` opens a 3D Tiles asset on Cesium ion as CesiumJS's ``IonResource`` and
+cesium-native's ion loader do: one GET of ``{api}/v1/assets/{id}/endpoint?access_token={token}`` (the token from
+``CESIUM_ION_TOKEN``, the API from ``CESIUM_ION_API``, default ``https://api.cesium.com``) answers the tileset's
+URL and a short-lived token for its server, sent as ``Authorization: Bearer`` with every request there. When
+that server answers 401 (the token expired), the endpoint is asked again and the request repeated once. An
+asset the endpoint declares external (``externalType`` 3DTILES, Google's Photorealistic 3D Tiles through ion)
+is opened at its ``options.url``, which carries its own key. The endpoint's attributions are kept
+(:attr:`Remote.attributions`): ion's terms ask clients to show them.
 """
 
 from __future__ import annotations
 
+import html
+import json
+import os
 import posixpath
+import re
+import threading
 import urllib.error
 import urllib.parse
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 
 from citylod._version import __version__
 from citylod.core.errors import InputError, UnsafePathError
 from citylod.io.tiles3d.archive3tz import MAX_ENTRY_BYTES
 
-__all__ = ["Remote", "is_url", "unfold_url"]
+__all__ = ["Remote", "is_ion", "is_url", "open_remote", "unfold_url"]
 
 TIMEOUT_S = 30.0
 _CHUNK = 1 << 20
+ION_API = "https://api.cesium.com"
+_ION = re.compile(r"ion:/{0,2}(\d+)/?")  # "ion://7" folded by pathlib is "ion:/7"
+
+
+def is_ion(source: object) -> bool:
+    """Whether ``source`` names a Cesium ion asset: ``ion:ASSET_ID`` (``ion://ASSET_ID`` too)."""
+    return _ION.fullmatch(str(source)) is not None
 
 
 def is_url(source: object) -> bool:
-    """Whether ``source`` is an http(s) URL, also after ``pathlib.Path`` folded its ``//`` into ``/``."""
-    return str(source).startswith(("http://", "https://", "http:/", "https:/"))
+    """Whether ``source`` is an http(s) URL, also after ``pathlib.Path`` folded its ``//`` into ``/``, or a Cesium
+    ion asset (:func:`is_ion`): a tileset read over the network either way."""
+    return str(source).startswith(("http://", "https://", "http:/", "https:/")) or is_ion(source)
 
 
 def unfold_url(source: object) -> str:
@@ -52,7 +75,8 @@ class Remote:
     unchanged; :meth:`resolve` turns a content URI into such a path.
     """
 
-    def __init__(self, url: str, timeout_s: float | None = None) -> None:
+    def __init__(self, url: str, timeout_s: float | None = None, headers: dict[str, str] | None = None,
+                 renew: Callable[[], dict[str, str]] | None = None) -> None:
         url = unfold_url(url)
         parts = urllib.parse.urlsplit(url)
         if parts.scheme not in ("http", "https") or not parts.netloc:
@@ -64,6 +88,14 @@ class Remote:
         if not path.startswith("/"):
             path = "/" + path
         self.url = url
+        #: What the tileset is opened by again (a project keeps it): the URL, or ``ion:ID`` for an ion asset.
+        self.source = url
+        #: Credits the server asks clients to show (Cesium ion's attributions, as text).
+        self.attributions: list[str] = []
+        #: Sent with every request (an ion asset's ``Authorization``); ``renew`` replaces them after a 401.
+        self.headers = dict(headers or {})
+        self._renew = renew
+        self._renew_lock = threading.Lock()
         self.scheme, self.netloc = parts.scheme, parts.netloc
         self.origin = f"{parts.scheme}://{parts.netloc}"
         self.query = parts.query
@@ -100,29 +132,22 @@ class Remote:
         return f"{self.origin}/{urllib.parse.quote(path, safe='/')}" + (f"?{'&'.join(extra)}" if extra else "")
 
     def read(self, name: str) -> bytes:
-        """The file's bytes; :class:`InputError` naming the URL when the server does not give them."""
+        """The file's bytes; :class:`InputError` naming the URL when the server does not give them. A 401 with
+        a ``renew`` callable renews the headers (once for all threads that saw the old ones) and asks again."""
         url = self.url_of(name)
-        request = urllib.request.Request(url, headers={"User-Agent": f"citylod/{__version__}",
-                                                       "Accept-Encoding": "identity"})
+        sent = self.headers
         try:
-            with self._opener().open(request, timeout=self.timeout_s) as response:
-                length = response.headers.get("Content-Length")
-                if length is not None and length.isdigit() and int(length) > MAX_ENTRY_BYTES:
-                    raise InputError(f"the server announces {int(length):,} bytes (more than "
-                                     f"{MAX_ENTRY_BYTES:,}); refused", url)
-                chunks, total = [], 0
-                while chunk := response.read(_CHUNK):
-                    total += len(chunk)
-                    if total > MAX_ENTRY_BYTES:
-                        raise InputError(f"more than {MAX_ENTRY_BYTES:,} bytes; refused", url)
-                    chunks.append(chunk)
-                return b"".join(chunks)
-        except urllib.error.HTTPError as exc:
-            raise InputError(f"HTTP {exc.code} {exc.reason}", url) from exc
-        except urllib.error.URLError as exc:
-            raise InputError(f"cannot reach the server ({exc.reason})", url) from exc
-        except (TimeoutError, OSError) as exc:  # a read that stalls past the time-out, a reset connection
-            raise InputError(f"no answer within {self.timeout_s:g} s ({exc})", url) from exc
+            return _get(url, self._opener(), self.timeout_s, sent)
+        except _Unauthorised as exc:
+            if self._renew is None:
+                raise InputError("HTTP 401 Unauthorized", url) from exc
+        with self._renew_lock:
+            if self.headers is sent:  # no other thread renewed them meanwhile
+                self.headers = self._renew()
+        try:
+            return _get(url, self._opener(), self.timeout_s, self.headers)
+        except _Unauthorised as exc:
+            raise InputError("HTTP 401 Unauthorized, also with a renewed token", url) from exc
 
     def size(self, name: str) -> int:
         """0: a remote file's size is known once it is read (no HEAD request per tile)."""
@@ -142,3 +167,91 @@ class Remote:
                 return super().redirect_request(req, fp, code, msg, headers, newurl)
 
         return urllib.request.build_opener(_SameServer)
+
+
+class _Unauthorised(Exception):
+    """HTTP 401 from the server: the caller may renew its token and ask again."""
+
+
+def _get(url: str, opener: urllib.request.OpenerDirector, timeout_s: float, headers: dict[str, str],
+         name: str | None = None) -> bytes:
+    """The body of a GET of ``url``, size-capped; :class:`_Unauthorised` on 401, else InputError naming ``name``
+    (default the URL) when the server does not give it."""
+    where = url if name is None else name
+    request = urllib.request.Request(url, headers={"User-Agent": f"citylod/{__version__}",
+                                                   "Accept-Encoding": "identity", **headers})
+    try:
+        with opener.open(request, timeout=timeout_s) as response:
+            length = response.headers.get("Content-Length")
+            if length is not None and length.isdigit() and int(length) > MAX_ENTRY_BYTES:
+                raise InputError(f"the server announces {int(length):,} bytes (more than "
+                                 f"{MAX_ENTRY_BYTES:,}); refused", where)
+            chunks, total = [], 0
+            while chunk := response.read(_CHUNK):
+                total += len(chunk)
+                if total > MAX_ENTRY_BYTES:
+                    raise InputError(f"more than {MAX_ENTRY_BYTES:,} bytes; refused", where)
+                chunks.append(chunk)
+            return b"".join(chunks)
+    except urllib.error.HTTPError as exc:
+        if exc.code == 401:
+            raise _Unauthorised() from exc
+        raise InputError(f"HTTP {exc.code} {exc.reason}", where) from exc
+    except urllib.error.URLError as exc:
+        raise InputError(f"cannot reach the server ({exc.reason})", where) from exc
+    except (TimeoutError, OSError) as exc:  # a read that stalls past the time-out, a reset connection
+        raise InputError(f"no answer within {timeout_s:g} s ({exc})", where) from exc
+
+
+def open_remote(source: str) -> Remote:
+    """The :class:`Remote` of an http(s) URL, or of a Cesium ion asset ``ion:ID`` (module docstring)."""
+    match = _ION.fullmatch(str(source))
+    if match is None:
+        return Remote(source)
+    asset = int(match.group(1))
+    token = os.environ.get("CESIUM_ION_TOKEN", "").strip()
+    if not token:
+        raise InputError("a Cesium ion asset needs an access token: set CESIUM_ION_TOKEN", source)
+    api = os.environ.get("CESIUM_ION_API", ION_API).rstrip("/")
+    endpoint = f"{api}/v1/assets/{asset}/endpoint?access_token={urllib.parse.quote(token, safe='')}"
+
+    def ask() -> dict[str, object]:
+        """The endpoint's answer (a new short-lived token each time)."""
+        try:
+            body = _get(endpoint, urllib.request.build_opener(), TIMEOUT_S, {}, name=source)
+        except _Unauthorised:
+            raise InputError("Cesium ion refused the access token in CESIUM_ION_TOKEN (HTTP 401)", source) from None
+        try:
+            doc = json.loads(body)
+        except ValueError as exc:
+            raise InputError("Cesium ion's endpoint answer is not JSON", source) from exc
+        if not isinstance(doc, dict):
+            raise InputError("Cesium ion's endpoint answer is not a JSON object", source)
+        kind = doc.get("externalType", doc.get("type"))
+        if kind != "3DTILES":
+            raise InputError(f"the asset is {kind!r} on Cesium ion, not a 3D Tiles tileset", source)
+        return doc
+
+    def access(doc: dict[str, object]) -> tuple[str, dict[str, str]]:
+        """The tileset's URL and the headers its server wants."""
+        if "externalType" in doc:
+            options = doc.get("options")
+            url = options.get("url") if isinstance(options, dict) else None
+            headers: dict[str, str] = {}
+        else:
+            url, token = doc.get("url"), doc.get("accessToken")
+            headers = {"Authorization": f"Bearer {token}"} if isinstance(token, str) and token else {}
+        if not isinstance(url, str) or not is_url(url) or is_ion(url):
+            raise InputError("Cesium ion's endpoint answer names no http(s) tileset URL", source)
+        return url, headers
+
+    doc = ask()
+    url, headers = access(doc)
+    remote = Remote(url, headers=headers, renew=lambda: access(ask())[1])
+    remote.source = f"ion:{asset}"
+    credits = doc.get("attributions")
+    for item in credits if isinstance(credits, list) else []:
+        text = item.get("html") if isinstance(item, dict) else None
+        if isinstance(text, str):  # HTML: its text, as a credit line shows it
+            remote.attributions.append(" ".join(html.unescape(re.sub(r"<[^>]*>", " ", text)).split()))
+    return remote

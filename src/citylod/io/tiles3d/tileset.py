@@ -44,7 +44,7 @@ from citylod.io.tiles3d.content import TileContent, glb_buffer
 from citylod.io.tiles3d.implicit import expand_implicit
 from citylod.io.tiles3d.legacy import decode_content
 from citylod.io.tiles3d.package import Package, package_kind
-from citylod.io.tiles3d.remote import Remote, is_url
+from citylod.io.tiles3d.remote import Remote, is_url, open_remote
 
 
 # --------------------------------------------------------------------------------------- atomic writing
@@ -367,7 +367,9 @@ class Tileset:
         # path, or a stand-in path for the server's folder) and the files' paths lie below it. None: files.
         self.store = store
         #: Where the tileset came from, as the user named it (a path, or the URL of a remote tileset).
-        self.source = store.url if isinstance(store, Remote) else str(path)
+        self.source = store.source if isinstance(store, Remote) else str(path)
+        #: Credits the data's server asks clients to show (a Cesium ion asset's attributions).
+        self.attributions: list[str] = list(store.attributions) if isinstance(store, Remote) else []
         self.doc = doc
         self.extras: dict[str, Any] = doc.get("extras", {}) or {}
         cl = self.extras.get("citylod", {}) if isinstance(self.extras, dict) else {}
@@ -674,7 +676,7 @@ def open_tileset(path: str | os.PathLike[str]) -> Tileset:
     """
     store: Package | Remote | None = None
     if is_url(path):
-        store = Remote(str(path))
+        store = open_remote(str(path))
         p = store.entry
     else:
         p = Path(path)
