@@ -114,6 +114,9 @@ def test_a_path_folded_by_pathlib_still_opens(server: str) -> None:
 def test_servers_that_fail_are_one_line(server: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(InputError, match="HTTP 404"):
         open_tileset(f"{server}/nowhere/tileset.json")
+    with pytest.raises(InputError, match="HTTP 404") as info:  # a key in the URL is not printed
+        open_tileset(f"{server}/nowhere/tileset.json?v=2&key=s3cret&access_token=t0k")
+    assert "s3cret" not in str(info.value) and "t0k" not in str(info.value) and "v=2&key=…" in str(info.value)
     with pytest.raises(InputError, match="another server"):
         open_tileset(f"{server}/redirect/tileset.json")
     with pytest.raises(InputError, match="refused"):

@@ -39,7 +39,7 @@ from citylod._version import __version__
 from citylod.core.errors import InputError, UnsafePathError
 from citylod.io.tiles3d.archive3tz import MAX_ENTRY_BYTES
 
-__all__ = ["Remote", "is_ion", "is_url", "open_remote", "unfold_url"]
+__all__ = ["Remote", "is_ion", "is_url", "open_remote", "redact", "unfold_url"]
 
 TIMEOUT_S = 30.0
 _CHUNK = 1 << 20
@@ -135,19 +135,20 @@ class Remote:
         """The file's bytes; :class:`InputError` naming the URL when the server does not give them. A 401 with
         a ``renew`` callable renews the headers (once for all threads that saw the old ones) and asks again."""
         url = self.url_of(name)
+        shown = redact(url)
         sent = self.headers
         try:
-            return _get(url, self._opener(), self.timeout_s, sent)
+            return _get(url, self._opener(), self.timeout_s, sent, shown)
         except _Unauthorised as exc:
             if self._renew is None:
-                raise InputError("HTTP 401 Unauthorized", url) from exc
+                raise InputError("HTTP 401 Unauthorized", shown) from exc
         with self._renew_lock:
             if self.headers is sent:  # no other thread renewed them meanwhile
                 self.headers = self._renew()
         try:
-            return _get(url, self._opener(), self.timeout_s, self.headers)
+            return _get(url, self._opener(), self.timeout_s, self.headers, shown)
         except _Unauthorised as exc:
-            raise InputError("HTTP 401 Unauthorized, also with a renewed token", url) from exc
+            raise InputError("HTTP 401 Unauthorized, also with a renewed token", shown) from exc
 
     def size(self, name: str) -> int:
         """0: a remote file's size is known once it is read (no HEAD request per tile)."""
@@ -167,6 +168,14 @@ class Remote:
                 return super().redirect_request(req, fp, code, msg, headers, newurl)
 
         return urllib.request.build_opener(_SameServer)
+
+
+_SECRET = re.compile(r"(?i)([?&](?:key|api_?key|access_?token|token|signature|sig)=)[^&]*")
+
+
+def redact(url: str) -> str:
+    """``url`` as an error message may show it: the values of its keys and tokens replaced by ``…``."""
+    return _SECRET.sub(r"\1…", url)
 
 
 class _Unauthorised(Exception):
