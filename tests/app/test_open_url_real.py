@@ -88,10 +88,15 @@ def ion_asset(monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
     assets.shutdown()
 
 
-def test_ion_asset_from_the_file_menu_shows_its_credit(qtbot, window, xin, ion_asset) -> None:  # noqa: F811
-    """``ion:7`` typed into File > Open tileset URL…: the tiles come with renewed tokens, and the asset's
-    attribution stands in the view's bottom left corner."""
-    _menu_then_type(xin, window, ["alt+f", "u"], ion_asset)
+def test_ion_asset_from_the_file_menu_shows_its_credit(qtbot, window, xin, ion_asset,  # noqa: F811
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """``ion:7`` typed into File > Open tileset URL…, then the token into the dialog that asks for it (none is
+    set): the tiles come with renewed tokens, and the asset's attribution stands in the view's bottom left
+    corner."""
+    from tests.io.test_tiles3d_ion import USER_TOKEN
+
+    monkeypatch.delenv("CESIUM_ION_TOKEN")
+    _menu_then_type(xin, window, ["alt+f", "u"], ion_asset, USER_TOKEN)
     qtbot.waitUntil(lambda: bool(window.document.entries), timeout=15000)
     _wait_resolved(qtbot, window)
     assert window.document.scene.last_stats.triangles > 500 and _drawn_share(window) > 0.05

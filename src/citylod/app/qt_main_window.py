@@ -61,7 +61,7 @@ from citylod.app.qt_tools import ClipPanel, PointPanel
 from citylod.app.qt_view import SceneView
 from citylod.core.errors import CitylodError
 from citylod.core.gc_policy import GcPolicy
-from citylod.io.tiles3d.remote import is_url, unfold_url
+from citylod.io.tiles3d.remote import is_ion, is_url, unfold_url
 
 __all__ = ["MainWindow", "settings"]
 
@@ -405,6 +405,8 @@ class MainWindow(QMainWindow):
         p = Path(path)
         if p.suffix == ".citylod":
             return self.open_project(p) is not None
+        if is_ion(p) and not self._ion_token():
+            return False
         kind = source_kind(p)
         if kind in ("raster", "points", "citymodel"):
             return self.build_and_open(p)
@@ -489,13 +491,28 @@ class MainWindow(QMainWindow):
         if folder:
             self.open_path(folder)
 
+    def _ion_token(self) -> bool:
+        """Whether a Cesium ion token is set (``CESIUM_ION_TOKEN``); if not, ask for one, kept in this process's
+        environment for the session and never written to the settings."""
+        from PySide6.QtWidgets import QInputDialog, QLineEdit
+
+        if os.environ.get("CESIUM_ION_TOKEN", "").strip():
+            return True
+        token, ok = QInputDialog.getText(self, "Cesium ion access token",
+                                         "Access token for Cesium ion (kept for this session only):",
+                                         QLineEdit.EchoMode.Password)
+        if not ok or not token.strip():
+            return False
+        os.environ["CESIUM_ION_TOKEN"] = token.strip()
+        return True
+
     def open_url_dialog(self) -> None:
         """A tileset on a web server: the URL of its tileset JSON (tiles are fetched as views need them)."""
         from PySide6.QtWidgets import QInputDialog
 
         url, ok = QInputDialog.getText(self, "Open tileset URL",
                                        "URL of a 3D Tiles tileset JSON (http or https), or ion:ASSET_ID for a Cesium "
-                                       "ion asset (token in CESIUM_ION_TOKEN):",
+                                       "ion asset:",
                                        text=str(self.settings.value("last_url", "https://")))
         url = url.strip()
         if not ok or not url:
