@@ -167,3 +167,20 @@ def test_info_shows_the_credit(ion: str) -> None:
     r = run_cli(["info", "ion:7"])  # the API and the token from the environment, as a user sets them
     assert r.returncode == 0, r.stderr
     assert "ion:7: 3D Tiles" in r.stdout and "credit   Data © Example City" in r.stdout
+
+
+def test_rendered_images_carry_the_credit(ion: str) -> None:
+    """``citylod render`` of an ion asset writes its attribution into the image's bottom left corner; the same
+    tileset from its folder has none there."""
+    from citylod.core.camera import overview_camera
+    from citylod.render.offscreen import render_images
+
+    local = DATA / "meshopt" / "dsm_tileset"
+    _State.asset_url = _State.asset_url.replace(ASSET, "meshopt/dsm_tileset")
+    lo, hi = open_tileset(local).bounds
+    cam = overview_camera(lo, hi, aspect=320 / 200)
+    (with_credit, _), = render_images(["ion:7"], [cam], size=(320, 200))
+    (without, _), = render_images([local], [cam], size=(320, 200))
+    corner = (slice(200 - 22, 200), slice(0, 140))  # rows from the top: the bottom left
+    differs = np.abs(with_credit.astype(int) - without.astype(int)).sum(axis=2) > 60
+    assert differs[corner].sum() > 50 and differs.sum() == differs[corner].sum()

@@ -32,7 +32,7 @@ from citylod.io.tiles3d.remote import is_url
 from citylod.render import _vtk
 from citylod.render.depth import zbuffer_to_distance
 from citylod.render.gl_context import guard
-from citylod.render.hud import set_edl
+from citylod.render.hud import Hud, set_edl
 from citylod.render.tileset_actor import FrameStats, Scene
 
 __all__ = ["OffscreenRenderer", "RenderedFrame", "render_command", "render_images", "save_png"]
@@ -123,6 +123,10 @@ class OffscreenRenderer:
             layer.point_shape = point_shape
         if edl:
             set_edl(self.renderer, True)
+        # Credits the data's servers ask for (a Cesium ion asset's attributions) go into every image, bottom left.
+        credits = [c for layer in self.scene.layers for c in layer.tileset.attributions]
+        if credits:
+            Hud(self.renderer).set_credits(credits)
 
     # -- frames -----------------------------------------------------------------------------------
     def prepare(self, camera: Camera, *, full_resolution: bool = False) -> FrameStats:
