@@ -28,6 +28,8 @@ TILESETS = sorted(p.parent.relative_to(DATA).as_posix() for p in DATA.rglob("til
 
 class _Handler(http.server.SimpleHTTPRequestHandler):
     log: ClassVar[list[str]] = []
+    seen: ClassVar[dict[str, int]] = {}
+    lock = threading.Lock()
 
     def __init__(self, *args, **kwargs):  # type: ignore[no-untyped-def]
         super().__init__(*args, directory=str(DATA), **kwargs)
@@ -59,6 +61,22 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
             self.send_header("Content-Length", str(len(body)))
             self.end_headers()
             self.wfile.write(body)
+        elif path.startswith(("/busy/", "/overloaded/")):
+            # "/busy/N/rest": 429 (Retry-After 1) for the first N requests of each path, then the file at rest;
+            # "/overloaded/rest": 503 always.
+            with _Handler.lock:
+                _Handler.seen[path] = _Handler.seen.get(path, 0) + 1
+                count = _Handler.seen[path]
+            parts = path.split("/")
+            if parts[1] == "overloaded" or count <= int(parts[2]):
+                self.send_response(503 if parts[1] == "overloaded" else 429)
+                if parts[1] == "busy":
+                    self.send_header("Retry-After", "1")
+                self.send_header("Content-Length", "0")
+                self.end_headers()
+                return
+            self.path = "/" + "/".join(parts[3:])
+            super().do_GET()
         elif path.startswith("/huge/"):
             self.send_response(200)
             self.send_header("Content-Length", str(remote_mod.MAX_ENTRY_BYTES + 1))
@@ -161,3 +179,16 @@ def test_render_over_http_draws_what_the_folder_draws(server: str) -> None:
     (a, _), = render_images([f"{server}/meshopt/dsm_tileset/tileset.json"], [cam], size=(200, 150))
     (b, _), = render_images([local], [cam], size=(200, 150))
     assert (a != a[0, 0]).any(axis=-1).sum() > 2000 and np.array_equal(a, b)
+
+
+def test_a_busy_server_is_asked_again(server: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """429 with Retry-After (a burst of tile requests to Google's or ion's servers) is waited out, as long as it
+    says, and the tileset reads as from the folder; a server that stays overloaded is one line after four tries."""
+    monkeypatch.setattr(remote_mod, "RETRY_PAUSES_S", (0.01, 0.01, 0.01))
+    t0 = time.perf_counter()
+    ts = open_tileset(f"{server}/busy/2/Batched/BatchedColors/tileset.json")
+    assert time.perf_counter() - t0 >= 2.0  # two answers of Retry-After: 1
+    got, want = _geometry(ts), _geometry(open_tileset(DATA / "Batched/BatchedColors"))
+    assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(got, want, strict=True))
+    with pytest.raises(InputError, match="HTTP 503 Service Unavailable, 4 times"):
+        open_tileset(f"{server}/overloaded/Batched/BatchedColors/tileset.json")

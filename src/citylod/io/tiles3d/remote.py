@@ -7,8 +7,9 @@ server (scheme, host and port): a tileset cannot make citylod fetch from anywher
 another server is refused too. A URI's own query string (``?v=2``, a session) is kept, and the tileset URL's
 (an access token) is added to every request, as CesiumJS's resources pass their query parameters on.
 
-Every request has a time-out and a size cap; an HTTP error, a refused connection or a time-out is one
-:class:`~citylod.core.errors.InputError` naming the URL. Nothing is cached on disk: the renderer's memory cache
+Every request has a time-out and a size cap; a busy server (429, 502–504) is asked again after a pause, up to
+four times; an HTTP error, a refused connection or a time-out is one :class:`~citylod.core.errors.InputError`
+naming the URL (keys and tokens in it shown as ``…``). Nothing is cached on disk: the renderer's memory cache
 keeps what a view uses.
 
 **Cesium ion.** ``ion:ASSET_ID`` opens a 3D Tiles asset on Cesium ion as CesiumJS's ``IonResource`` and
@@ -29,6 +30,7 @@ import os
 import posixpath
 import re
 import threading
+import time
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -182,10 +184,31 @@ class _Unauthorised(Exception):
     """HTTP 401 from the server: the caller may renew its token and ask again."""
 
 
+#: Answers that say "not now" rather than "no": asked again after a pause (the server's Retry-After, capped).
+_RETRY_CODES = (429, 502, 503, 504)
+#: Pauses before the second, third and fourth try, seconds (a server's Retry-After replaces one, up to 8 s).
+RETRY_PAUSES_S = (0.5, 1.5, 4.0)
+
+
 def _get(url: str, opener: urllib.request.OpenerDirector, timeout_s: float, headers: dict[str, str],
          name: str | None = None) -> bytes:
     """The body of a GET of ``url``, size-capped; :class:`_Unauthorised` on 401, else InputError naming ``name``
-    (default the URL) when the server does not give it."""
+    (default the URL) when the server does not give it. A busy or overloaded server (429, 502–504: Google's and
+    ion's answer to a burst of tile requests) is asked again after :data:`RETRY_PAUSES_S`, then refused."""
+    for pause in (*RETRY_PAUSES_S, None):
+        try:
+            return _get_once(url, opener, timeout_s, headers, name)
+        except urllib.error.HTTPError as exc:
+            if pause is None:
+                raise InputError(f"HTTP {exc.code} {exc.reason}, {len(RETRY_PAUSES_S) + 1} times", name or url) from exc
+            after = exc.headers.get("Retry-After", "") if exc.headers is not None else ""
+            time.sleep(min(float(after), 8.0) if after.strip().isdigit() else pause)
+    raise AssertionError("unreachable")
+
+
+def _get_once(url: str, opener: urllib.request.OpenerDirector, timeout_s: float, headers: dict[str, str],
+              name: str | None) -> bytes:
+    """One GET (:func:`_get`); raises the HTTPError of an answer in :data:`_RETRY_CODES`."""
     where = url if name is None else name
     request = urllib.request.Request(url, headers={"User-Agent": f"citylod/{__version__}",
                                                    "Accept-Encoding": "identity", **headers})
@@ -205,6 +228,8 @@ def _get(url: str, opener: urllib.request.OpenerDirector, timeout_s: float, head
     except urllib.error.HTTPError as exc:
         if exc.code == 401:
             raise _Unauthorised() from exc
+        if exc.code in _RETRY_CODES:
+            raise
         raise InputError(f"HTTP {exc.code} {exc.reason}", where) from exc
     except urllib.error.URLError as exc:
         raise InputError(f"cannot reach the server ({exc.reason})", where) from exc
