@@ -61,6 +61,33 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
             self.send_header("Content-Length", str(len(body)))
             self.end_headers()
             self.wfile.write(body)
+        elif path.startswith("/v1/3dtiles/"):
+            # Google's Photorealistic 3D Tiles, as their layout goes: root.json?key=K names a root-relative JSON
+            # with a session in its query; that JSON names its glb relative to itself, with the session. Every
+            # request must carry the key, and every one after the root the session.
+            query = urllib.parse.parse_qs(urllib.parse.urlsplit(self.path).query)
+            name = path.rsplit("/", 1)[1]
+            if query.get("key") != ["K"] or (name != "root.json" and query.get("session") != ["S"]):
+                self.send_error(403)
+                return
+            box = {"box": [0, 0, 0, 100, 0, 0, 0, 100, 0, 0, 0, 100]}
+            if name == "root.json":
+                doc = {"asset": {"version": "1.0"}, "geometricError": 100, "root": {
+                    "boundingVolume": box, "geometricError": 100, "refine": "REPLACE",
+                    "children": [{"boundingVolume": box, "geometricError": 50,
+                                  "content": {"uri": "/v1/3dtiles/datasets/CgA/files/UlRP.json?session=S"}}]}}
+            elif name == "UlRP.json":
+                doc = {"asset": {"version": "1.0"}, "geometricError": 50, "root": {
+                    "boundingVolume": box, "geometricError": 0, "content": {"uri": "Qk9Y.glb?session=S"}}}
+            else:
+                self.path = "/meshopt/dsm.glb"
+                super().do_GET()
+                return
+            body = json.dumps(doc).encode()
+            self.send_response(200)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
         elif path.startswith(("/busy/", "/overloaded/")):
             # "/busy/N/rest": 429 (Retry-After 1) for the first N requests of each path, then the file at rest;
             # "/overloaded/rest": 503 always.
@@ -192,3 +219,19 @@ def test_a_busy_server_is_asked_again(server: str, monkeypatch: pytest.MonkeyPat
     assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(got, want, strict=True))
     with pytest.raises(InputError, match="HTTP 503 Service Unavailable, 4 times"):
         open_tileset(f"{server}/overloaded/Batched/BatchedColors/tileset.json")
+
+
+def test_google_photorealistic_layout_reads(server: str) -> None:
+    """The key of root.json's URL goes with every request, each URI's session with its own, root-relative and
+    relative URIs resolve on the same server: the glb at the end is the one served."""
+    from citylod.io.tiles3d import decode_content
+
+    _Handler.log.clear()
+    ts = open_tileset(f"{server}/v1/3dtiles/root.json?key=K")
+    leaves = [t for t in ts.walk() if t.content_uri and t.content_uri.endswith(".glb?session=S")]
+    assert len(leaves) == 1
+    got = leaves[0].load()
+    want = decode_content((DATA / "meshopt" / "dsm.glb").read_bytes(), "dsm.glb")
+    assert len(got.faces) == want.triangle_count > 100
+    assert _Handler.log == ["/v1/3dtiles/root.json?key=K", "/v1/3dtiles/datasets/CgA/files/UlRP.json?session=S&key=K",
+                            "/v1/3dtiles/datasets/CgA/files/Qk9Y.glb?session=S&key=K"]
