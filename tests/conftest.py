@@ -33,6 +33,11 @@ def pytest_configure(config: pytest.Config) -> None:
     worker's windows. A private server per worker keeps X input where its test sent it.
     """
     global _XVFB
+    # Remote reads go through a disk cache (citylod.io.tiles3d.http_cache): one of this process's own, never the
+    # user's ~/.cache, and not one a previous run left (its answers would hide the requests the tests count).
+    import tempfile
+
+    os.environ["CITYLOD_HTTP_CACHE"] = os.path.join(tempfile.mkdtemp(prefix="citylod-http-"), "cache.sqlite")
     if not os.environ.get("PYTEST_XDIST_WORKER") or not os.environ.get("DISPLAY") or not shutil.which("Xvfb"):
         return
     r, w = os.pipe()

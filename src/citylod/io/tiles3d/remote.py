@@ -9,8 +9,8 @@ another server is refused too. A URI's own query string (``?v=2``, a session) is
 
 Every request has a time-out and a size cap; a busy server (429, 502–504) is asked again after a pause, up to
 four times; an HTTP error, a refused connection or a time-out is one :class:`~citylod.core.errors.InputError`
-naming the URL (keys and tokens in it shown as ``…``). Nothing is cached on disk: the renderer's memory cache
-keeps what a view uses.
+naming the URL (keys and tokens in it shown as ``…``). Files are kept in a disk cache as HTTP allows
+(:mod:`citylod.io.tiles3d.http_cache`), so a tileset opened again is read from disk or revalidated.
 
 **Cesium ion.** ``ion:ASSET_ID`` opens a 3D Tiles asset on Cesium ion as CesiumJS's ``IonResource`` and
 cesium-native's ion loader do: one GET of ``{api}/v1/assets/{id}/endpoint?access_token={token}`` (the token from
@@ -24,22 +24,25 @@ is opened at its ``options.url``, which carries its own key. The endpoint's attr
 
 from __future__ import annotations
 
+import contextlib
 import html
 import json
 import os
 import posixpath
 import re
+import sqlite3
 import threading
 import time
 import urllib.error
 import urllib.parse
 import urllib.request
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from citylod._version import __version__
 from citylod.core.errors import InputError, UnsafePathError
 from citylod.io.tiles3d.archive3tz import MAX_ENTRY_BYTES
+from citylod.io.tiles3d.http_cache import default_cache
 
 __all__ = ["Remote", "is_ion", "is_url", "open_remote", "redact", "unfold_url"]
 
@@ -135,12 +138,35 @@ class Remote:
 
     def read(self, name: str) -> bytes:
         """The file's bytes; :class:`InputError` naming the URL when the server does not give them. A 401 with
-        a ``renew`` callable renews the headers (once for all threads that saw the old ones) and asks again."""
+        a ``renew`` callable renews the headers (once for all threads that saw the old ones) and asks again.
+        The disk cache (:mod:`citylod.io.tiles3d.http_cache`) answers first where HTTP allows it."""
         url = self.url_of(name)
         shown = redact(url)
+        cache = default_cache()
+        kept = None
+        try:
+            kept = cache.get(shown) if cache is not None else None
+        except sqlite3.Error:
+            cache = None
+        if kept is not None and kept.fresh:
+            return kept.body
+        ask = kept.validators() if kept is not None else {}
+        try:
+            body, headers = self._get_authorised(url, shown, ask)
+        except _NotModified as answer:
+            assert kept is not None and cache is not None
+            with contextlib.suppress(sqlite3.Error):
+                cache.refresh(shown, answer.headers)
+            return kept.body
+        if cache is not None:
+            with contextlib.suppress(sqlite3.Error):
+                cache.put(shown, body, headers)
+        return body
+
+    def _get_authorised(self, url: str, shown: str, ask: dict[str, str]) -> tuple[bytes, Mapping[str, str]]:
         sent = self.headers
         try:
-            return _get(url, self._opener(), self.timeout_s, sent, shown)
+            return _get(url, self._opener(), self.timeout_s, {**sent, **ask}, shown)
         except _Unauthorised as exc:
             if self._renew is None:
                 raise InputError("HTTP 401 Unauthorized", shown) from exc
@@ -148,7 +174,7 @@ class Remote:
             if self.headers is sent:  # no other thread renewed them meanwhile
                 self.headers = self._renew()
         try:
-            return _get(url, self._opener(), self.timeout_s, self.headers, shown)
+            return _get(url, self._opener(), self.timeout_s, {**self.headers, **ask}, shown)
         except _Unauthorised as exc:
             raise InputError("HTTP 401 Unauthorized, also with a renewed token", shown) from exc
 
@@ -184,6 +210,15 @@ class _Unauthorised(Exception):
     """HTTP 401 from the server: the caller may renew its token and ask again."""
 
 
+class _NotModified(Exception):
+    """HTTP 304 to a conditional request: the kept body is current (``headers``: the answer's, names in lower
+    case)."""
+
+    def __init__(self, headers: Mapping[str, str]) -> None:
+        super().__init__("304")
+        self.headers = headers
+
+
 #: Answers that say "not now" rather than "no": asked again after a pause (the server's Retry-After, capped).
 _RETRY_CODES = (429, 502, 503, 504)
 #: Pauses before the second, third and fourth try, seconds (a server's Retry-After replaces one, up to 8 s).
@@ -191,7 +226,7 @@ RETRY_PAUSES_S = (0.5, 1.5, 4.0)
 
 
 def _get(url: str, opener: urllib.request.OpenerDirector, timeout_s: float, headers: dict[str, str],
-         name: str | None = None) -> bytes:
+         name: str | None = None) -> tuple[bytes, Mapping[str, str]]:
     """The body of a GET of ``url``, size-capped; :class:`_Unauthorised` on 401, else InputError naming ``name``
     (default the URL) when the server does not give it. A busy or overloaded server (429, 502–504: Google's and
     ion's answer to a burst of tile requests) is asked again after :data:`RETRY_PAUSES_S`, then refused."""
@@ -207,8 +242,9 @@ def _get(url: str, opener: urllib.request.OpenerDirector, timeout_s: float, head
 
 
 def _get_once(url: str, opener: urllib.request.OpenerDirector, timeout_s: float, headers: dict[str, str],
-              name: str | None) -> bytes:
-    """One GET (:func:`_get`); raises the HTTPError of an answer in :data:`_RETRY_CODES`."""
+              name: str | None) -> tuple[bytes, Mapping[str, str]]:
+    """One GET (:func:`_get`): the body and the answer's headers (names in lower case); raises the HTTPError of an answer in
+    :data:`_RETRY_CODES`, and :class:`_NotModified` for a 304."""
     where = url if name is None else name
     request = urllib.request.Request(url, headers={"User-Agent": f"citylod/{__version__}",
                                                    "Accept-Encoding": "identity", **headers})
@@ -224,8 +260,11 @@ def _get_once(url: str, opener: urllib.request.OpenerDirector, timeout_s: float,
                 if total > MAX_ENTRY_BYTES:
                     raise InputError(f"more than {MAX_ENTRY_BYTES:,} bytes; refused", where)
                 chunks.append(chunk)
-            return b"".join(chunks)
+            return b"".join(chunks), {k.lower(): v for k, v in response.headers.items()}
     except urllib.error.HTTPError as exc:
+        if exc.code == 304:
+            raise _NotModified({k.lower(): v for k, v in (exc.headers.items() if exc.headers is not None else [])}) \
+                from None
         if exc.code == 401:
             raise _Unauthorised() from exc
         if exc.code in _RETRY_CODES:
@@ -252,7 +291,7 @@ def open_remote(source: str) -> Remote:
     def ask() -> dict[str, object]:
         """The endpoint's answer (a new short-lived token each time)."""
         try:
-            body = _get(endpoint, urllib.request.build_opener(), TIMEOUT_S, {}, name=source)
+            body = _get(endpoint, urllib.request.build_opener(), TIMEOUT_S, {}, name=source)[0]
         except _Unauthorised:
             raise InputError("Cesium ion refused the access token in CESIUM_ION_TOKEN (HTTP 401)", source) from None
         try:
