@@ -129,9 +129,8 @@ class _Node:
         if future is not None:
             if not future.done() and not wait:
                 return False
-            future.exception()  # waits when asked to
+            exc = future.exception()  # waits when asked to
             del tree.expanding[self.key]
-            exc = future.exception()
             if exc is not None:
                 return self._failed(exc)
         elif self.tile.pending is not None:

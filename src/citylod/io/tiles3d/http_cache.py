@@ -77,6 +77,12 @@ class HttpCache:
         self._db.execute("CREATE TABLE IF NOT EXISTS entry (key TEXT PRIMARY KEY, body BLOB NOT NULL, etag TEXT, "
                          "modified TEXT, expires REAL NOT NULL, used REAL NOT NULL, size INTEGER NOT NULL)")
         self._db.execute("CREATE INDEX IF NOT EXISTS entry_used ON entry (used)")
+        # Bytes held, kept up to date by put (a SUM over the table per stored tile would scan it each time);
+        # counted again from the file before trimming, since other processes share it.
+        self._total = self._sum()
+
+    def _sum(self) -> int:
+        return int(self._db.execute("SELECT COALESCE(SUM(size), 0) FROM entry").fetchone()[0])
 
     def get(self, key: str) -> CachedResponse | None:
         with self._lock:
@@ -92,17 +98,20 @@ class HttpCache:
         if expires is None or len(body) > self.max_bytes:
             return
         with self._lock:
+            was = self._db.execute("SELECT size FROM entry WHERE key = ?", (key,)).fetchone()
             self._db.execute("INSERT OR REPLACE INTO entry VALUES (?, ?, ?, ?, ?, ?, ?)",
                              (key, body, headers.get("etag"), headers.get("last-modified"), expires, time.time(),
                               len(body)))
-            total = self._db.execute("SELECT COALESCE(SUM(size), 0) FROM entry").fetchone()[0]
-            if total > self.max_bytes:  # least recently used out, down to 90 % of the cap
-                drop = total - int(0.9 * self.max_bytes)
+            self._total += len(body) - (was[0] if was else 0)
+            if self._total > self.max_bytes:  # least recently used out, down to 90 % of the cap
+                self._total = self._sum()
+                drop = self._total - int(0.9 * self.max_bytes)
                 for old, size in self._db.execute("SELECT key, size FROM entry ORDER BY used").fetchall():
                     if drop <= 0:
                         break
                     self._db.execute("DELETE FROM entry WHERE key = ?", (old,))
                     drop -= size
+                    self._total -= size
 
     def refresh(self, key: str, headers: Mapping[str, str]) -> None:
         """After a 304: the kept body is current; its freshness follows the new headers."""
@@ -113,7 +122,7 @@ class HttpCache:
 
     def total_bytes(self) -> int:
         with self._lock:
-            return int(self._db.execute("SELECT COALESCE(SUM(size), 0) FROM entry").fetchone()[0])
+            return self._sum()
 
 
 _default: HttpCache | None = None

@@ -103,6 +103,8 @@ class Remote:
         self._renew_lock = threading.Lock()
         self.scheme, self.netloc = parts.scheme, parts.netloc
         self.origin = f"{parts.scheme}://{parts.netloc}"
+        # One opener for every request (the loader's threads share it: it keeps no state between requests).
+        self._opener = urllib.request.build_opener(_SameServer(self.origin))
         self.query = parts.query
         self.timeout_s = TIMEOUT_S if timeout_s is None else timeout_s
         self.root = Path("/citylod-remote") / parts.scheme / parts.netloc.replace(":", "_")
@@ -166,7 +168,7 @@ class Remote:
     def _get_authorised(self, url: str, shown: str, ask: dict[str, str]) -> tuple[bytes, Mapping[str, str]]:
         sent = self.headers
         try:
-            return _get(url, self._opener(), self.timeout_s, {**sent, **ask}, shown)
+            return _get(url, self._opener, self.timeout_s, {**sent, **ask}, shown)
         except _Unauthorised as exc:
             if self._renew is None:
                 raise InputError("HTTP 401 Unauthorized", shown) from exc
@@ -174,7 +176,7 @@ class Remote:
             if self.headers is sent:  # no other thread renewed them meanwhile
                 self.headers = self._renew()
         try:
-            return _get(url, self._opener(), self.timeout_s, {**self.headers, **ask}, shown)
+            return _get(url, self._opener, self.timeout_s, {**self.headers, **ask}, shown)
         except _Unauthorised as exc:
             raise InputError("HTTP 401 Unauthorized, also with a renewed token", shown) from exc
 
@@ -182,20 +184,6 @@ class Remote:
         """0: a remote file's size is known once it is read (no HEAD request per tile)."""
         return 0
 
-    def _opener(self) -> urllib.request.OpenerDirector:
-        origin = self.origin
-
-        class _SameServer(urllib.request.HTTPRedirectHandler):
-            """Follows a redirect only on the tileset's server (a renamed file, a trailing slash)."""
-
-            def redirect_request(self, req, fp, code, msg, headers, newurl):  # type: ignore[no-untyped-def]
-                parts = urllib.parse.urlsplit(urllib.parse.urljoin(req.full_url, newurl))
-                if f"{parts.scheme}://{parts.netloc}" != origin:
-                    raise InputError(f"the server redirects to {newurl}, another server than the tileset's",
-                                     req.full_url)
-                return super().redirect_request(req, fp, code, msg, headers, newurl)
-
-        return urllib.request.build_opener(_SameServer)
 
 
 _SECRET = re.compile(r"(?i)([?&](?:key|api_?key|access_?token|token|signature|sig)=)[^&]*")
@@ -204,6 +192,20 @@ _SECRET = re.compile(r"(?i)([?&](?:key|api_?key|access_?token|token|signature|si
 def redact(url: str) -> str:
     """``url`` as an error message may show it: the values of its keys and tokens replaced by ``…``."""
     return _SECRET.sub(r"\1…", url)
+
+
+class _SameServer(urllib.request.HTTPRedirectHandler):
+    """Follows a redirect only on the tileset's server (a renamed file, a trailing slash)."""
+
+    def __init__(self, origin: str) -> None:
+        super().__init__()
+        self.origin = origin
+
+    def redirect_request(self, req, fp, code, msg, headers, newurl):  # type: ignore[no-untyped-def]
+        parts = urllib.parse.urlsplit(urllib.parse.urljoin(req.full_url, newurl))
+        if f"{parts.scheme}://{parts.netloc}" != self.origin:
+            raise InputError(f"the server redirects to {newurl}, another server than the tileset's", req.full_url)
+        return super().redirect_request(req, fp, code, msg, headers, newurl)
 
 
 class _Unauthorised(Exception):
